@@ -1,0 +1,29 @@
+"""Physical constants in SI units; the unit is part of every name.
+
+The single source of constants: ``factors`` needs them and never imports ``fgnav``;
+``fgnav.constants`` re-exports this module.
+"""
+
+__all__ = [
+    "MU_EARTH_M3_S2", "R_EARTH_M", "J2_EARTH", "R_LIMB_SEED_M", "MU_SUN_M3_S2",
+    "MU_MOON_M3_S2", "AU_M", "C_LIGHT_M_S", "DEG", "ARCSEC", "OMEGA_EARTH_RAD_S",
+]
+
+MU_EARTH_M3_S2 = 3.986004418e14
+"""Earth gravitational parameter (EGM2008), m^3/s^2."""
+R_EARTH_M = 6378137.0
+"""Earth equatorial radius (WGS-84 / EGM2008), m."""
+J2_EARTH = 1.08262668e-3
+"""Earth J2 zonal harmonic (EGM2008), dimensionless."""
+R_LIMB_SEED_M = 6375.0e3
+"""Limb radius used by the seeds for the UV horizon (seed 000/002), m: a parameter, not R_e."""
+MU_SUN_M3_S2 = 1.32712440018e20
+MU_MOON_M3_S2 = 4.9028e12
+AU_M = 1.495978707e11
+C_LIGHT_M_S = 299792458.0
+DEG = 0.017453292519943295
+"""Radians per degree."""
+ARCSEC = DEG / 3600.0
+"""Radians per arcsecond."""
+OMEGA_EARTH_RAD_S = 7.2921150e-5
+"""Earth rotation rate, rad/s."""

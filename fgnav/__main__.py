@@ -1,0 +1,5 @@
+import sys
+
+from fgnav.cli import main
+
+sys.exit(main())

@@ -1,0 +1,50 @@
+"""The ``fgnav`` command line: a thin layer over the library (``build_parser`` + ``main``)."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from fgnav import __version__
+from fgnav.errors import UserError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the parser; every module in ``fgnav.commands`` registers one subcommand."""
+    import fgnav.commands as commands
+
+    parser = argparse.ArgumentParser(
+        prog="fgnav",
+        description="Spacecraft celestial navigation by factor-graph smoothing (GTSAM).",
+    )
+    parser.add_argument("--version", action="version", version=f"fgnav {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        importlib.import_module(f"fgnav.commands.{info.name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        rc = args.func(args)
+    except UserError as exc:
+        print(f"fgnav: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("fgnav: interrupted; outputs already written are complete, none is half-written",
+              file=sys.stderr)
+        return 130
+    return int(rc or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
