@@ -1,0 +1,160 @@
+"""Measurements of one pass, grouped by epoch and by kind, ready for graph assembly.
+
+A :class:`MeasurementLog` (one row per CSV line) becomes a :class:`Pass`: the sorted unique
+epochs ``t_s`` (one state per epoch) and, per measurement family, arrays indexed by the
+epoch index ``k``. Body-frame directions are rotated into ECI with the attitude measured at
+the same epoch (``u_eci = R_eci_from_body u_body``), their variance increased by the
+attitude's (the "known attitude" route of SPEC measurement model 2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgnav.errors import UserError
+
+DIRECTION_KINDS = ("earth_direction", "earth_direction_body")
+STATE_OBSERVING_KINDS = ("earth_direction", "earth_direction_body", "limb_radius", "altitude",
+                         "refraction", "moon_direction_body")
+
+
+@dataclass
+class Family:
+    """One measurement family: rows at epoch indices ``k`` with values and 1σ."""
+
+    k: np.ndarray                 # (M,) epoch index of each row
+    values: dict[str, np.ndarray]  # per-family arrays, first axis M
+    sigma: np.ndarray             # (M,) 1σ in the family's unit
+    line: np.ndarray              # (M,) source line numbers (for messages)
+
+    def __len__(self) -> int:
+        return len(self.k)
+
+    def subset(self, rows: np.ndarray, k_new: int | None = None) -> "Family":
+        """The given rows only; with ``k_new`` their epoch index is replaced (e.g. by 0 to
+        evaluate them on a single state)."""
+        k = self.k[rows] if k_new is None else np.full(len(rows), k_new)
+        return Family(k=k, values={n: v[rows] for n, v in self.values.items()},
+                      sigma=self.sigma[rows], line=self.line[rows])
+
+
+@dataclass
+class Pass:
+    """A pass: unique epochs and the measurement families attached to them."""
+
+    epoch0: np.datetime64
+    t_s: np.ndarray                              # (N,) unique epochs, seconds from epoch0
+    families: dict[str, Family] = field(default_factory=dict)
+    source: str = ""
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def n_epochs(self) -> int:
+        return len(self.t_s)
+
+    def count(self, kind: str) -> int:
+        fam = self.families.get(kind)
+        return 0 if fam is None else len(fam)
+
+    def counts(self) -> dict[str, int]:
+        return {k: len(f) for k, f in self.families.items()}
+
+
+def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
+    """Rotation vectors (M,3) -> rotation matrices (M,3,3) (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=1)
+    M = len(w)
+    K = np.zeros((M, 3, 3))
+    safe = np.where(theta > 1e-300, theta, 1.0)
+    k = w / safe[:, None]
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3)[None] + s * K + (1.0 - c) * (K @ K)
+
+
+def build_pass(log) -> Pass:
+    """Group a :class:`fgnav.io.log_csv.MeasurementLog` by epoch into a :class:`Pass`."""
+    t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
+    kinds = np.asarray(log.kind)
+    xyz = np.asarray(log.xyz, dtype=float)
+    sigma = np.asarray(log.sigma, dtype=float)
+    lines = np.asarray(log.line)
+    p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings))
+
+    def rows(kind):
+        return np.flatnonzero(kinds == kind)
+
+    def fam(kind, idx, values, sig=None):
+        if len(idx):
+            p.families[kind] = Family(k=k_of_row[idx], values=values,
+                                      sigma=sigma[idx] if sig is None else sig, line=lines[idx])
+
+    for kind in ("prior_position", "prior_velocity"):
+        i = rows(kind)
+        fam(kind, i, {"xyz": xyz[i]})
+    i = rows("earth_direction")
+    fam("earth_direction", i, {"u_eci": xyz[i]})
+    i = rows("limb_radius")
+    fam("limb_radius", i, {"rho_rad": xyz[i, 0], "r_limb_m": xyz[i, 1]})
+    i = rows("altitude")
+    fam("altitude", i, {"h_m": xyz[i, 0], "r_ref_m": xyz[i, 1]})
+    i = rows("refraction")
+    if len(i):
+        extra = log.extra
+        gamma = extra["gamma"][i]
+        sig_model = extra.get("sigma_model_m", np.full(len(kinds), np.nan))[i]
+        fam("refraction", i, {"s_eci": xyz[i], "gamma_rad": gamma,
+                              "sigma_model_m": np.nan_to_num(sig_model, nan=0.0)})
+    i = rows("attitude")
+    att_R = {}
+    if len(i):
+        R = _rotvec_to_matrix(xyz[i])
+        fam("attitude", i, {"R_eci_from_body": R})
+        for j, kk in enumerate(k_of_row[i]):
+            att_R[int(kk)] = (R[j], sigma[i][j])
+    for body_kind, eci_kind in (("earth_direction_body", "earth_direction"),):
+        i = rows(body_kind)
+        if not len(i):
+            continue
+        missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_R]
+        if missing:
+            raise UserError(
+                f"{log.path}: {body_kind} rows need an 'attitude' row at the same epoch; "
+                f"none for line(s) {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+        u_eci = np.array([att_R[int(k_of_row[j])][0] @ xyz[j] for j in i])
+        sig = np.hypot(sigma[i], np.array([att_R[int(k_of_row[j])][1] for j in i]))
+        old = p.families.get(eci_kind)
+        new = Family(k=k_of_row[i], values={"u_eci": u_eci}, sigma=sig, line=lines[i])
+        if old is None:
+            p.families[eci_kind] = new
+        else:
+            order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
+            p.families[eci_kind] = Family(
+                k=np.concatenate([old.k, new.k])[order],
+                values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order]},
+                sigma=np.concatenate([old.sigma, sig])[order],
+                line=np.concatenate([old.line, new.line])[order])
+    return p
+
+
+def check_observable(p: Pass) -> None:
+    """Refuse passes that cannot determine an orbit, with a message that says why."""
+    n_obs = sum(p.count(k) for k in STATE_OBSERVING_KINDS if k != "moon_direction_body")
+    if p.count("prior_position") == 0 or p.count("prior_velocity") == 0:
+        if n_obs == 0:
+            raise UserError(f"{p.source}: no measurements that observe the orbit "
+                            f"(found only: {p.counts() or 'nothing'})")
+        raise UserError(
+            f"{p.source}: a first guess of the orbit is needed: add 'prior_position' and "
+            f"'prior_velocity' rows (a priori state with its 1-sigma) at some epoch")
+    if n_obs == 0:
+        raise UserError(
+            f"{p.source}: the log has priors but no measurement that observes the orbit "
+            f"(earth_direction, limb_radius, altitude, refraction); counts: {p.counts()}")
+    if p.count("earth_direction") + p.count("refraction") == 0 and p.count("limb_radius") + \
+            p.count("altitude") < 6:
+        raise UserError(f"{p.source}: no direction data and fewer than 6 range-type "
+                        f"measurements: the orbit is not observable from this log")

@@ -1,0 +1,166 @@
+"""The smoothing job as library calls: log in, solution + metrics + files out.
+
+The CLI (``fgnav smooth``/``demo``) is a thin layer over these functions.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fgnav.errors import UserError
+from fgnav.measurements import Pass, build_pass, check_observable
+from fgnav.solution import Solution
+from fgnav.solvers.batch import SmootherOptions
+
+METHODS = ("batch", "isam2", "fixed-lag", "ekf")
+
+
+def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
+          lag_s: float = 300.0, progress=None) -> Solution:
+    """Run one estimator over a pass (after the observability checks)."""
+    from fgnav.analysis.crb import check_observability
+    from fgnav.solvers.batch import initial_guess, smooth_batch
+    from fgnav.time import j2000_seconds
+
+    if method not in METHODS:
+        raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
+    check_observable(p)
+    model = options.motion_model()
+    check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
+    if method == "batch":
+        return smooth_batch(p, options, progress=progress)
+    if method == "ekf":
+        from fgnav.solvers.ekf import run_ekf
+        return run_ekf(p, options, progress=progress)
+    from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
+    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
+                              progress=progress)
+
+
+def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """Truth states at ``t_s``: exact where the epochs coincide, else cubic Hermite
+    interpolation of position with velocity (and of velocity, linearly between samples)."""
+    idx = np.searchsorted(t_truth, t_s)
+    idx = np.clip(idx, 0, len(t_truth) - 1)
+    exact = np.abs(t_truth[idx] - t_s) < 1e-6
+    if exact.all():
+        return x_truth[idx]
+    if t_s.min() < t_truth[0] - 1e-6 or t_s.max() > t_truth[-1] + 1e-6:
+        raise UserError("the truth does not cover the estimated epochs "
+                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {t_s.min():.1f}..{t_s.max():.1f} s)")
+    from scipy.interpolate import CubicHermiteSpline
+
+    r = CubicHermiteSpline(t_truth, x_truth[:, :3], x_truth[:, 3:], axis=0)
+    return np.column_stack([r(t_s), r.derivative()(t_s)])
+
+
+def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
+    """RMS / final errors and NEES of a solution against truth at its epochs (SI)."""
+    err = sol.x_eci - x_true
+    er, ev = np.linalg.norm(err[:, :3], axis=1), np.linalg.norm(err[:, 3:], axis=1)
+    nees = np.einsum("ki,ki->k", err, np.linalg.solve(sol.P_eci, err[..., None])[..., 0])
+    return {"position_rms_m": float(np.sqrt(np.mean(er ** 2))),
+            "velocity_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
+            "final_position_error_m": float(er[-1]), "final_velocity_error_mps": float(ev[-1]),
+            "nees_mean": float(np.mean(nees)),
+            "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(sol.P_eci[:, :3, :3], axis1=1, axis2=2))))}
+
+
+def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions) -> dict:
+    from fgnav.analysis.crb import cramer_rao_bound
+
+    c = cramer_rao_bound(p, x_ref, options.motion_model())
+    return {"crb_position_rms_m": c.position_rms_m, "crb_velocity_rms_mps": c.velocity_rms_mps,
+            "crb_final_position_m": c.final_position_m, "crb_final_velocity_mps": c.final_velocity_mps}
+
+
+@dataclass
+class SmoothResult:
+    solution: Solution
+    summary: dict
+    x_true: np.ndarray | None
+
+
+def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
+                *, truth_path: str | Path | None = None, lag_s: float = 300.0,
+                progress=None) -> tuple[SmoothResult, Pass]:
+    """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given)."""
+    t0 = time.perf_counter()
+    log = read_measurements(log_path)
+    p = build_pass(log)
+    sol = solve(p, method, options, lag_s=lag_s, progress=progress)
+    sol.wall_s = time.perf_counter() - t0
+    summary = summarize(sol, p, options)
+    x_true = None
+    if truth_path is not None:
+        from fgnav.io.oem import read_oem
+        from fgnav.time import seconds_since
+
+        oem = read_oem(truth_path)
+        t_truth = seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype("timedelta64[ns]")), p.epoch0)
+        x_true = truth_at(np.asarray(t_truth, dtype=float), oem.x_eci, sol.t_s)
+        summary.update(accuracy_metrics(sol, x_true))
+        summary["truth_path"] = str(truth_path)
+    return SmoothResult(sol, summary, x_true), p
+
+
+def read_measurements(path: str | Path):
+    """A measurement log from a CSV v1 file, or a CCSDS TDM (``.tdm`` / ``.kvn``)."""
+    path = Path(path)
+    if not path.exists():
+        raise UserError(f"{path}: no such file")
+    if path.suffix.lower() in (".tdm", ".kvn"):
+        from fgnav.io.tdm import read_tdm
+        return read_tdm(path)
+    from fgnav.io.log_csv import read_log
+    return read_log(path)
+
+
+def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
+    """The summary.json keys every method shares."""
+    s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
+         "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
+         "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
+         "third_body": options.third_body, "source": p.source}
+    s.update(crb_metrics(p, sol.x_eci, options))
+    for k, v in sol.extras.items():
+        if isinstance(v, (int, float, str, bool, list)):
+            s.setdefault(k, v)
+    return s
+
+
+def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
+    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv)."""
+    from fgnav.io.atomic import atomic_write_text
+    from fgnav.io.oem import write_oem
+    from fgnav.io.summary import write_summary
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    sol = res.solution
+    written = []
+    comments = (f"fgnav {sol.method} solution", f"states and marginal covariances at every epoch")
+    write_oem(out / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci, comments=comments)
+    written.append(out / "trajectory.oem")
+    if sol.online_x_eci is not None and sol.method != "ekf":
+        write_oem(out / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
+                  comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
+        written.append(out / "online.oem")
+    lines = ["t_s,kind,component,whitened"]
+    for kind, r in sol.residuals.items():
+        t = p.t_s[p.families[kind].k]
+        lines.extend(f"{t[i]:.6f},{kind},{j},{r[i, j]:.6g}"
+                     for i in range(len(r)) for j in range(r.shape[1]) if np.isfinite(r[i, j]))
+    atomic_write_text(out / "residuals.csv", "\n".join(lines) + "\n")
+    written.append(out / "residuals.csv")
+    if sol.latency_s is not None:
+        atomic_write_text(out / "latency.csv", "t_s,latency_s\n" + "".join(
+            f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
+        written.append(out / "latency.csv")
+    write_summary(out / "summary.json", res.summary)
+    written.append(out / "summary.json")
+    return written

@@ -1,0 +1,211 @@
+"""Batch smoothing of a whole pass: our own Gauss–Newton loop around GTSAM's QR elimination.
+
+Each iteration linearizes every factor at once (vectorized residuals from ``factors/``, the
+motion factor's propagation and STM in numba), hands GTSAM one pre-whitened
+``JacobianFactor`` per epoch on ``(X_k, X_{k+1})`` — the epoch's measurement rows stacked
+over the motion rows ``W [-Phi_k, I]`` with ``W^T W = Q_k^-1`` — and eliminates the chain in
+time order with ``EliminateQR`` (Cholesky refuses this ill-conditioned problem: see
+GTSAM-NOTES.md). The resulting Bayes net gives the update by back-substitution and every
+marginal covariance by the O(N) recursion of :mod:`fgnav.solvers.chain`.
+
+GTSAM's own optimizers call Python factors with a copy of all values, which makes them
+O(N^2) on a pass; this loop is O(N) per iteration.
+
+Convergence from a poor first guess uses continuation on the process noise: solve first with
+a loose white-acceleration PSD, then tighten by ``continuation_factor`` per stage down to the
+requested ``q_m2_s3`` (GTSAM-NOTES.md, "Convergence from a poor first guess").
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from factors.dynamics import MotionModel, propagate, propagate_many, process_noise_sqrt_information
+from fgnav.errors import NotObservableError, UserError
+from fgnav.graph import linearize_all
+from fgnav.measurements import Pass
+from fgnav.solution import Solution
+from fgnav.solvers.chain import back_substitute, chain_marginals
+from fgnav.time import j2000_seconds
+
+DEFAULT_Q_M2_S3 = 1e-12
+"""Default white-acceleration PSD of the motion prior (m^2/s^3): 1e-12 lets the velocity
+wander by sqrt(q t) = 0.12 mm/s over 4 h, far below what direction measurements resolve
+when the dynamics are modelled (two-body + J2); raise it (e.g. 1e-9 ... 1e-7) when forces are
+missing from the model (drag, third body at GEO, manoeuvres)."""
+
+
+@dataclass(frozen=True)
+class SmootherOptions:
+    """Options of the smoothers (SI units)."""
+
+    q_m2_s3: float = DEFAULT_Q_M2_S3
+    third_body: bool = False
+    max_iterations: int = 60
+    q_start_m2_s3: float = 1e-6
+    continuation_factor: float = 1e3
+    tol_position_m: float = 1e-3
+    tol_velocity_mps: float = 1e-6
+    max_step_s: float | None = None
+
+    def motion_model(self) -> MotionModel:
+        kw = {"third_body": self.third_body}
+        if self.max_step_s is not None:
+            kw["max_step_s"] = self.max_step_s
+        return MotionModel(**kw)
+
+
+_UNIT = {}
+
+
+def _unit(dim: int):
+    m = _UNIT.get(dim)
+    if m is None:
+        m = _UNIT[dim] = gtsam.noiseModel.Unit.Create(dim)
+    return m
+
+
+X = gtsam.symbol_shorthand.X
+
+
+def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
+    """First guess of every state: the a-priori state propagated through all epochs.
+
+    Uses the first epoch that has both a ``prior_position`` and a ``prior_velocity`` row.
+    """
+    pp, pv = p.families.get("prior_position"), p.families.get("prior_velocity")
+    if pp is None or pv is None:
+        raise UserError(f"{p.source}: a first guess needs 'prior_position' and 'prior_velocity' rows")
+    common = np.intersect1d(pp.k, pv.k)
+    if len(common) == 0:
+        raise UserError(f"{p.source}: 'prior_position' and 'prior_velocity' must share an epoch")
+    k0 = int(common[0])
+    x0 = np.concatenate([pp.values["xyz"][np.flatnonzero(pp.k == k0)[0]],
+                         pv.values["xyz"][np.flatnonzero(pv.k == k0)[0]]])
+    N = p.n_epochs
+    Xg = np.empty((N, 6))
+    Xg[k0] = x0
+    for k in range(k0 + 1, N):
+        Xg[k] = propagate(Xg[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1])[0]
+    for k in range(k0 - 1, -1, -1):
+        Xg[k] = propagate(Xg[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
+    return Xg
+
+
+@dataclass
+class Linearization:
+    R: np.ndarray        # (N,6,6) conditionals
+    S: np.ndarray        # (N,6,6)
+    d: np.ndarray        # (N,6)
+    chi2_meas: float
+    chi2_motion: float
+    residuals: dict
+
+
+def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
+                            t0_j2000_s: float) -> Linearization:
+    """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
+    N = p.n_epochs
+    k_rows, A_rows, b_rows, residuals, _ = linearize_all(p, Xs)
+    starts = np.searchsorted(k_rows, np.arange(N + 1))
+    dt = np.diff(p.t_s)
+    if N > 1:
+        F, Phi = propagate_many(Xs[:-1], dt, model, t0_j2000_s + p.t_s[:-1])
+        W = process_noise_sqrt_information(dt, q)
+        e_mot = Xs[1:] - F
+        A0_mot = -np.einsum("kij,kjl->kil", W, Phi)
+        b_mot = -np.einsum("kij,kj->ki", W, e_mot)
+    else:
+        W = A0_mot = b_mot = np.zeros((0, 6, 6))
+    graph = gtsam.GaussianFactorGraph()
+    for k in range(N):
+        s, e = starts[k], starts[k + 1]
+        m = e - s
+        if k < N - 1:
+            A0 = np.vstack([A_rows[s:e], A0_mot[k]]) if m else A0_mot[k]
+            A1 = np.vstack([np.zeros((m, 6)), W[k]]) if m else W[k]
+            b = np.concatenate([b_rows[s:e], b_mot[k]]) if m else b_mot[k]
+            graph.push_back(gtsam.JacobianFactor(X(k), A0, X(k + 1), A1, b, _unit(m + 6)))
+        elif m:
+            graph.push_back(gtsam.JacobianFactor(X(k), A_rows[s:e], b_rows[s:e], _unit(m)))
+    ordering = gtsam.Ordering()
+    for k in range(N):
+        ordering.push_back(X(k))
+    try:
+        bn = graph.eliminateSequential(ordering, gtsam.EliminateQR)
+    except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
+        raise NotObservableError(f"{p.source}: the linearized system is singular ({exc}); "
+                                 f"the measurements do not observe every state") from exc
+    R = np.empty((N, 6, 6))
+    S = np.zeros((N, 6, 6))
+    d = np.empty((N, 6))
+    for k in range(N):
+        c = bn.at(k)
+        R[k] = c.R()
+        d[k] = c.d()
+        if k < N - 1:
+            S[k] = c.S()
+    return Linearization(R, S, d, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), residuals)
+
+
+def _check_rank(p: Pass, lin: Linearization) -> None:
+    diag = np.abs(np.diagonal(lin.R, axis1=1, axis2=2))
+    scale = diag.max()
+    bad = np.argwhere(diag < 1e-13 * scale)
+    if len(bad):
+        k, i = bad[0]
+        comp = ["x", "y", "z", "vx", "vy", "vz"][i]
+        raise NotObservableError(
+            f"{p.source}: state component {comp} at t = {p.t_s[k]:.3f} s is not observable "
+            f"(zero pivot in the QR elimination); add measurements or a prior")
+
+
+def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
+                 x_init: np.ndarray | None = None, *, progress=None) -> Solution:
+    """Smooth a whole pass; states and marginal covariances at every epoch.
+
+    progress : optional callable(stage_q, iteration, max_update_m) for progress display.
+    """
+    t_start = time.perf_counter()
+    model = options.motion_model()
+    t0_j2000 = float(j2000_seconds(p.epoch0))
+    Xs = initial_guess(p, model, t0_j2000) if x_init is None else np.array(x_init, dtype=float)
+    q_stages = []
+    q = max(options.q_start_m2_s3, options.q_m2_s3)
+    while q > options.q_m2_s3 * (1 + 1e-9):
+        q_stages.append(q)
+        q /= options.continuation_factor
+    q_stages.append(options.q_m2_s3)
+    iterations = 0
+    converged = False
+    for stage, q in enumerate(q_stages):
+        final = stage == len(q_stages) - 1
+        for _ in range(options.max_iterations):
+            lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000)
+            _check_rank(p, lin)
+            dx = back_substitute(lin.R, lin.S, lin.d)
+            if not np.all(np.isfinite(dx)):
+                raise NotObservableError(f"{p.source}: the Gauss-Newton update is not finite")
+            Xs = Xs + dx
+            iterations += 1
+            step_r = float(np.max(np.abs(dx[:, :3])))
+            step_v = float(np.max(np.abs(dx[:, 3:])))
+            if progress is not None:
+                progress(q, iterations, step_r)
+            tol_scale = 1.0 if final else 100.0
+            if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
+                converged = final
+                break
+    P = chain_marginals(lin.R, lin.S)
+    wall = time.perf_counter() - t_start
+    return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs, P_eci=P,
+                    iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
+                    residuals=lin.residuals,
+                    extras={"converged": bool(converged), "q_m2_s3": options.q_m2_s3,
+                            "q_stages": q_stages, "chi2_measurements": lin.chi2_meas,
+                            "chi2_motion": lin.chi2_motion,
+                            "n_measurement_rows": int(sum(v.size for v in lin.residuals.values()))})
