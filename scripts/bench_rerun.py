@@ -1,0 +1,92 @@
+#!/usr/bin/env python
+"""Time ``fgnav.viz.rerun_log.log_solution`` on a long pass (default 14,400 epochs = 4 h at
+1 s) with truth, Earth-direction rays, residuals and latency; print one JSON object.
+
+    python scripts/bench_rerun.py [--epochs 14400] [--dt 1.0] [--seed 0] [--keep out.rrd]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def kepler_states(t_s, a_m, e, i_rad, raan_rad, argp_rad, M0_rad):
+    """Two-body ECI states (N, 6) from classical elements (Vallado alg. 10)."""
+    from factors.constants import MU_EARTH_M3_S2
+
+    n = np.sqrt(MU_EARTH_M3_S2 / a_m**3)
+    M = M0_rad + n * np.asarray(t_s, float)
+    E = M.copy()
+    for _ in range(50):
+        E -= (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+    cE, sE = np.cos(E), np.sin(E)
+    r_pf = np.stack([a_m * (cE - e), a_m * np.sqrt(1 - e**2) * sE, 0 * E], axis=1)
+    rdot = np.sqrt(MU_EARTH_M3_S2 * a_m) / (a_m * (1 - e * cE))
+    v_pf = np.stack([-rdot * sE, rdot * np.sqrt(1 - e**2) * cE, 0 * E], axis=1)
+    ci, si, cO, sO, cw, sw = (np.cos(i_rad), np.sin(i_rad), np.cos(raan_rad), np.sin(raan_rad),
+                              np.cos(argp_rad), np.sin(argp_rad))
+    Rz_O = np.array([[cO, -sO, 0], [sO, cO, 0], [0, 0, 1]])
+    Rx_i = np.array([[1, 0, 0], [0, ci, -si], [0, si, ci]])
+    Rz_w = np.array([[cw, -sw, 0], [sw, cw, 0], [0, 0, 1]])
+    Q = Rz_O @ Rx_i @ Rz_w
+    return np.concatenate([r_pf @ Q.T, v_pf @ Q.T], axis=1)
+
+
+def synthetic_pass(n, dt_s, seed):
+    """Seed-002-like transfer orbit, RTN-diagonal covariance, estimate = truth + draw."""
+    from fgnav.solution import Solution
+    from fgnav.viz.rerun_log import rtn_rotations
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt_s
+    truth = kepler_states(t, 26_332_437.9, 0.72, np.radians(90.0), 0.0, np.radians(13.75),
+                          np.radians(1.89))
+    R = rtn_rotations(truth)
+    T = np.zeros((n, 6, 6))
+    T[:, :3, :3] = R
+    T[:, 3:, 3:] = R
+    D = np.diag(np.square([60.0, 300.0, 40.0, 0.05, 0.02, 0.01]))
+    P = np.einsum("nji,jk,nkl->nil", T, D, T)
+    x = truth + np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.standard_normal((n, 6)))
+    u = -truth[:, :3] / np.linalg.norm(truth[:, :3], axis=1, keepdims=True)
+    sol = Solution(method="isam2", epoch0=np.datetime64("2024-01-01T00:00:00", "ns"), t_s=t,
+                   x_eci=x, P_eci=P, residuals={"earth_dir": rng.standard_normal((n, 2))},
+                   online_x_eci=x, online_P_eci=P, latency_s=np.abs(rng.normal(2e-3, 5e-4, n)))
+    return sol, truth, {"earth_dir": (t, u)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--epochs", type=int, default=14_400, help="number of epochs")
+    ap.add_argument("--dt", type=float, default=1.0, help="epoch spacing [s]")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs (best is reported)")
+    ap.add_argument("--keep", type=Path, default=None, help="keep the .rrd at this path")
+    args = ap.parse_args(argv)
+
+    from fgnav.viz.rerun_log import log_solution
+
+    sol, truth, meas = synthetic_pass(args.epochs, args.dt, args.seed)
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        path = args.keep or Path(tmp) / "bench.rrd"
+        for _ in range(max(1, args.repeat)):
+            t0 = time.perf_counter()
+            out = log_solution(path, sol, truth_x_eci=truth, measurements=meas)
+            times.append(time.perf_counter() - t0)
+        size = Path(out["path"]).stat().st_size
+    print(json.dumps({"epochs": args.epochs, "log_s": min(times), "log_s_runs": times,
+                      "entities": len(out["entities"]), "file_bytes": size,
+                      "magnification": out["magnification"]}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

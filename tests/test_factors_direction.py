@@ -1,0 +1,166 @@
+"""Direction residuals (factors.direction): truth, Jacobians, angle scale, GTSAM adapters."""
+
+import gtsam
+import numpy as np
+import pytest
+
+from factors.adapters import pad_position_jacobian, whiten
+from factors.constants import DEG
+from factors.direction import (body_direction_residual, earth_direction_residual,
+                               make_body_direction_factor, make_earth_direction_factor,
+                               make_star_direction_factor, star_direction_residual)
+from factors.geometry import so3_exp
+from factors.testing import (check_jacobians, check_linearization, random_positions_m,
+                             random_rotations)
+
+N = 40
+X, A = gtsam.symbol("x", 3), gtsam.symbol("a", 3)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(7001)
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _perturb(u, rng, sigma_rad):
+    """Rotate unit vectors by small random rotations (measurement noise), independent of B."""
+    return np.einsum("nij,nj->ni", so3_exp(sigma_rad * rng.normal(size=u.shape)), u)
+
+
+def test_earth_direction_zero_at_truth_and_angle_scale(rng):
+    r = random_positions_m(rng, N)
+    e, H_r = earth_direction_residual(r, _unit(-r))
+    assert e.shape == (N, 2) and H_r.shape == (N, 2, 3)
+    np.testing.assert_allclose(e, 0.0, atol=1e-15)
+    # a measurement rotated by a known small angle theta gives |e| = sin(theta)
+    theta = 0.01 * DEG
+    axis = _unit(np.cross(r, rng.normal(size=(N, 3))))
+    u_meas = np.einsum("nij,nj->ni", so3_exp(theta * axis), _unit(-r))
+    e, _ = earth_direction_residual(r, u_meas)
+    np.testing.assert_allclose(np.linalg.norm(e, axis=1), np.sin(theta), rtol=1e-12)
+
+
+def test_earth_direction_jacobian(rng):
+    r = random_positions_m(rng, N)
+    u_meas = _perturb(_unit(-r), rng, 0.05)
+    e, H_r = earth_direction_residual(r, u_meas)
+    assert np.all(np.abs(e) > 0)
+    check_jacobians(earth_direction_residual, (r, u_meas), (H_r, None), ("vector", None),
+                    names=("r_eci_m", "u_meas_eci"))
+
+
+def _body_truth(rng):
+    r = random_positions_m(rng, N)
+    R = random_rotations(rng, N)
+    p = random_positions_m(rng, N, 3.6e8, 4.1e8)  # Moon-like distances
+    u_body = np.einsum("nji,nj->ni", R, _unit(p - r))
+    return r, R, p, u_body
+
+
+def test_body_direction_zero_at_truth_and_jacobians(rng):
+    r, R, p, u_body = _body_truth(rng)
+    e, H_r, H_R = body_direction_residual(r, R, p, u_body)
+    np.testing.assert_allclose(e, 0.0, atol=1e-14)
+    # parallax: the spacecraft position moves the predicted Moon direction by ~|r|/|p|
+    assert np.all(np.linalg.norm(H_r, axis=(1, 2)) > 0)
+    u_meas = _perturb(u_body, rng, 0.03)
+    e, H_r, H_R = body_direction_residual(r, R, p, u_meas)
+    check_jacobians(body_direction_residual, (r, R, p, u_meas), (H_r, H_R, None, None),
+                    ("vector", "rot3", None, None),
+                    names=("r_eci_m", "R_eci_from_body", "p_target_eci_m", "u_meas_body"))
+
+
+def test_body_direction_earth_centre_matches_earth_direction(rng):
+    r = random_positions_m(rng, N)
+    R = random_rotations(rng, N)
+    u_meas_eci = _perturb(_unit(-r), rng, 0.02)
+    u_meas_body = np.einsum("nji,nj->ni", R, u_meas_eci)
+    e_b, H_r_b, _ = body_direction_residual(r, R, np.zeros((N, 3)), u_meas_body)
+    e_e, H_r_e = earth_direction_residual(r, u_meas_eci)
+    # same angle, expressed in two tangent bases related by a 2x2 rotation
+    np.testing.assert_allclose(np.linalg.norm(e_b, axis=1), np.linalg.norm(e_e, axis=1),
+                               rtol=1e-12)
+    # B^T B = I - u u^T in both frames, so the information H^T H is the same
+    info_b = np.einsum("nji,njk->nik", H_r_b, H_r_b)
+    info_e = np.einsum("nji,njk->nik", H_r_e, H_r_e)
+    np.testing.assert_allclose(info_b, info_e, rtol=0, atol=1e-12 * np.abs(info_e).max())
+
+
+def test_star_direction_zero_at_truth_and_jacobian(rng):
+    R = random_rotations(rng, N)
+    s = _unit(rng.normal(size=(N, 3)))
+    u_body = np.einsum("nji,nj->ni", R, s)
+    e, H_R = star_direction_residual(R, s, u_body)
+    np.testing.assert_allclose(e, 0.0, atol=1e-15)
+    u_meas = _perturb(u_body, rng, 10.0 / 3600 * DEG)
+    e, H_R = star_direction_residual(R, s, u_meas)
+    check_jacobians(star_direction_residual, (R, s, u_meas), (H_R, None, None),
+                    ("rot3", None, None))
+
+
+def test_star_direction_recovers_attitude_error(rng):
+    """A small known attitude error w shows up as e = -B skew(u) w to first order."""
+    R = random_rotations(rng, N)
+    s = _unit(rng.normal(size=(N, 3)))
+    u_body = np.einsum("nji,nj->ni", R, s)
+    w = 1e-6 * rng.normal(size=(N, 3))
+    e, H_R = star_direction_residual(R @ so3_exp(w), s, u_body)
+    np.testing.assert_allclose(e, np.einsum("nij,nj->ni", H_R, w), atol=1e-11)
+
+
+def test_earth_direction_factor_linearizes_like_numpy(rng):
+    r = random_positions_m(rng, 1)
+    v = rng.normal(size=(1, 3)) * 3e3
+    u_meas = _perturb(_unit(-r), rng, 0.01)
+    sigma = 0.01 * DEG
+    f = make_earth_direction_factor(X, u_meas[0], sigma)
+    values = gtsam.Values()
+    values.insert(X, np.concatenate([r[0], v[0]]))
+    e, H_r = earth_direction_residual(r, u_meas)
+    A_, b = whiten(e, pad_position_jacobian(H_r), sigma)
+    check_linearization(f, values, [A_[0]], b[0])
+    np.testing.assert_allclose(f.unwhitenedError(values), e[0], rtol=1e-12)
+    assert f.error(values) == pytest.approx(0.5 * np.sum((e[0] / sigma) ** 2), rel=1e-12)
+
+
+def test_body_direction_factor_linearizes_like_numpy(rng):
+    r, R, p, u_body = _body_truth(rng)
+    u_meas = _perturb(u_body, rng, 0.01)
+    sigma = np.array([0.02, 0.03]) * DEG
+    f = make_body_direction_factor(X, A, p[0], u_meas[0], sigma)
+    values = gtsam.Values()
+    values.insert(X, np.concatenate([r[0], np.zeros(3)]))
+    values.insert(A, gtsam.Rot3(R[0]))
+    e, H_r, H_R = body_direction_residual(r[:1], R[:1], p[:1], u_meas[:1])
+    (A_x, A_R), b = whiten(e, [pad_position_jacobian(H_r), H_R], sigma[None, :])
+    check_linearization(f, values, [A_x[0], A_R[0]], b[0])
+
+
+def test_star_direction_factor_linearizes_like_numpy(rng):
+    R = random_rotations(rng, 1)
+    s = _unit(rng.normal(size=(1, 3)))
+    u_meas = _perturb(np.einsum("nji,nj->ni", R, s), rng, 1e-4)
+    sigma = 5.0 / 3600 * DEG
+    f = make_star_direction_factor(A, s[0], u_meas[0], sigma)
+    values = gtsam.Values()
+    values.insert(A, gtsam.Rot3(R[0]))
+    e, H_R = star_direction_residual(R, s, u_meas)
+    A_R, b = whiten(e, H_R, sigma)
+    check_linearization(f, values, [A_R[0]], b[0])
+
+
+def test_star_factors_solve_attitude(rng):
+    """Three star factors and a wrong initial attitude: GTSAM recovers the true attitude."""
+    R_true = random_rotations(rng, 1)[0]
+    graph = gtsam.NonlinearFactorGraph()
+    for _ in range(3):
+        s = _unit(rng.normal(size=3))
+        graph.add(make_star_direction_factor(A, s, R_true.T @ s, 1e-5))
+    values = gtsam.Values()
+    values.insert(A, gtsam.Rot3(R_true @ so3_exp(np.array([0.05, -0.03, 0.02]))))
+    result = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
+    np.testing.assert_allclose(result.atRot3(A).matrix(), R_true, atol=1e-9)

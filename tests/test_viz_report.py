@@ -1,0 +1,227 @@
+"""Report plots and files: axes labels/units and plotted data from the matplotlib objects,
+PNG/markdown/HTML outputs, result-directory reading, and the ``fgnav report`` command."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib
+import numpy as np
+import pytest
+
+matplotlib.use("Agg")
+
+from factors.constants import MU_EARTH_M3_S2, R_EARTH_M  # noqa: E402
+from fgnav.errors import InputFormatError, UserError  # noqa: E402
+from fgnav.orbit import rtn_frame  # noqa: E402
+from fgnav.viz import report  # noqa: E402
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def kepler_states(t_s, a_m=R_EARTH_M + 700e3, e=0.01, i=np.radians(97.0), raan=np.radians(77.0),
+                  argp=np.radians(55.0), M0=0.3):
+    """Two-body ECI states (N, 6) from classical elements (Vallado alg. 10, COE2RV)."""
+    n = np.sqrt(MU_EARTH_M3_S2 / a_m**3)
+    M = M0 + n * np.asarray(t_s, float)
+    E = M.copy()
+    for _ in range(50):
+        E -= (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
+    cE, sE = np.cos(E), np.sin(E)
+    r_pf = np.stack([a_m * (cE - e), a_m * np.sqrt(1 - e**2) * sE, 0 * E], axis=1)
+    rdot = np.sqrt(MU_EARTH_M3_S2 * a_m) / (a_m * (1 - e * cE))
+    v_pf = np.stack([-rdot * sE, rdot * np.sqrt(1 - e**2) * cE, 0 * E], axis=1)
+    cO, sO, ci, si, cw, sw = np.cos(raan), np.sin(raan), np.cos(i), np.sin(i), np.cos(argp), np.sin(argp)
+    Q = (np.array([[cO, -sO, 0], [sO, cO, 0], [0, 0, 1]]) @ np.array([[1, 0, 0], [0, ci, -si], [0, si, ci]])
+         @ np.array([[cw, -sw, 0], [sw, cw, 0], [0, 0, 1]]))
+    return np.concatenate([r_pf @ Q.T, v_pf @ Q.T], axis=1)
+
+
+SIG_RTN = np.array([40.0, 150.0, 25.0, 0.15, 0.04, 0.03])
+
+
+def make_data(n=400, dt_s=30.0, seed=2, truth=True):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt_s
+    xt = kepler_states(t)
+    R = rtn_frame(xt)
+    T = np.zeros((n, 6, 6))
+    T[:, :3, :3] = R
+    T[:, 3:, 3:] = R
+    P = np.einsum("nji,jk,nkl->nil", T, np.diag(SIG_RTN**2), T)
+    x = xt + np.einsum("nij,nj->ni", np.linalg.cholesky(P), rng.standard_normal((n, 6)))
+    summary = {"method": "batch", "epochs": n, "wall_s": 1.25, "chi2": 812.5,
+               "crb_position_rms_m": 150.0}
+    if truth:
+        summary.update(position_rms_m=160.2, velocity_rms_mps=0.16, nees_mean=6.1)
+    return report.ResultData(summary=summary, epoch0=np.datetime64("2024-03-01T00:00:00", "ns"),
+                             t_s=t, x_eci=x, P_eci=P, truth_x_eci=xt if truth else None,
+                             residuals={"earth_direction": rng.standard_normal(2 * n),
+                                        "limb_radius": rng.standard_normal(n)},
+                             latency_t_s=t, latency_s=np.abs(rng.normal(3e-3, 1e-3, n)))
+
+
+def test_error_plot_axes_and_data():
+    d = make_data()
+    fig = report.plot_state_errors(d.t_s, d.x_eci, d.P_eci, d.truth_x_eci)
+    axs = fig.axes
+    assert len(axs) == 6
+    assert [a.get_ylabel() for a in axs] == [
+        "R position error [m]", "T position error [m]", "N position error [m]",
+        "R velocity error [m/s]", "T velocity error [m/s]", "N velocity error [m/s]"]
+    assert all(a.get_xlabel() == "time since epoch0 [h]" for a in axs[3:])
+    assert "RTN" in fig.get_suptitle()
+    # along-track axis: the "smoothed error" line is the T component of (x - truth), time in h
+    ax = axs[1]
+    line = [ln for ln in ax.lines if ln.get_label() == "smoothed error"][0]
+    e_t = np.einsum("nj,nj->n", rtn_frame(d.truth_x_eci)[:, 1], d.x_eci[:, :3] - d.truth_x_eci[:, :3])
+    np.testing.assert_allclose(line.get_xdata(), d.t_s / 3600.0)
+    np.testing.assert_allclose(line.get_ydata(), e_t, rtol=1e-12, atol=1e-9)
+    # envelope: +3 sigma of the along-track position = 3 * 150 m
+    env = [ln for ln in ax.lines if np.allclose(ln.get_ydata(), 450.0)]
+    assert env, "no +3 sigma line at 450 m"
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert "smoothed error" in labels and any("3σ" in s for s in labels)
+    # errors drawn from the covariance fall inside 3 sigma ~99.7 % of the time
+    assert np.mean(np.abs(e_t) < 450.0) > 0.98
+
+
+def test_sigma_plot_without_truth():
+    d = make_data(truth=False)
+    fig = report.plot_state_errors(d.t_s, d.x_eci, d.P_eci, None)
+    axs = fig.axes
+    assert axs[0].get_ylabel() == "R position ±3σ [m]"
+    assert axs[5].get_ylabel() == "N velocity ±3σ [m/s]"
+    assert "no truth" in fig.get_suptitle()
+    assert not any(ln.get_label() == "smoothed error" for a in axs for ln in a.lines)
+    top = max(axs[3].lines, key=lambda ln: np.nanmean(ln.get_ydata()))
+    np.testing.assert_allclose(top.get_ydata(), 3 * SIG_RTN[3], rtol=1e-6)
+
+
+def test_residual_histograms():
+    rng = np.random.default_rng(5)
+    res = {"earth_direction": rng.standard_normal(4000), "star": 2.0 * rng.standard_normal(1000)}
+    res["star"][:3] = 50.0     # outliers are counted, not lost
+    fig = report.plot_residual_histograms(res)
+    used = [a for a in fig.axes if a.axison]
+    assert len(used) == 2
+    for ax, kind in zip(used, res):
+        assert ax.get_xlabel() == "whitened residual [σ]"
+        assert ax.get_ylabel() == "probability density"
+        assert ax.get_title().startswith(kind)
+        labels = ax.get_legend_handles_labels()[1]
+        assert "N(0, 1)" in labels
+        heights = np.array([p.get_height() for p in ax.patches])
+        widths = np.array([p.get_width() for p in ax.patches])
+        assert abs(np.sum(heights * widths) - 1.0) < 1e-9    # a density
+    n_out = int(np.sum(np.abs(res["star"]) > 6.0))
+    assert n_out >= 3 and f"{n_out} beyond ±6σ" in used[1].get_title()
+    assert f"std={np.std(res['star']):.2f}" in used[1].get_title()
+    assert "n=4,000, mean=" in used[0].get_title() and "beyond" not in used[0].get_title()
+
+
+def test_orbit_and_latency_plots():
+    d = make_data()
+    ax = report.plot_orbit_3d(d.x_eci, d.truth_x_eci).axes[0]
+    assert (ax.get_xlabel(), ax.get_ylabel(), ax.get_zlabel()) == ("x ECI [km]", "y ECI [km]", "z ECI [km]")
+    assert {"truth", "estimate"} <= set(ax.get_legend_handles_labels()[1])
+    est = [ln for ln in ax.lines if ln.get_label() == "estimate"][0]
+    xs, ys, zs = est.get_data_3d()
+    np.testing.assert_allclose(xs, d.x_eci[:, 0] / 1e3)
+    ax = report.plot_latency(d.latency_t_s, d.latency_s).axes[0]
+    assert ax.get_ylabel() == "update latency [ms]" and ax.get_xlabel() == "time since epoch0 [h]"
+
+
+def test_write_report_files(tmp_path):
+    d = make_data()
+    d.notes.append("a note")
+    res = report.write_report(d, tmp_path / "rep")
+    assert set(res["images"]) == {"errors_rtn", "residuals_hist", "orbit_3d", "latency"}
+    for p in res["images"].values():
+        assert p.read_bytes()[:8] == PNG_MAGIC and p.stat().st_size > 20_000
+    md = res["markdown"].read_text()
+    assert "| position_rms_m | 160.2 | m |" in md
+    assert "| velocity_rms_mps | 0.16 | m/s |" in md
+    assert "| epochs | 400 |  |" in md
+    for name in res["images"]:
+        assert f"]({name}.png)" in md
+    assert "a note" in md
+    html = res["html"].read_text()
+    assert html.count("<img ") == 4 and "<td>position_rms_m</td>" in html
+    # without truth: the sigma plot replaces the error plot
+    res2 = report.write_report(make_data(truth=False), tmp_path / "rep2")
+    assert "sigma_rtn" in res2["images"] and "errors_rtn" not in res2["images"]
+    assert "Truth: no" in res2["markdown"].read_text()
+
+
+def test_states_at_hermite_against_kepler():
+    t = np.arange(0.0, 6000.0, 30.0)
+    x = kepler_states(t)
+    tq = np.concatenate([t[5:-5:7], t[5:-5:7] + 11.3])     # coincident and in-between epochs
+    got = report.states_at(tq, t, x)
+    want = kepler_states(tq)
+    assert np.max(np.linalg.norm(got[:, :3] - want[:, :3], axis=1)) < 0.05      # m
+    assert np.max(np.linalg.norm(got[:, 3:] - want[:, 3:], axis=1)) < 2e-4      # m/s
+    assert np.all(np.isnan(report.states_at([-1.0, 1e5], t, x)))
+
+
+def test_residual_and_latency_csv(tmp_path):
+    p = tmp_path / "residuals.csv"
+    p.write_text("t_s,kind,component,whitened\n0,earth_direction,0,0.5\n0,earth_direction,1,-1.5\n"
+                 "1,limb_radius,0,2\n")
+    r = report.read_residuals_csv(p)
+    np.testing.assert_array_equal(r["earth_direction"], [0.5, -1.5])
+    np.testing.assert_array_equal(r["limb_radius"], [2.0])
+    p.write_text("t,kind,component,whitened\n")
+    with pytest.raises(InputFormatError, match="line 1"):
+        report.read_residuals_csv(p)
+    p.write_text("t_s,kind,component,whitened\n0,earth_direction,0,abc\n")
+    with pytest.raises(InputFormatError, match="line 2.*whitened"):
+        report.read_residuals_csv(p)
+    q = tmp_path / "latency.csv"
+    q.write_text("t_s,latency_s\n0,0.001\n1,0.002\n")
+    t, lat = report.read_latency_csv(q)
+    np.testing.assert_array_equal(lat, [0.001, 0.002])
+
+
+def test_report_command_errors(tmp_path, capsys):
+    from fgnav.cli import main
+
+    assert main(["report", str(tmp_path / "missing")]) == 2
+    assert "not a result directory" in capsys.readouterr().err
+    (tmp_path / "r").mkdir()
+    assert main(["report", str(tmp_path / "r")]) == 2
+    assert "summary.json" in capsys.readouterr().err
+    with pytest.raises(UserError):
+        report.load_result(tmp_path / "r")
+
+
+def _write_oem(path, epoch0, t, x, P=None):
+    oem = pytest.importorskip("fgnav.io.oem")
+    writer = getattr(oem, "write_oem", None)
+    if writer is None:
+        pytest.skip("fgnav.io.oem.write_oem not available")
+    writer(path, epoch0, t, x, P)
+
+
+def test_report_command_end_to_end(tmp_path, capsys):
+    """A result directory as `fgnav smooth --out` writes it, through `fgnav report --json`."""
+    from fgnav.cli import main
+    from fgnav.io.summary import write_summary
+
+    d = make_data(n=200)
+    out = tmp_path / "res"
+    out.mkdir()
+    _write_oem(out / "trajectory.oem", d.epoch0, d.t_s, d.x_eci, d.P_eci)
+    _write_oem(tmp_path / "truth.oem", d.epoch0, d.t_s, d.truth_x_eci)
+    write_summary(out / "summary.json", dict(d.summary, truth_path=str(tmp_path / "truth.oem")))
+    rows = ["t_s,kind,component,whitened"] + [f"{t},earth_direction,{c},{w}" for t, c, w in
+                                              zip(np.repeat(d.t_s, 2), np.tile([0, 1], 200),
+                                                  d.residuals["earth_direction"])]
+    (out / "residuals.csv").write_text("\n".join(rows) + "\n")
+    assert main(["report", str(out), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert set(info["images"]) == {"errors_rtn", "residuals_hist", "orbit_3d"}
+    data = report.load_result(out)
+    np.testing.assert_allclose(data.truth_x_eci, d.truth_x_eci, rtol=1e-9, atol=1e-6)
+    assert len(data.residuals["earth_direction"]) == 400
