@@ -1,0 +1,406 @@
+"""Orbit dynamics for the motion factor: two-body + J2 (+ Sun/Moon) accelerations with analytic
+gradients, a fixed-step RK4 propagator with its exact discrete state-transition matrix, and
+the white-acceleration process noise.
+
+Frames and units: ECI = EME2000, SI (m, s, m/s, m/s^2). State ``x = [r_eci_m; v_eci_mps]``.
+
+The kernels are ``@njit(cache=True)`` and take every constant as an argument; the Python
+wrappers (``accel_j2``, ``propagate``, ...) supply defaults from ``factors.constants`` and a
+``MotionModel``. The batch hot path is ``propagate_many`` (``prange`` over epochs).
+
+Equations
+---------
+Gravity with J2 (Vallado, *Fundamentals of Astrodynamics*, eq. 8-30; M&G eq. 3.19-3.21)::
+
+    a = -mu r / |r|^3 - (3/2) J2 mu Re^2 / |r|^5 * [(1 - 5 z^2/|r|^2) x,
+                                                   (1 - 5 z^2/|r|^2) y,
+                                                   (3 - 5 z^2/|r|^2) z]
+
+written ``a_J2 = -c (r/|r|^5 - 5 z^2 r/|r|^7 + 2 z e_z/|r|^5)``, c = 1.5 J2 mu Re^2, whose
+gradient is (term by term)::
+
+    d a/d r = -mu (I/|r|^3 - 3 r r^T/|r|^5)
+              - c [ I/|r|^5 - 5 r r^T/|r|^7
+                    - 5 (2 z r e_z^T/|r|^7 + z^2 I/|r|^7 - 7 z^2 r r^T/|r|^9)
+                    + 2 (e_z e_z^T/|r|^5 - 5 z e_z r^T/|r|^7) ]
+
+Third body (point mass, with the indirect term; M&G eq. 3.37), s = r_b - r::
+
+    a = mu_b (s/|s|^3 - r_b/|r_b|^3),   d a/d r = mu_b (-I/|s|^3 + 3 s s^T/|s|^5)
+
+RK4 and its STM: for one sub-step h, k1 = f(x), k2 = f(x + h/2 k1), k3 = f(x + h/2 k2),
+k4 = f(x + h k3), x+ = x + h/6 (k1 + 2k2 + 2k3 + k4). With P = d x / d x0 so far and
+F_i = [[0, I], [G_i, 0]] the Jacobian of f at stage i (G_i the gravity gradient), the chain
+rule gives dk1 = F_1 P, dk2 = F_2 (P + h/2 dk1), dk3 = F_3 (P + h/2 dk2),
+dk4 = F_4 (P + h dk3), P+ = P + h/6 (dk1 + 2 dk2 + 2 dk3 + dk4): Phi is the EXACT derivative
+of the discrete map (not an integrated variational equation), so Gauss-Newton on the motion
+factor sees consistent residuals and Jacobians. With third bodies on, the Sun and Moon
+positions are evaluated once per sub-step at its midpoint time t + h/2 and held over the
+stages (the Moon moves ~5 km, 1e-5 of its distance, in a 5 s sub-step).
+
+Default sub-step: ``MotionModel.max_step_s = 5 s``. On the seed-002 transfer orbit
+(perigee altitude ~995 km, the hardest of the seed scenarios for a fixed step), one hour
+from the seed's initial state (just after perigee) gives these RK4 errors against the
+independent DOP853 integrator (``fgnav.orbit.integrate_truth``, rtol 1e-12), position /
+velocity: 5 s: ~0.24 mm / 0.09 um/s; 10 s: 3.8 mm / 1.4 um/s; 30 s: 0.31 m / 0.12 mm/s;
+60 s: 5.2 m / 2 mm/s (global error ~ h^4). 5 s is the largest round step meeting the
+< 1 mm and < 1 um/s per hour budget (tested in tests/test_dynamics.py). Epoch spacings of
+0.1-5 s use a single sub-step, so the budget costs nothing at the seeds' sampling rates.
+On the seed-001 LEO (504 km) 5 s sub-steps give 0.75 mm / 0.75 um/s per hour.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit, prange
+
+from factors.constants import J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, R_EARTH_M
+from factors.ephemeris import moon_position_eci_m_nb, sun_position_eci_m_nb
+
+__all__ = [
+    "MotionModel", "accel_j2", "accel_j2_gradient", "accel_third_body",
+    "accel_third_body_gradient", "propagate", "propagate_many", "propagate_nb",
+    "process_noise", "process_noise_sqrt_information",
+]
+
+
+@dataclass(frozen=True)
+class MotionModel:
+    """Force model of the motion factor (SI).
+
+    mu: Earth GM, m^3/s^2; j2: J2 (0 switches it off); re: J2 reference radius, m;
+    third_body: add Sun and Moon point masses (``factors.ephemeris`` positions);
+    max_step_s: largest RK4 sub-step, s (5 s: < 1 mm per hour on the seed-002 transfer
+    orbit, see the module docstring); mu_sun / mu_moon: GM of the third bodies, m^3/s^2.
+    """
+
+    mu: float = MU_EARTH_M3_S2
+    j2: float = J2_EARTH
+    re: float = R_EARTH_M
+    third_body: bool = False
+    max_step_s: float = 5.0
+    mu_sun: float = MU_SUN_M3_S2
+    mu_moon: float = MU_MOON_M3_S2
+
+    def __post_init__(self):
+        if not (self.max_step_s > 0.0 and math.isfinite(self.max_step_s)):
+            raise ValueError(f"max_step_s must be a positive finite number of seconds, got {self.max_step_s!r}")
+        if not self.mu > 0.0:
+            raise ValueError(f"mu must be positive (m^3/s^2), got {self.mu!r}")
+
+    def args(self):
+        """The tuple (mu, j2, re, third_body, max_step_s, mu_sun, mu_moon) the kernels take."""
+        return (float(self.mu), float(self.j2), float(self.re), bool(self.third_body),
+                float(self.max_step_s), float(self.mu_sun), float(self.mu_moon))
+
+
+# ----------------------------------------------------------------------------- kernels
+
+@njit(cache=True)
+def _gravity(rx, ry, rz, mu, j2, re, a, G, want_grad):
+    """Central + J2 acceleration into a (3,), and if want_grad its gradient into G (3,3)."""
+    r2 = rx * rx + ry * ry + rz * rz
+    r = math.sqrt(r2)
+    ir2 = 1.0 / r2
+    ir3 = ir2 / r
+    ir5 = ir3 * ir2
+    ir7 = ir5 * ir2
+    c = 1.5 * j2 * mu * re * re
+    z2 = rz * rz
+    # a = -mu r/r^3 - c (r/r^5 - 5 z^2 r/r^7 + 2 z e_z/r^5)
+    s = -mu * ir3 - c * (ir5 - 5.0 * z2 * ir7)
+    a[0] = s * rx
+    a[1] = s * ry
+    a[2] = s * rz - c * 2.0 * rz * ir5
+    if want_grad:
+        ir9 = ir7 * ir2
+        rv0 = rx
+        rv1 = ry
+        rv2 = rz
+        # coefficient of I and of r r^T
+        cI = -mu * ir3 - c * (ir5 - 5.0 * z2 * ir7)
+        crr = 3.0 * mu * ir5 - c * (-5.0 * ir7 + 35.0 * z2 * ir9)
+        for i in range(3):
+            ri = rv0 if i == 0 else (rv1 if i == 1 else rv2)
+            for j in range(3):
+                rj = rv0 if j == 0 else (rv1 if j == 1 else rv2)
+                G[i, j] = crr * ri * rj
+            G[i, i] += cI
+        # -c [ -10 z r e_z^T / r^7  - 10 z e_z r^T / r^7 + 2 e_z e_z^T / r^5 ]
+        k = 10.0 * c * rz * ir7
+        G[0, 2] += k * rx
+        G[1, 2] += k * ry
+        G[2, 2] += k * rz
+        G[2, 0] += k * rx
+        G[2, 1] += k * ry
+        G[2, 2] += k * rz
+        G[2, 2] -= 2.0 * c * ir5
+
+
+@njit(cache=True)
+def _third(rx, ry, rz, b, mu_b, a, G, want_grad):
+    """Add the third-body acceleration of a point mass at b (3,) into a, its gradient into G."""
+    sx = b[0] - rx
+    sy = b[1] - ry
+    sz = b[2] - rz
+    s2 = sx * sx + sy * sy + sz * sz
+    s = math.sqrt(s2)
+    is3 = 1.0 / (s2 * s)
+    b2 = b[0] * b[0] + b[1] * b[1] + b[2] * b[2]
+    ib3 = 1.0 / (b2 * math.sqrt(b2))
+    a[0] += mu_b * (sx * is3 - b[0] * ib3)
+    a[1] += mu_b * (sy * is3 - b[1] * ib3)
+    a[2] += mu_b * (sz * is3 - b[2] * ib3)
+    if want_grad:
+        is5 = is3 / s2
+        sv0 = sx
+        sv1 = sy
+        sv2 = sz
+        for i in range(3):
+            si = sv0 if i == 0 else (sv1 if i == 1 else sv2)
+            for j in range(3):
+                sj = sv0 if j == 0 else (sv1 if j == 1 else sv2)
+                G[i, j] += mu_b * 3.0 * si * sj * is5
+            G[i, i] -= mu_b * is3
+
+
+@njit(cache=True)
+def _accel(r0, r1, r2, mu, j2, re, third, sun, moon, mu_sun, mu_moon, a, G, want_grad):
+    _gravity(r0, r1, r2, mu, j2, re, a, G, want_grad)
+    if third:
+        _third(r0, r1, r2, sun, mu_sun, a, G, want_grad)
+        _third(r0, r1, r2, moon, mu_moon, a, G, want_grad)
+
+
+@njit(cache=True)
+def propagate_nb(x0, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, t0, want_stm, x1, Phi):
+    """Kernel of ``propagate``: writes x1 (6,) and, if want_stm, Phi (6,6) (else untouched)."""
+    n = int(math.ceil(abs(dt) / max_step)) if dt != 0.0 else 0
+    for i in range(6):
+        x1[i] = x0[i]
+    if want_stm:
+        for i in range(6):
+            for j in range(6):
+                Phi[i, j] = 1.0 if i == j else 0.0
+    if n == 0:
+        return
+    h = dt / n
+    sun = np.zeros(3)
+    moon = np.zeros(3)
+    a = np.empty(3)
+    G = np.zeros((3, 3))
+    K = np.empty((4, 6))
+    dK = np.empty((4, 6, 6))
+    xs = np.empty(6)
+    M = np.empty((6, 6))
+    coef = (0.0, 0.5, 0.5, 1.0)
+    for step in range(n):
+        if third:
+            tm = t0 + (step + 0.5) * h
+            sun = sun_position_eci_m_nb(tm)
+            moon = moon_position_eci_m_nb(tm)
+        for st in range(4):
+            cst = coef[st] * h
+            if st == 0:
+                for i in range(6):
+                    xs[i] = x1[i]
+            else:
+                for i in range(6):
+                    xs[i] = x1[i] + cst * K[st - 1, i]
+            _accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon,
+                   a, G, want_stm)
+            for i in range(3):
+                K[st, i] = xs[3 + i]
+                K[st, 3 + i] = a[i]
+            if want_stm:
+                # M = P + cst * dK_prev ; dK = [[0, I], [G, 0]] M
+                if st == 0:
+                    for i in range(6):
+                        for j in range(6):
+                            M[i, j] = Phi[i, j]
+                else:
+                    for i in range(6):
+                        for j in range(6):
+                            M[i, j] = Phi[i, j] + cst * dK[st - 1, i, j]
+                for j in range(6):
+                    for i in range(3):
+                        dK[st, i, j] = M[3 + i, j]
+                    m0 = M[0, j]
+                    m1 = M[1, j]
+                    m2 = M[2, j]
+                    for i in range(3):
+                        dK[st, 3 + i, j] = G[i, 0] * m0 + G[i, 1] * m1 + G[i, 2] * m2
+        w = h / 6.0
+        for i in range(6):
+            x1[i] += w * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+        if want_stm:
+            for i in range(6):
+                for j in range(6):
+                    Phi[i, j] += w * (dK[0, i, j] + 2.0 * dK[1, i, j] + 2.0 * dK[2, i, j] + dK[3, i, j])
+
+
+@njit(cache=True, parallel=True)
+def _propagate_many_nb(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, t0, want_stm, X1, Phi):
+    for k in prange(X.shape[0]):
+        propagate_nb(X[k], dt[k], mu, j2, re, third, max_step, mu_sun, mu_moon, t0[k],
+                     want_stm, X1[k], Phi[k])
+
+
+@njit(cache=True)
+def _gravity_many(R, mu, j2, re, want_grad):
+    N = R.shape[0]
+    A = np.empty((N, 3))
+    G = np.zeros((N, 3, 3))
+    for k in range(N):
+        _gravity(R[k, 0], R[k, 1], R[k, 2], mu, j2, re, A[k], G[k], want_grad)
+    return A, G
+
+
+@njit(cache=True)
+def _third_many(R, B, mu_b, want_grad):
+    N = R.shape[0]
+    A = np.zeros((N, 3))
+    G = np.zeros((N, 3, 3))
+    for k in range(N):
+        _third(R[k, 0], R[k, 1], R[k, 2], B[k], mu_b, A[k], G[k], want_grad)
+    return A, G
+
+
+# ----------------------------------------------------------------------------- wrappers
+
+def _as_rows(r, width):
+    r = np.asarray(r, dtype=float)
+    if r.shape[-1] != width or r.ndim not in (1, 2):
+        raise ValueError(f"expected shape ({width},) or (N, {width}), got {r.shape}")
+    return np.ascontiguousarray(np.atleast_2d(r)), r.ndim == 1
+
+
+def accel_j2(r, mu=MU_EARTH_M3_S2, j2=J2_EARTH, re=R_EARTH_M):
+    """Gravity acceleration central + J2 at ``r`` (ECI, m), m/s^2: (3,) -> (3,), (N,3) -> (N,3).
+
+    Includes the two-body term -mu r/|r|^3 (``j2=0`` gives pure two-body); Vallado eq. 8-30.
+    The Earth's pole is taken along ECI z (precession/nutation neglected).
+    """
+    R, single = _as_rows(r, 3)
+    A, _ = _gravity_many(R, float(mu), float(j2), float(re), False)
+    return A[0] if single else A
+
+
+def accel_j2_gradient(r, mu=MU_EARTH_M3_S2, j2=J2_EARTH, re=R_EARTH_M):
+    """Analytic gradient d a / d r (1/s^2) of ``accel_j2``: (3,) -> (3,3), (N,3) -> (N,3,3)."""
+    R, single = _as_rows(r, 3)
+    _, G = _gravity_many(R, float(mu), float(j2), float(re), True)
+    return G[0] if single else G
+
+
+def accel_third_body(r, r_body, mu_body):
+    """Third-body acceleration (m/s^2) on a satellite at ``r`` (ECI, m) from a point mass at
+    ``r_body`` (geocentric ECI, m) with GM ``mu_body`` (m^3/s^2), indirect term included:
+    mu_b ((r_b - r)/|r_b - r|^3 - r_b/|r_b|^3) (M&G eq. 3.37). (3,) or (N,3)."""
+    R, single = _as_rows(r, 3)
+    B = np.ascontiguousarray(np.broadcast_to(np.asarray(r_body, dtype=float), R.shape))
+    A, _ = _third_many(R, B, float(mu_body), False)
+    return A[0] if single else A
+
+
+def accel_third_body_gradient(r, r_body, mu_body):
+    """Gradient wrt ``r`` of ``accel_third_body``: mu_b (-I/|s|^3 + 3 s s^T/|s|^5), s = r_b - r."""
+    R, single = _as_rows(r, 3)
+    B = np.ascontiguousarray(np.broadcast_to(np.asarray(r_body, dtype=float), R.shape))
+    _, G = _third_many(R, B, float(mu_body), True)
+    return G[0] if single else G
+
+
+_DEFAULT_MODEL = MotionModel()
+
+
+def propagate(x0, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, with_stm=True):
+    """Propagate the ECI state ``x0`` (6,) [m, m/s] by ``dt_s`` seconds (may be negative).
+
+    Fixed-step RK4 with n = ceil(|dt|/model.max_step_s) equal sub-steps; ``t0_j2000_s`` is
+    the start time in seconds since J2000 TT (only used for the Sun/Moon positions).
+    Returns ``(x1 (6,), Phi (6,6))`` with Phi = d x1 / d x0 the exact derivative of the
+    discrete RK4 map; ``with_stm=False`` skips it and returns ``(x1, None)``.
+    """
+    x0 = np.ascontiguousarray(x0, dtype=float)
+    if x0.shape != (6,):
+        raise ValueError(f"x0 must have shape (6,), got {x0.shape}")
+    x1 = np.empty(6)
+    Phi = np.empty((6, 6))
+    mu, j2, re, third, hmax, mus, mum = model.args()
+    propagate_nb(x0, float(dt_s), mu, j2, re, third, hmax, mus, mum, float(t0_j2000_s),
+                 bool(with_stm), x1, Phi)
+    return x1, (Phi if with_stm else None)
+
+
+def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, with_stm=True):
+    """Propagate N states at once: X (N,6), dt_s (N,) s, t0_j2000_s (N,) or scalar.
+
+    Returns ``(X1 (N,6), Phi (N,6,6))`` (``Phi`` None if ``with_stm=False``); the epochs run in
+    parallel (numba ``prange``). Same numbers as N calls of ``propagate``.
+    """
+    X = np.ascontiguousarray(X, dtype=float)
+    if X.ndim != 2 or X.shape[1] != 6:
+        raise ValueError(f"X must have shape (N, 6), got {X.shape}")
+    N = X.shape[0]
+    dt = np.ascontiguousarray(np.broadcast_to(np.asarray(dt_s, dtype=float), (N,)))
+    t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(t0_j2000_s, dtype=float), (N,)))
+    X1 = np.empty((N, 6))
+    # without the STM, Phi is never written: a (N,1,1) placeholder keeps the kernel's types
+    Phi = np.empty((N, 6, 6)) if with_stm else np.empty((N, 1, 1))
+    mu, j2, re, third, hmax, mus, mum = model.args()
+    _propagate_many_nb(X, dt, mu, j2, re, third, hmax, mus, mum, t0, bool(with_stm), X1, Phi)
+    return X1, (Phi if with_stm else None)
+
+
+# ----------------------------------------------------------------------------- process noise
+
+def _dt_q(dt_s, q_m2_s3):
+    dt = np.asarray(dt_s, dtype=float)
+    q = np.asarray(q_m2_s3, dtype=float)
+    if np.any(~np.isfinite(dt)):
+        raise ValueError("dt_s must be finite")
+    if np.any(~(q > 0.0)):
+        raise ValueError(f"q_m2_s3 must be positive (m^2/s^3), got {q_m2_s3!r}")
+    dt, q = np.broadcast_arrays(dt, q)
+    return dt, q
+
+
+def process_noise(dt_s, q_m2_s3):
+    """White-acceleration process noise covariance, SI: scalar dt -> (6,6), (N,) -> (N,6,6).
+
+    Q = q [[|dt|^3/3 I, dt|dt|/2 I], [dt|dt|/2 I, |dt| I]] (q = acceleration PSD, m^2/s^3;
+    Bar-Shalom et al., *Estimation with Applications to Tracking*, eq. 6.2.2-12). For dt > 0
+    it is q [[dt^3/3, dt^2/2], [dt^2/2, dt]]; a negative dt (backward step) keeps Q SPD and
+    flips the sign of the position-velocity correlation, as the noise integral requires.
+    """
+    dt, q = _dt_q(dt_s, q_m2_s3)
+    T = np.abs(dt)
+    blk = np.stack([np.stack([T ** 3 / 3.0, dt * T / 2.0], -1),
+                    np.stack([dt * T / 2.0, T], -1)], -2) * q[..., None, None]
+    return np.kron(blk, np.eye(3)) if blk.ndim == 2 else np.einsum("nij,kl->nikjl", blk, np.eye(3)).reshape(-1, 6, 6)
+
+
+def process_noise_sqrt_information(dt_s, q_m2_s3):
+    """Upper-triangular square-root information W (6,6) [or (N,6,6)] with W^T W = Q^{-1}.
+
+    Per axis, Q^{-1} = (1/q) [[12/T^3, -6 s/T^2], [-6 s/T^2, 4/T]] (T = |dt|, s = sign dt),
+    whose upper Cholesky factor is (1/sqrt q) [[2 sqrt3 T^{-3/2}, -s sqrt3 T^{-1/2}],
+    [0, T^{-1/2}]]; W = that block (x) I3 in the [r; v] ordering. Pre-whiten a motion
+    residual as W e and its Jacobians as W H. dt = 0 raises ValueError (Q singular).
+    """
+    dt, q = _dt_q(dt_s, q_m2_s3)
+    if np.any(dt == 0.0):
+        raise ValueError("process noise is singular at dt_s = 0")
+    T = np.abs(dt)
+    s = np.sign(dt)
+    iq = 1.0 / np.sqrt(q)
+    w11 = 2.0 * np.sqrt(3.0) * T ** -1.5 * iq
+    w12 = -s * np.sqrt(3.0) * T ** -0.5 * iq
+    w22 = T ** -0.5 * iq
+    zero = np.zeros_like(T)
+    blk = np.stack([np.stack([w11, w12], -1), np.stack([zero, w22], -1)], -2)
+    return np.kron(blk, np.eye(3)) if blk.ndim == 2 else np.einsum("nij,kl->nikjl", blk, np.eye(3)).reshape(-1, 6, 6)

@@ -1,0 +1,79 @@
+"""Motion factor between consecutive orbit states: x_{k+1} = f(x_k, dt) + w.
+
+f is the RK4 propagator of ``factors.dynamics`` (two-body + J2, optional Sun/Moon), its
+Jacobian the exact discrete state-transition matrix Phi; w ~ N(0, Q) is the
+white-acceleration process noise (``factors.dynamics.process_noise``; SPEC "Motion priors").
+States are ECI [r (m); v (m/s)] on ``gtsam`` Vector6 keys.
+
+Residual (unwhitened, SI)::
+
+    e = x1 - f(x0, dt),   d e / d x0 = -Phi,   d e / d x1 = I.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factors.dynamics import (
+    MotionModel, process_noise, propagate_many, propagate_nb,
+)
+
+__all__ = ["motion_residual", "make_motion_factor"]
+
+_DEFAULT_MODEL = MotionModel()
+
+
+def motion_residual(x0, x1, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0):
+    """Motion-factor residuals for N epoch pairs, vectorized.
+
+    x0, x1: (N,6) ECI states [m, m/s] at t and t + dt; dt_s: (N,) s; t0_j2000_s: (N,) or
+    scalar, start times in s since J2000 TT (Sun/Moon positions). Returns
+    ``e (N,6) = x1 - f(x0)``, ``H0 = -Phi (N,6,6)``, ``H1 = I (N,6,6)``.
+    """
+    x0 = np.ascontiguousarray(x0, dtype=float)
+    x1 = np.asarray(x1, dtype=float)
+    if x0.ndim != 2 or x0.shape[1] != 6 or x1.shape != x0.shape:
+        raise ValueError(f"x0 and x1 must both have shape (N, 6), got {x0.shape} and {x1.shape}")
+    f, Phi = propagate_many(x0, dt_s, model, t0_j2000_s, with_stm=True)
+    N = x0.shape[0]
+    H1 = np.broadcast_to(np.eye(6), (N, 6, 6)).copy()
+    return x1 - f, -Phi, H1
+
+
+def make_motion_factor(key0, key1, dt_s, q_m2_s3, model: MotionModel = _DEFAULT_MODEL,
+                       t0_j2000_s=0.0):
+    """``gtsam.CustomFactor`` for x1 = f(x0, dt) + w on two Vector6 keys.
+
+    key0/key1: keys of the states at t and t + dt_s (s; must be nonzero); q_m2_s3: acceleration
+    PSD of the white-acceleration noise (m^2/s^3); noise model
+    ``Gaussian.Covariance(process_noise(dt_s, q), smart=False)`` (its R equals
+    ``process_noise_sqrt_information``; smart=True would turn it diagonal at small q). The error function calls the numba
+    kernel directly (no per-call Python wrapper work beyond reading the two vectors).
+    """
+    import gtsam
+
+    dt = float(dt_s)
+    if dt == 0.0:
+        raise ValueError("make_motion_factor: dt_s must be nonzero (process noise is singular)")
+    Q = process_noise(dt, q_m2_s3)
+    # smart=False: with the default smart=True GTSAM tests "is Q diagonal?" with an absolute
+    # tolerance (~1e-9), so at small q dt^2 it silently drops the position-velocity
+    # correlation and builds a Diagonal model (wrong by 4x in information at q = 1e-9, dt = 1 s).
+    noise = gtsam.noiseModel.Gaussian.Covariance(Q, False)
+    mu, j2, re, third, hmax, mus, mum = model.args()
+    t0 = float(t0_j2000_s)
+    k0, k1 = int(key0), int(key1)
+
+    def error(this, values, H):
+        x0 = values.atVector(k0)
+        x1 = values.atVector(k1)
+        f = np.empty(6)
+        Phi = np.empty((6, 6))
+        want = H is not None
+        propagate_nb(x0, dt, mu, j2, re, third, hmax, mus, mum, t0, want, f, Phi)
+        if want:
+            H[0] = -Phi
+            H[1] = np.eye(6)
+        return x1 - f
+
+    return gtsam.CustomFactor(noise, [k0, k1], error)
