@@ -12,6 +12,8 @@ Two routes share the residuals of ``factors/``:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from factors.adapters import whiten
@@ -64,15 +66,26 @@ def linearize_altitude(fam, X):
     return fam.k, A, b, e
 
 
-def refraction_sigma(fam) -> np.ndarray:
-    """Tangent-height 1σ (m) of each refraction row: angle error and model error combined."""
-    return refraction_sigma_m(fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"])
+def refraction_sigma(fam, X=None) -> np.ndarray:
+    """Tangent-height 1σ (m) of each refraction row: angle error and model error combined.
+
+    The residual ``e = h_a(r; s, gamma) - h(gamma)`` depends on the measured gamma through
+    both terms, ``de/dgamma = |r.s| sec^2(gamma) + H/gamma``: with the states ``X`` (N, 6)
+    the line-of-sight range ``|r.s|`` is taken at ``X`` (the Monte Carlo of
+    tests/test_factors_refraction.py matches only with it; +13 % on the angle term in LEO).
+    Without ``X`` (single-factor route, no state at hand) the seed's ``H/gamma`` alone is used.
+    """
+    los = 0.0
+    if X is not None:
+        los = np.abs(np.sum(np.asarray(X)[fam.k, :3] * fam.values["s_eci"], axis=1))
+    return refraction_sigma_m(fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"],
+                              los_range_m=los)
 
 
 def linearize_refraction(fam, X):
     e, H_r = refraction_residual(X[fam.k, :3], fam.values["s_eci"], fam.values["gamma_rad"],
                                  np.full(len(fam), R_EARTH_M), np.zeros(len(fam)))
-    A, b = whiten(e, _pad6(H_r), refraction_sigma(fam))
+    A, b = whiten(e, _pad6(H_r), refraction_sigma(fam, X))
     return fam.k, A, b, e
 
 
@@ -87,28 +100,57 @@ LINEARIZERS = {
 """Families the smoothers use, by log kind ('attitude' rows are used by build_pass)."""
 
 
-def linearize_all(p, X):
-    """All measurement rows of a pass, whitened and stacked as scalar rows sorted by epoch.
+PRIOR_KINDS = ("prior_position", "prior_velocity")
 
-    Returns ``k (R,)``, ``A (R, 6)``, ``b (R,)``, the whitened residuals per kind
-    (``e / sigma``, shape (M, m)) and ``row_kind (R,)``, the kind of each row.
+
+@dataclass
+class Rows:
+    """All whitened measurement rows of a pass, as scalar rows sorted by epoch."""
+
+    k: np.ndarray            # (R,) epoch index of each row
+    A: np.ndarray            # (R, 6) whitened Jacobian rows (robust weights applied)
+    b: np.ndarray            # (R,) whitened right-hand side, -e/sigma (weights applied)
+    residuals: dict          # kind -> (M, m) whitened residuals e/sigma (no weights)
+    row_kind: np.ndarray     # (R,) kind of each row
+    weights: dict            # kind -> (M,) robust weight of each measurement (1 without)
+
+
+def linearize_all(p, X, robust=None, rejected=None) -> Rows:
+    """Linearize every measurement family of a pass at the states ``X`` (N, 6).
+
+    ``robust``: a :class:`fgnav.robust.RobustKernel` applied to every measurement except
+    the priors (IRLS: rows scaled by sqrt(w) of the measurement's whitened norm).
+    ``rejected``: kind -> (M,) bool, measurements given zero weight (outliers).
     """
-    ks, As, bs, res, tags = [], [], [], {}, []
+    ks, As, bs, res, tags, wts = [], [], [], {}, [], {}
     for kind, fam in p.families.items():
         fn = LINEARIZERS.get(kind)
         if fn is None:
             continue
         k, A, b, e = fn(fam, X)
         m = A.shape[1]
+        res[kind] = -b.reshape(len(fam), m)  # whitened residual e/sigma
+        if robust is not None and kind not in PRIOR_KINDS:
+            w = robust.weights(np.linalg.norm(b.reshape(len(fam), m), axis=1))
+            sw = np.sqrt(w)
+            A = A * sw[:, None, None]
+            b = b * sw[:, None]
+        else:
+            w = np.ones(len(fam))
+        if rejected is not None and kind in rejected:
+            w = np.where(rejected[kind], 0.0, w)
+            keep = (~rejected[kind]).astype(float)
+            A = A * keep[:, None, None]
+            b = b * keep[:, None]
+        wts[kind] = w
         ks.append(np.repeat(k, m))
         As.append(A.reshape(-1, 6))
         bs.append(b.reshape(-1))
-        res[kind] = -b.reshape(len(fam), m)  # whitened residual e/sigma
         tags.append(np.full(len(fam) * m, kind, dtype=object))
     k = np.concatenate(ks)
     order = np.argsort(k, kind="stable")
-    return (k[order], np.concatenate(As)[order], np.concatenate(bs)[order], res,
-            np.concatenate(tags)[order])
+    return Rows(k[order], np.concatenate(As)[order], np.concatenate(bs)[order], res,
+                np.concatenate(tags)[order], wts)
 
 
 # ---- incremental route ---------------------------------------------------------------
@@ -132,24 +174,37 @@ def make_state_prior_factor(key, sl, mean, sigma):
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(3, float(sigma)), [key], error)
 
 
-def factors_for_rows(kind, fam, rows, key):
-    """CustomFactors (iSAM2 route) for the given rows of a family, all on state ``key``."""
+def factors_for_rows(kind, fam, rows, key, robust=None):
+    """CustomFactors (iSAM2 route) for the given rows of a family, all on state ``key``.
+
+    ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping the noise model of every
+    measurement but the priors.
+    """
+    import gtsam
+
     out = []
+    dim = {"earth_direction": 2}.get(kind, 1)
+
+    def noise(sigma):
+        if robust is None or kind in PRIOR_KINDS:
+            return sigma
+        return robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)))
+
     for j in rows:
         if kind == "prior_position":
             out.append(make_state_prior_factor(key, slice(0, 3), fam.values["xyz"][j], fam.sigma[j]))
         elif kind == "prior_velocity":
             out.append(make_state_prior_factor(key, slice(3, 6), fam.values["xyz"][j], fam.sigma[j]))
         elif kind == "earth_direction":
-            out.append(make_earth_direction_factor(key, fam.values["u_eci"][j], fam.sigma[j]))
+            out.append(make_earth_direction_factor(key, fam.values["u_eci"][j], noise(fam.sigma[j])))
         elif kind == "limb_radius":
             out.append(make_limb_radius_factor(key, fam.values["rho_rad"][j],
-                                               fam.values["r_limb_m"][j], fam.sigma[j]))
+                                               fam.values["r_limb_m"][j], noise(fam.sigma[j])))
         elif kind == "altitude":
             out.append(make_altitude_factor(key, fam.values["h_m"][j], fam.values["r_ref_m"][j],
-                                            fam.sigma[j]))
+                                            noise(fam.sigma[j])))
         elif kind == "refraction":
             sig = refraction_sigma(fam)[j]
             out.append(make_refraction_factor(key, fam.values["s_eci"][j], fam.values["gamma_rad"][j],
-                                              sig, R_EARTH_M, 0.0))
+                                              noise(sig), R_EARTH_M, 0.0))
     return out

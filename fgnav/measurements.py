@@ -158,3 +158,28 @@ def check_observable(p: Pass) -> None:
             p.count("altitude") < 6:
         raise UserError(f"{p.source}: no direction data and fewer than 6 range-type "
                         f"measurements: the orbit is not observable from this log")
+
+
+def fill_gaps(p: Pass, gap_factor: float = 10.0) -> Pass:
+    """Insert measurement-free epochs across long gaps so the solution covers them.
+
+    A gap is a step longer than ``gap_factor`` times the median step; it is filled at the
+    median step. The smoothers then propagate through the gap (motion factors only) and
+    report a covariance that grows into the gap and shrinks when measurements return.
+    """
+    if p.n_epochs < 3:
+        return p
+    dt = np.diff(p.t_s)
+    step = float(np.median(dt))
+    if step <= 0 or not np.any(dt > gap_factor * step):
+        return p
+    extra = [np.arange(p.t_s[i] + step, p.t_s[i + 1] - 0.5 * step, step)
+             for i in np.flatnonzero(dt > gap_factor * step)]
+    t_new = np.unique(np.concatenate([p.t_s, *extra]))
+    remap = np.searchsorted(t_new, p.t_s)
+    fams = {kind: Family(k=remap[f.k], values=f.values, sigma=f.sigma, line=f.line)
+            for kind, f in p.families.items()}
+    n_ins = len(t_new) - p.n_epochs
+    return Pass(epoch0=p.epoch0, t_s=t_new, families=fams, source=p.source,
+                warnings=p.warnings + [f"{n_ins} state epochs inserted across "
+                                       f"{len(extra)} gap(s) longer than {gap_factor * step:g} s"])

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, build_pass, check_observable
+from fgnav.measurements import Pass, build_pass, check_observable, fill_gaps
 from fgnav.solution import Solution
 from fgnav.solvers.batch import SmootherOptions
 
@@ -20,8 +20,12 @@ METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
 
 def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
-          lag_s: float = 300.0, progress=None) -> Solution:
-    """Run one estimator over a pass (after the observability checks)."""
+          lag_s: float = 300.0, progress=None, gap_factor: float | None = 10.0) -> Solution:
+    """Run one estimator over a pass (after the observability checks).
+
+    Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
+    (:func:`fgnav.measurements.fill_gaps`); ``gap_factor=None`` keeps the log's epochs only.
+    """
     from fgnav.analysis.crb import check_observability
     from fgnav.solvers.batch import initial_guess, smooth_batch
     from fgnav.time import j2000_seconds
@@ -29,6 +33,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     check_observable(p)
+    if gap_factor is not None:
+        p = fill_gaps(p, gap_factor)
     model = options.motion_model()
     check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
     if method == "batch":

@@ -20,11 +20,10 @@ from numba import njit
 
 from factors.dynamics import MotionModel, propagate_many
 from fgnav.errors import NotObservableError
-from fgnav.graph import linearize_all
+from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.measurements import Pass
 from fgnav.time import j2000_seconds
 
-PRIOR_KINDS = ("prior_position", "prior_velocity")
 
 
 @njit(cache=True)
@@ -62,10 +61,10 @@ def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionMode
         Phik = cumulative_stm(Phi)
     else:
         Phik = np.eye(6)[None]
-    k, A, _, _, row_kind = linearize_all(p, X_ref)
-    G = np.einsum("ri,rij->rj", A, Phik[k])
+    rows = linearize_all(p, X_ref)
+    G = np.einsum("ri,rij->rj", rows.A, Phik[rows.k])
     J0 = G.T @ G
-    Gm = G[~np.isin(row_kind, PRIOR_KINDS)]
+    Gm = G[~np.isin(rows.row_kind, PRIOR_KINDS)]
     J0_meas = Gm.T @ Gm
     C0 = _scaled_inverse(J0)
     P = np.einsum("kij,jl,kml->kim", Phik, C0, Phik)

@@ -11,12 +11,22 @@ def add_solver_options(p):
     p.add_argument("--third-body", action="store_true",
                    help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")
     p.add_argument("--lag-s", type=float, default=300.0, help="fixed-lag window (s, default 300)")
+    p.add_argument("--robust", choices=["none", "huber", "cauchy"], default="none",
+                   help="robust cost on measurements (batch, isam2, fixed-lag): huber is convex, "
+                        "cauchy rejects gross outliers (default none)")
+    p.add_argument("--robust-k", type=float,
+                   help="robust threshold in sigmas (default 1.345 huber, 2.3849 cauchy)")
+    p.add_argument("--gate", type=float, metavar="P",
+                   help="EKF / iSAM2: reject a measurement whose innovation exceeds the chi-square "
+                        "quantile P of its dimension (e.g. 0.9999)")
 
 
 def solver_options(args):
     from fgnav.solvers.batch import SmootherOptions
 
-    kw = {"third_body": bool(args.third_body)}
+    kw = {"third_body": bool(args.third_body),
+          "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
+          "gate_probability": args.gate}
     if args.process_noise is not None:
         if not args.process_noise > 0:
             from fgnav.errors import UserError

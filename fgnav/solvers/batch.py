@@ -26,7 +26,8 @@ import numpy as np
 
 from factors.dynamics import MotionModel, propagate, propagate_many, process_noise_sqrt_information
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import linearize_all
+from fgnav.graph import PRIOR_KINDS, linearize_all
+from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
@@ -51,6 +52,10 @@ class SmootherOptions:
     tol_position_m: float = 1e-3
     tol_velocity_mps: float = 1e-6
     max_step_s: float | None = None
+    robust: str | None = None          # None | "huber" | "cauchy" (measurements, not priors)
+    robust_k: float | None = None      # kernel threshold in sigmas (default: 95% efficiency)
+    reject_probability: float = 1.0 - 1e-6  # after a robust solve: chi2 gate for rejection
+    gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
@@ -96,6 +101,17 @@ def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
     return Xg
 
 
+def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
+    """Initial covariance from the prior rows at epoch ``k0`` (diagonal, SI)."""
+    P = np.zeros((6, 6))
+    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
+        fam = p.families[kind]
+        j = np.flatnonzero(fam.k == k0)
+        sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
+        P[sl, sl] = np.eye(3) * sig ** 2
+    return P
+
+
 @dataclass
 class Linearization:
     R: np.ndarray        # (N,6,6) conditionals
@@ -104,16 +120,19 @@ class Linearization:
     chi2_meas: float
     chi2_motion: float
     residuals: dict
+    weights: dict
 
 
-def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float):
+def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
+                       robust=None, rejected=None):
     """The pass linearized at ``Xs``: one pre-whitened JacobianFactor per epoch.
 
     Returns the GaussianFactorGraph, the chi-square of the measurement and motion rows, and
-    the whitened measurement residuals per kind.
+    the measurement rows (:class:`fgnav.graph.Rows`: residuals and robust weights per kind).
     """
     N = p.n_epochs
-    k_rows, A_rows, b_rows, residuals, _ = linearize_all(p, Xs)
+    rows = linearize_all(p, Xs, robust, rejected)
+    k_rows, A_rows, b_rows = rows.k, rows.A, rows.b
     starts = np.searchsorted(k_rows, np.arange(N + 1))
     if N > 1:
         dt = np.diff(p.t_s)
@@ -134,7 +153,7 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
             graph.push_back(gtsam.JacobianFactor(X(k), A0, X(k + 1), A1, b, _unit(m + 6)))
         elif m:
             graph.push_back(gtsam.JacobianFactor(X(k), A_rows[s:e], b_rows[s:e], _unit(m)))
-    return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), residuals
+    return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), rows
 
 
 def eliminate_chain(graph, N: int, source: str = ""):
@@ -160,11 +179,12 @@ def eliminate_chain(graph, N: int, source: str = ""):
 
 
 def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
-                            t0_j2000_s: float) -> Linearization:
+                            t0_j2000_s: float, robust=None, rejected=None) -> Linearization:
     """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
-    graph, chi2_meas, chi2_motion, residuals = build_linear_graph(p, Xs, q, model, t0_j2000_s)
+    graph, chi2_meas, chi2_motion, rows = build_linear_graph(p, Xs, q, model, t0_j2000_s, robust,
+                                                              rejected)
     R, S, d = eliminate_chain(graph, p.n_epochs, p.source)
-    return Linearization(R, S, d, chi2_meas, chi2_motion, residuals)
+    return Linearization(R, S, d, chi2_meas, chi2_motion, rows.residuals, rows.weights)
 
 
 def _check_rank(p: Pass, lin: Linearization) -> None:
@@ -195,12 +215,13 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         q_stages.append(q)
         q /= options.continuation_factor
     q_stages.append(options.q_m2_s3)
+    kernel = RobustKernel.create(options.robust, options.robust_k)
     iterations = 0
-    converged = False
-    for stage, q in enumerate(q_stages):
-        final = stage == len(q_stages) - 1
+
+    def converge(q, stage_kernel, rejected, tol_scale):
+        nonlocal Xs, iterations
         for _ in range(options.max_iterations):
-            lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000)
+            lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected)
             _check_rank(p, lin)
             dx = back_substitute(lin.R, lin.S, lin.d)
             if not np.all(np.isfinite(dx)):
@@ -211,10 +232,27 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             step_v = float(np.max(np.abs(dx[:, 3:])))
             if progress is not None:
                 progress(q, iterations, step_r)
-            tol_scale = 1.0 if final else 100.0
             if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
-                converged = final
-                break
+                return lin, True
+        return lin, False
+
+    for stage, q in enumerate(q_stages):
+        final = stage == len(q_stages) - 1
+        # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last stage.
+        stage_kernel = kernel
+        if kernel is not None and kernel.name == "cauchy" and not final:
+            stage_kernel = RobustKernel.create("huber")
+        lin, converged = converge(q, stage_kernel, None, 1.0 if final else 100.0)
+    rejected = None
+    if kernel is not None:
+        # Reject what the kernel exposed as outliers (beyond the chi-square gate of
+        # probability 1 - 1e-6 for its dimension) and refit the rest with the Gaussian model:
+        # the efficiency an M-estimator loses on good data comes back.
+        weights_robust = lin.weights
+        rejected = outlier_mask(lin.residuals, options.reject_probability)
+        lin, converged = converge(q_stages[-1], None, rejected, 1.0)
+        lin.weights = {k: np.where(rejected[k], 0.0, weights_robust[k]) if k in rejected else w
+                       for k, w in weights_robust.items()}
     P = chain_marginals(lin.R, lin.S)
     wall = time.perf_counter() - t_start
     return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs, P_eci=P,
@@ -223,4 +261,27 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                     extras={"converged": bool(converged), "q_m2_s3": options.q_m2_s3,
                             "q_stages": q_stages, "chi2_measurements": lin.chi2_meas,
                             "chi2_motion": lin.chi2_motion,
-                            "n_measurement_rows": int(sum(v.size for v in lin.residuals.values()))})
+                            "n_measurement_rows": int(sum(v.size for v in lin.residuals.values())),
+                            **robust_counts(options, lin.weights)})
+
+
+def outlier_mask(residuals: dict, probability: float) -> dict:
+    """kind -> (M,) bool: measurements whose whitened squared norm exceeds the chi-square
+    quantile ``probability`` of their dimension (priors never)."""
+    out = {}
+    for kind, r in residuals.items():
+        if kind in PRIOR_KINDS:
+            continue
+        out[kind] = np.sum(r * r, axis=1) > chi2_gate(r.shape[1], probability)
+    return out
+
+
+def robust_counts(options: SmootherOptions, weights: dict) -> dict:
+    """Summary entries: how many measurements the robust kernel down-weighted (weight below
+    0.5) and how many were rejected (weight 0), by kind."""
+    if options.robust is None:
+        return {}
+    meas = {k: w for k, w in weights.items() if k not in PRIOR_KINDS}
+    return {"robust": options.robust,
+            "downweighted": {k: int(np.sum((w < DOWNWEIGHTED_BELOW) & (w > 0))) for k, w in meas.items()},
+            "rejected": {k: int(np.sum(w == 0)) for k, w in meas.items()}}

@@ -13,23 +13,13 @@ import time
 import numpy as np
 
 from factors.dynamics import propagate, process_noise
-from fgnav.graph import LINEARIZERS
+from fgnav.graph import LINEARIZERS, PRIOR_KINDS
+from fgnav.robust import chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
-from fgnav.solvers.batch import SmootherOptions, initial_guess
+from fgnav.solvers.batch import SmootherOptions, initial_guess, prior_covariance
 from fgnav.solvers.incremental import rows_by_epoch
 from fgnav.time import j2000_seconds
-
-
-def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
-    """Initial covariance from the prior rows at epoch ``k0`` (diagonal, SI)."""
-    P = np.zeros((6, 6))
-    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
-        fam = p.families[kind]
-        j = np.flatnonzero(fam.k == k0)
-        sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
-        P[sl, sl] = np.eye(3) * sig ** 2
-    return P
 
 
 def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=None) -> Solution:
@@ -46,6 +36,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     latency = np.empty(N)
     eye6 = np.eye(6)
     residuals: dict[str, np.ndarray] = {}  # innovations, whitened, in family row order
+    rejected: dict[str, int] = {}
     for k in range(N):
         t_k0 = time.perf_counter()
         if k > 0:
@@ -58,18 +49,23 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             fn = LINEARIZERS.get(kind)
             if fn is None:
                 continue
-            _, A, b, _ = fn(p.families[kind].subset(rows, 0), x[None])
-            A = A.reshape(-1, 6)
-            b = b.reshape(-1)
-            S = A @ P @ A.T + np.eye(len(b))
-            K = np.linalg.solve(S, A @ P).T
-            x = x + K @ b
-            IKA = eye6 - K @ A
-            P = IKA @ P @ IKA.T + K @ K.T
-            r = -b.reshape(len(rows), -1)
-            if kind not in residuals:
-                residuals[kind] = np.full((len(p.families[kind]), r.shape[1]), np.nan)
-            residuals[kind][rows] = r
+            fam = p.families[kind]
+            for j in rows:  # one measurement at a time: gating decides each
+                _, A, b, _ = fn(fam.subset(np.array([j]), 0), x[None])
+                A = A.reshape(-1, 6)
+                b = b.reshape(-1)
+                S = A @ P @ A.T + np.eye(len(b))
+                if kind not in residuals:
+                    residuals[kind] = np.full((len(fam), len(b)), np.nan)
+                residuals[kind][j] = -b
+                if options.gate_probability is not None and kind not in PRIOR_KINDS:
+                    if b @ np.linalg.solve(S, b) > chi2_gate(len(b), options.gate_probability):
+                        rejected[kind] = rejected.get(kind, 0) + 1
+                        continue
+                K = np.linalg.solve(S, A @ P).T
+                x = x + K @ b
+                IKA = eye6 - K @ A
+                P = IKA @ P @ IKA.T + K @ K.T
         xs[k] = x
         Ps[k] = P
         latency[k] = time.perf_counter() - t_k0
@@ -82,4 +78,6 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     wall_s=wall, residuals=res, online_x_eci=xs.copy(), online_P_eci=Ps.copy(),
                     latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3, "residuals_are": "innovations (prior)",
+                            **({"gate_probability": options.gate_probability, "rejected": rejected}
+                               if options.gate_probability is not None else {}),
                             "latency_p50_s": float(np.median(latency))})

@@ -23,13 +23,15 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.dynamics import propagate
+from factors.dynamics import process_noise, propagate
 from factors.motion import make_motion_factor
 from fgnav.errors import NotObservableError
-from fgnav.graph import factors_for_rows
+from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
+from fgnav.robust import RobustKernel, chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
-from fgnav.solvers.batch import SmootherOptions, initial_guess, linearize_and_eliminate
+from fgnav.solvers.batch import (SmootherOptions, initial_guess, linearize_and_eliminate,
+                                 prior_covariance, robust_counts)
 from fgnav.solvers.chain import chain_marginals
 from fgnav.time import j2000_seconds
 
@@ -93,6 +95,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     lagged_P = np.empty((N, 6, 6))
     oldest = 0
     latency = np.empty(N)
+    kernel = RobustKernel.create(options.robust, options.robust_k)
+    gate = options.gate_probability
+    rejected: dict[str, int] = {}
     for k in range(N):
         t_k0 = time.perf_counter()
         if fixed_lag:
@@ -106,11 +111,16 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             guess = x_prev
         else:
             dt = p.t_s[k] - p.t_s[k - 1]
-            guess = propagate(x_prev, dt, model, t0_j2000 + p.t_s[k - 1])[0]
+            guess, Phi_k = propagate(x_prev, dt, model, t0_j2000 + p.t_s[k - 1])
             graph.add(make_motion_factor(X(k - 1), X(k), dt, options.q_m2_s3, model,
                                          t0_j2000 + p.t_s[k - 1]))
+        if gate is not None:
+            P_pred = (prior_covariance(p) if k == 0 else
+                      Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, options.q_m2_s3))
         for kind, rows in per_epoch[k]:
-            for f in factors_for_rows(kind, p.families[kind], rows, X(k)):
+            if gate is not None and kind not in PRIOR_KINDS:
+                rows = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate, rejected)
+            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel):
                 graph.add(f)
         values.insert(X(k), guess)
         try:
@@ -141,13 +151,13 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             lagged_x[j] = smoother.calculateEstimateVector(X(j))
             lagged_P[j] = smoother.marginalCovariance(X(j))
         x_final, P_final = lagged_x, lagged_P
-        lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000)
+        lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
     else:
         est = isam.calculateEstimate()
         x_final = np.array([est.atVector(X(k)) for k in range(N)])
         # All marginals in O(N): one linearization of the chain at the iSAM2 estimate
         # (isam.marginalCovariance of an old state costs ~0.1-0.25 s each).
-        lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000)
+        lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
         P_final = chain_marginals(lin.R, lin.S)
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final,
@@ -158,4 +168,20 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                             "latency_p50_s": float(np.median(latency)),
                             "latency_p99_s": float(np.percentile(latency, 99)),
                             "latency_max_s": float(latency.max()),
-                            **({"lag_s": inc.lag_s} if fixed_lag else {})})
+                            **({"lag_s": inc.lag_s} if fixed_lag else {}),
+                            **({"gate_probability": gate, "rejected": rejected} if gate else {}),
+                            **robust_counts(options, lin.weights)})
+
+
+def _gate_rows(fam, kind, rows, x_pred, P_pred, probability, rejected):
+    """The rows whose innovation passes the chi-square gate; counts the others."""
+    keep = []
+    for j in rows:
+        _, A, b, _ = LINEARIZERS[kind](fam.subset(np.array([j]), 0), x_pred[None])
+        A, b = A.reshape(-1, 6), b.reshape(-1)
+        S = A @ P_pred @ A.T + np.eye(len(b))
+        if b @ np.linalg.solve(S, b) > chi2_gate(len(b), probability):
+            rejected[kind] = rejected.get(kind, 0) + 1
+        else:
+            keep.append(j)
+    return np.array(keep, dtype=int)
