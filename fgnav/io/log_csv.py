@@ -1,0 +1,602 @@
+"""The logged-pass measurement file, CSV format v1 (users' scripts depend on it: keep exactly).
+
+Format
+------
+A UTF-8 CSV file (an initial byte-order mark is ignored). Lines whose first non-blank
+character is ``#`` are comments; blank lines are ignored. The first other line is the
+header::
+
+    epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m]
+
+The six base columns are required, in this order; the optional extra columns ``gamma`` and
+``sigma_model_m`` (used by ``refraction`` rows) may follow, in any order, each at most
+once. Every row has exactly as many comma-separated fields as the header; whitespace around
+a field is ignored; an empty field is "no value" (read as NaN). ``epoch`` is ISO-8601 UTC
+ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; years
+1678..2261, the range of ``datetime64[ns]``). Numbers
+are decimal (``1``, ``-2.5``, ``6.4e6``).
+
+Kinds (all frames EME2000 = ECI unless "body"; all sigmas 1σ)
+
+========================  ===============================================  ==============
+kind                      x, y, z (and extra columns)                      sigma
+========================  ===============================================  ==============
+``prior_position``        a priori position r_eci, m                       per axis, m
+``prior_velocity``        a priori velocity v_eci, m/s                     per axis, m/s
+``earth_direction``       unit vector spacecraft -> Earth centre, ECI      per tangent
+                                                                           axis, rad
+``limb_radius``           x = apparent angular radius of the limb rho,     rad
+                          rad, in (0, pi/2); y = radius of the limb
+                          sphere R_limb, m (> 0); z empty
+``earth_direction_body``  unit vector to the Earth's centre in the BODY    per tangent
+  (fgnav extension)       frame; needs an attitude (an ``attitude`` row    axis, rad
+                          at the same epoch, or an attitude key)
+``attitude``              rotation vector (axis * angle, rad) of           per axis, rad
+  (fgnav extension)       R_eci_from_body
+``altitude``              x = altimeter height above the reference         m
+  (fgnav extension)       sphere h, m; y = reference radius, m (> 0,
+                          and x + y > 0); z empty
+``sun_direction_body``    unit vector to the Sun, BODY frame               rad
+``moon_direction_body``   unit vector to the Moon, BODY frame              rad
+``refraction``            x,y,z = catalogue star unit vector, ECI;         refraction
+  (fgnav extension)       ``gamma`` = measured refraction angle, rad       angle, rad
+                          (required); ``sigma_model_m`` = 1σ of the
+                          atmosphere-model height error, m (>= 0,
+                          optional)
+========================  ===============================================  ==============
+
+Columns a kind does not use must be empty. ``sigma`` is always required, finite and > 0.
+
+Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the file, the
+1-based line, the column and what was expected, unless stated otherwise)
+
+- header: missing, misnamed or extra columns (only ``gamma``, ``sigma_model_m`` may
+  follow the base six), a repeated column;
+- empty file, or a header and no rows: "no measurements";
+- row-level (``reason`` key used in ``MeasurementLog.dropped``):
+  ``field_count`` wrong number of fields; ``truncated`` the last line has too few fields
+  and no newline at end of file; ``encoding`` a line that is not UTF-8; ``bad_epoch``
+  epoch not ISO-8601 UTC with ``Z``; ``unknown_kind``; ``bad_number`` unparsable number;
+  ``not_finite`` NaN or inf; ``missing_value`` a required field empty;
+  ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0;
+  ``not_unit`` a direction with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are
+  renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
+  <= 0, altitude below the centre, ``sigma_model_m`` < 0; ``epoch_outlier`` an epoch more
+  than 30 days from the median epoch of the file.
+- With ``on_bad_row="drop"`` the row-level errors do not raise: the row is dropped and
+  counted per reason in ``dropped``, with one warning per reason quoting the first case.
+  If no row is left, "no measurements" is raised.
+- exact duplicate rows (same epoch, kind and values): all but the first are dropped with a
+  warning (counted as ``dropped["duplicate"]``).
+- rows out of time order: stably sorted by epoch with a warning giving the number of rows
+  found earlier than a row above them.
+
+``read_log`` returns rows sorted by epoch; ``epoch0`` is the earliest epoch in the file and
+``t_s`` the seconds from it. ``write_log`` writes atomically, numbers as the shortest
+decimal that round-trips exactly (at most 17 significant digits), epochs to the
+microsecond (nanoseconds when needed): read -> write -> read gives identical arrays.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fgnav.errors import InputFormatError, UserError
+
+__all__ = [
+    "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
+    "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL",
+]
+
+BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
+EXTRA_COLUMNS = ("gamma", "sigma_model_m")
+_VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
+
+UNIT_TOL = 1e-6
+"""A direction with | 1 - |u| | above this is an error; below it (and above 1e-12) renormalized."""
+_RENORM_TOL = 1e-12
+EPOCH_OUTLIER_DAYS = 30.0
+"""An epoch further than this from the median epoch of the file is an error, days."""
+
+DIRECTION_KINDS = ("earth_direction", "earth_direction_body", "sun_direction_body",
+                   "moon_direction_body", "refraction")
+
+# Per kind: (usage of x, y, z, gamma, sigma_model_m), 'r' required, 'o' optional, '' empty;
+# and a short description used in messages.
+_KIND_SPEC: dict[str, tuple[tuple[str, str, str, str, str], str]] = {
+    "prior_position": (("r", "r", "r", "", ""), "a priori position, m, EME2000"),
+    "prior_velocity": (("r", "r", "r", "", ""), "a priori velocity, m/s, EME2000"),
+    "earth_direction": (("r", "r", "r", "", ""), "unit vector to Earth centre, EME2000"),
+    "limb_radius": (("r", "r", "", "", ""), "x = limb angular radius, rad; y = limb radius, m"),
+    "earth_direction_body": (("r", "r", "r", "", ""), "unit vector to Earth centre, body"),
+    "attitude": (("r", "r", "r", "", ""), "rotation vector of R_eci_from_body, rad"),
+    "altitude": (("r", "r", "", "", ""), "x = height above sphere, m; y = sphere radius, m"),
+    "sun_direction_body": (("r", "r", "r", "", ""), "unit vector to the Sun, body"),
+    "moon_direction_body": (("r", "r", "r", "", ""), "unit vector to the Moon, body"),
+    "refraction": (("r", "r", "r", "r", "o"),
+                   "star unit vector, EME2000; gamma, rad; sigma_model_m, m"),
+}
+KINDS = tuple(_KIND_SPEC)
+
+_NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
+_NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
+_EPOCH_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$")
+_EPOCH_EXPECTED = "an ISO-8601 UTC epoch YYYY-MM-DDTHH:MM:SS[.fffffffff]Z"
+_HEADER_TEXT = "epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m]"
+_NS_PER_DAY = 86400 * 10**9
+
+
+@dataclass
+class MeasurementLog:
+    """Measurements of one pass, one entry per row (sorted by epoch when read from a file).
+
+    ``t_s`` are seconds from ``epoch0`` (``datetime64[ns]``, UTC); ``kind`` a str array;
+    ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
+    ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``) to (M,) arrays (NaN
+    where empty); ``line`` the 1-based source line of each row (0 when not from a file);
+    ``warnings`` human-readable notes; ``dropped`` rows dropped per reason.
+    """
+
+    path: Any
+    epoch0: np.datetime64
+    t_s: np.ndarray
+    kind: np.ndarray
+    xyz: np.ndarray
+    sigma: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    line: np.ndarray = None
+    warnings: list[str] = field(default_factory=list)
+    dropped: dict[str, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t_s)
+
+    def select(self, kind: str) -> np.ndarray:
+        """Indices (int array, in row order) of the rows of ``kind``."""
+        return np.flatnonzero(self.kind == kind)
+
+    def epochs_unique(self) -> np.ndarray:
+        """Sorted unique epochs, seconds from ``epoch0``."""
+        return np.unique(self.t_s)
+
+    def epochs_utc(self) -> np.ndarray:
+        """Absolute epoch of each row, ``datetime64[ns]`` UTC."""
+        from fgnav.time import add_seconds
+
+        return add_seconds(self.epoch0, self.t_s)
+
+    def counts(self) -> dict[str, int]:
+        """Number of rows per kind (kinds present only)."""
+        kinds, n = np.unique(self.kind, return_counts=True)
+        return {str(k): int(c) for k, c in zip(kinds, n)}
+
+
+class _RowError(Exception):
+    """A row-level problem: reason key + the InputFormatError fields."""
+
+    def __init__(self, reason, column, expected, found):
+        super().__init__(reason)
+        self.reason, self.column, self.expected, self.found = reason, column, expected, found
+
+
+def _fmt_found(v: float) -> str:
+    return repr(float(v))
+
+
+def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Validate the value vector ``v`` = (x, y, z, sigma, gamma, sigma_model_m) of ``kind``.
+
+    NaN means "empty". Returns (values, renormalized); raises :class:`_RowError`.
+    """
+    spec = _KIND_SPEC.get(kind)
+    if spec is None:
+        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
+    usage, what = spec
+    v = np.asarray(v, dtype=float)
+    x, y, z, sigma, _gamma, sigma_model = (float(a) for a in v)  # Python floats: no overflow
+    for j, col in enumerate(_VALUE_COLUMNS):                      # warnings below
+        if np.isinf(v[j]):
+            raise _RowError("not_finite", col, "a finite number", _fmt_found(v[j]))
+    cols_usage = dict(zip(("x", "y", "z", "gamma", "sigma_model_m"), usage))
+    for col, use in cols_usage.items():
+        j = _VALUE_COLUMNS.index(col)
+        if use == "r" and np.isnan(v[j]):
+            raise _RowError("missing_value", col, f"a number ({kind}: {what})", "empty field")
+        if use == "" and not np.isnan(v[j]):
+            raise _RowError("unexpected_value", col, f"an empty field ({kind} does not use "
+                            f"column {col})", _fmt_found(v[j]))
+    if math.isnan(sigma):
+        raise _RowError("missing_value", "sigma", "a 1-sigma > 0", "empty field")
+    if not sigma > 0.0:
+        raise _RowError("bad_sigma", "sigma", "a 1-sigma > 0", _fmt_found(sigma))
+    renorm = False
+    if kind in DIRECTION_KINDS:
+        n = math.hypot(x, y, z)
+        if not abs(1.0 - n) <= UNIT_TOL:
+            raise _RowError("not_unit", "x,y,z", f"a unit vector (| |u| - 1 | <= {UNIT_TOL:g})",
+                            f"|u| = {n!r}")
+        if abs(1.0 - n) > _RENORM_TOL:
+            v = v.copy()
+            v[:3] /= n
+            renorm = True
+    if kind == "limb_radius":
+        if not 0.0 < x < math.pi / 2:
+            raise _RowError("out_of_range", "x", "a limb angular radius in (0, pi/2) rad",
+                            _fmt_found(x))
+        if not y > 0.0:
+            raise _RowError("out_of_range", "y", "a limb-sphere radius > 0 m", _fmt_found(y))
+    if kind == "altitude":
+        if not y > 0.0:
+            raise _RowError("out_of_range", "y", "a reference radius > 0 m", _fmt_found(y))
+        if not x + y > 0.0:
+            raise _RowError("out_of_range", "x", "a height above the centre (x + y > 0), m",
+                            _fmt_found(x))
+    if kind == "refraction" and not math.isnan(sigma_model) and not sigma_model >= 0.0:
+        raise _RowError("out_of_range", "sigma_model_m", "a model 1-sigma >= 0 m",
+                        _fmt_found(sigma_model))
+    return v, renorm
+
+
+def _parse_number(text: str, column: str) -> float:
+    if text == "":
+        return math.nan
+    if _NUMBER_RE.match(text):
+        x = float(text)
+        if not math.isfinite(x):
+            raise _RowError("not_finite", column, "a finite number", text)
+        return x
+    if _NONFINITE_RE.match(text):
+        raise _RowError("not_finite", column, "a finite number", text)
+    raise _RowError("bad_number", column, "a decimal number", text)
+
+
+def _parse_epoch(text: str) -> np.datetime64:
+    from fgnav.time import parse_utc
+
+    if not _EPOCH_RE.match(text):
+        raise _RowError("bad_epoch", "epoch", _EPOCH_EXPECTED, text)
+    try:
+        t = parse_utc(text)
+    except (ValueError, OverflowError):
+        raise _RowError("bad_epoch", "epoch", _EPOCH_EXPECTED + " (a valid date and time)",
+                        text) from None
+    if str(t)[:4] != text[:4]:  # datetime64[ns] wraps silently outside 1678..2261
+        raise _RowError("bad_epoch", "epoch", "a year within 1678..2261", text)
+    return t
+
+
+def _check_header(path, lineno: int, text: str) -> list[str]:
+    cols = [c.strip() for c in text.split(",")]
+    expected = f"the header '{_HEADER_TEXT}'"
+    for i, name in enumerate(BASE_COLUMNS):
+        if i >= len(cols):
+            raise InputFormatError(path, lineno, name, f"{expected}: column '{name}' is missing",
+                                   text)
+        if cols[i] != name:
+            raise InputFormatError(path, lineno, name, f"{expected}: column {i + 1} named "
+                                   f"'{name}'", cols[i])
+    seen = set()
+    for j in range(len(BASE_COLUMNS), len(cols)):
+        c = cols[j]
+        if c not in EXTRA_COLUMNS:
+            raise InputFormatError(path, lineno, c or f"column {j + 1}",
+                                   f"{expected}: extra columns only from "
+                                   f"{', '.join(EXTRA_COLUMNS)}",
+                                   c)
+        if c in seen:
+            raise InputFormatError(path, lineno, c, f"{expected}: each column once",
+                                   f"'{c}' repeated")
+        seen.add(c)
+    return cols
+
+
+def _no_measurements(path, lineno, what):
+    return InputFormatError(path, lineno, None, "at least one measurement row "
+                            f"(header '{_HEADER_TEXT}' then rows)", f"no measurements ({what})")
+
+
+def read_log(path, *, on_bad_row: str = "error") -> MeasurementLog:
+    """Read and validate a measurement log (CSV v1, see the module docstring).
+
+    ``on_bad_row="error"`` raises :class:`~fgnav.errors.InputFormatError` at the first bad
+    row; ``"drop"`` drops bad rows (counts per reason in ``dropped``, a warning each).
+    """
+    if on_bad_row not in ("error", "drop"):
+        raise UserError(f"on_bad_row must be 'error' or 'drop', found {on_bad_row!r}")
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read the measurement log: {exc.strerror or exc}") \
+            from None
+    return _parse_log_bytes(path, data, on_bad_row)
+
+
+def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
+    from fgnav.time import seconds_since
+
+    drop = on_bad_row == "drop"
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    raw_lines = data.split(b"\n")
+    terminated = True
+    if raw_lines and raw_lines[-1] == b"":
+        raw_lines.pop()
+    elif raw_lines:
+        terminated = False
+    n_lines = len(raw_lines)
+
+    dropped: dict[str, int] = {}
+    first_msg: dict[str, str] = {}
+    warnings: list[str] = []
+
+    def bad(lineno, err: _RowError):
+        exc = InputFormatError(path, lineno, err.column, err.expected, err.found)
+        if not drop:
+            raise exc
+        dropped[err.reason] = dropped.get(err.reason, 0) + 1
+        first_msg.setdefault(err.reason, str(exc))
+
+    header = None
+    ncol = 0
+    col_index: dict[str, int] = {}
+    epochs: list[int] = []
+    kinds: list[str] = []
+    values: list[np.ndarray] = []
+    lines: list[int] = []
+    n_renorm = 0
+    for i, raw in enumerate(raw_lines):
+        lineno = i + 1
+        is_last_unterminated = (not terminated) and i == n_lines - 1
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            err = _RowError("encoding", None, "UTF-8 text",
+                            f"byte 0x{raw[exc.start]:02x} at character {exc.start + 1}")
+            if header is None:
+                raise InputFormatError(path, lineno, None, err.expected, err.found) from None
+            bad(lineno, err)
+            continue
+        if text.endswith("\r"):
+            text = text[:-1]
+        stripped = text.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        if header is None:
+            header = _check_header(path, lineno, text)
+            ncol = len(header)
+            col_index = {c: j for j, c in enumerate(header)}
+            continue
+        fields = [s.strip() for s in text.split(",")]
+        try:
+            if len(fields) != ncol:
+                if len(fields) < ncol:
+                    col = header[len(fields)]
+                    if is_last_unterminated:
+                        raise _RowError("truncated", col, f"{ncol} fields ({','.join(header)}); "
+                                        "the last line is truncated (no newline at end of file)",
+                                        f"{len(fields)} fields")
+                else:
+                    col = f"field {ncol + 1}"
+                raise _RowError("field_count", col, f"{ncol} comma-separated fields "
+                                f"({','.join(header)})", f"{len(fields)} fields")
+            t = _parse_epoch(fields[0])
+            kind = fields[1]
+            if kind not in _KIND_SPEC:
+                raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}",
+                                kind)
+            v = np.full(len(_VALUE_COLUMNS), np.nan)
+            for j, col in enumerate(_VALUE_COLUMNS):
+                k = col_index.get(col)
+                if k is not None:
+                    v[j] = _parse_number(fields[k], col)
+            v, renorm = _check_values(kind, v)
+        except _RowError as err:
+            bad(lineno, err)
+            continue
+        n_renorm += renorm
+        epochs.append(int(t.astype(np.int64)))
+        kinds.append(kind)
+        values.append(v)
+        lines.append(lineno)
+
+    if header is None:
+        raise _no_measurements(path, max(n_lines, 1), "empty file" if not n_lines
+                               else "no header line")
+    if not epochs:
+        what = "header only" if not dropped else f"all {sum(dropped.values())} rows dropped"
+        raise _no_measurements(path, n_lines + 1, what)
+
+    ns = np.array(epochs, dtype=np.int64)
+    V = np.array(values)
+    kind_arr = np.array(kinds, dtype=object)
+    line_arr = np.array(lines, dtype=np.int64)
+
+    # Epochs far from the others (median) are errors (a mistyped date).
+    med = int(np.sort(ns)[(len(ns) - 1) // 2])
+    far = np.abs(ns.astype(float) - float(med)) > EPOCH_OUTLIER_DAYS * _NS_PER_DAY  # no overflow
+    if far.any():
+        from fgnav.time import format_utc
+
+        for j in np.flatnonzero(far):
+            days = (int(ns[j]) - med) / _NS_PER_DAY
+            bad(int(line_arr[j]), _RowError(
+                "epoch_outlier", "epoch", f"an epoch within {EPOCH_OUTLIER_DAYS:g} days of the "
+                f"other epochs (median {format_utc(np.datetime64(med, 'ns'))})",
+                f"{format_utc(np.datetime64(int(ns[j]), 'ns'))} ({days:+.1f} days)"))
+        keep = ~far
+        ns, V, kind_arr, line_arr = ns[keep], V[keep], kind_arr[keep], line_arr[keep]
+        if not len(ns):
+            raise _no_measurements(path, n_lines + 1, f"all {sum(dropped.values())} rows dropped")
+
+    for reason, n in dropped.items():
+        warnings.append(f"dropped {n} row(s) ({reason}); first: {first_msg[reason]}")
+    if n_renorm:
+        warnings.append(f"{path}: {n_renorm} direction(s) with | |u| - 1 | in ({_RENORM_TOL:g}, "
+                        f"{UNIT_TOL:g}] renormalized")
+
+    # Exact duplicate rows: keep the first.
+    seen: dict[tuple, int] = {}
+    dup = np.zeros(len(ns), dtype=bool)
+    first_dup = None
+    for j in range(len(ns)):
+        key = (int(ns[j]), kind_arr[j], V[j].tobytes())
+        if key in seen:
+            dup[j] = True
+            if first_dup is None:
+                first_dup = (int(line_arr[j]), int(line_arr[seen[key]]))
+        else:
+            seen[key] = j
+    if dup.any():
+        n = int(dup.sum())
+        dropped["duplicate"] = dropped.get("duplicate", 0) + n
+        warnings.append(f"{path}: dropped {n} exact duplicate row(s) (first: line {first_dup[0]} "
+                        f"repeats line {first_dup[1]})")
+        keep = ~dup
+        ns, V, kind_arr, line_arr = ns[keep], V[keep], kind_arr[keep], line_arr[keep]
+
+    ns, V, kind_arr, line_arr, w = _sort_rows(ns, V, kind_arr, line_arr, path)
+    if w:
+        warnings.append(w)
+
+    epoch0 = np.datetime64(int(ns[0]), "ns")
+    t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
+    return MeasurementLog(
+        path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(str), xyz=V[:, :3].copy(),
+        sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
+        line=line_arr, warnings=warnings, dropped=dropped)
+
+
+def _sort_rows(ns, V, kind_arr, line_arr, path):
+    """Stable sort by epoch; returns the arrays and a warning (or None)."""
+    if len(ns) < 2 or np.all(np.diff(ns) >= 0):
+        return ns, V, kind_arr, line_arr, None
+    running_max = np.maximum.accumulate(ns)
+    late = ns[1:] < running_max[:-1]
+    n = int(late.sum())
+    first = int(line_arr[1:][late][0])
+    order = np.argsort(ns, kind="stable")
+    msg = (f"{path}: {n} row(s) out of time order (first at line {first}); rows stably "
+           "sorted by epoch")
+    return ns[order], V[order], kind_arr[order], line_arr[order], msg
+
+
+def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
+                    path="<arrays>") -> MeasurementLog:
+    """Build a validated :class:`MeasurementLog` from arrays (same rules as :func:`read_log`).
+
+    ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
+    str; ``xyz`` (M, 3) with NaN for unused fields; ``sigma`` (M,); ``extra`` optional dict
+    of (M,) arrays for ``gamma`` / ``sigma_model_m``. Rows are stably sorted by epoch and
+    directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
+    raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
+    """
+    from fgnav.time import parse_utc
+
+    if isinstance(epoch0, str):
+        epoch0 = parse_utc(epoch0)
+    epoch0 = np.datetime64(epoch0, "ns")
+    t_s = np.asarray(t_s, dtype=float).reshape(-1)
+    M = len(t_s)
+    kind_arr = np.asarray(kind).astype(str).reshape(-1)
+    xyz = np.asarray(xyz, dtype=float)
+    sigma = np.asarray(sigma, dtype=float).reshape(-1)
+    if kind_arr.shape != (M,) or xyz.shape != (M, 3) or sigma.shape != (M,):
+        raise UserError(f"log_from_arrays: shapes must be t_s (M,), kind (M,), xyz (M, 3), "
+                        f"sigma (M,); found {t_s.shape}, {kind_arr.shape}, {xyz.shape}, "
+                        f"{sigma.shape}")
+    if M == 0:
+        raise UserError("log_from_arrays: no measurements")
+    if not np.all(np.abs(t_s) < 1e9):  # also rejects NaN / inf
+        raise UserError("log_from_arrays: t_s must be finite and within 1e9 s of epoch0")
+    extra = dict(extra or {})
+    unknown = set(extra) - set(EXTRA_COLUMNS)
+    if unknown:
+        raise UserError(f"log_from_arrays: unknown extra column(s) {sorted(unknown)}; "
+                        f"expected only {EXTRA_COLUMNS}")
+    E = np.full((M, len(EXTRA_COLUMNS)), np.nan)
+    for j, c in enumerate(EXTRA_COLUMNS):
+        if c in extra:
+            a = np.asarray(extra[c], dtype=float).reshape(-1)
+            if a.shape != (M,):
+                raise UserError(f"log_from_arrays: extra[{c!r}] must have shape ({M},), "
+                                f"found {a.shape}")
+            E[:, j] = a
+    V = np.concatenate([xyz, sigma[:, None], E], axis=1)
+    for i in range(M):
+        try:
+            V[i], _ = _check_values(str(kind_arr[i]), V[i])
+        except _RowError as err:
+            found = "" if err.found is None else f", found {err.found!r}"
+            raise UserError(f"log_from_arrays: row {i}, column '{err.column}': expected "
+                            f"{err.expected}{found}") from None
+    from fgnav.time import add_seconds
+
+    ns = add_seconds(epoch0, t_s).astype(np.int64)
+    line = np.zeros(M, dtype=np.int64)
+    order = np.argsort(ns, kind="stable")
+    warnings = []
+    if np.any(np.diff(ns) < 0):
+        warnings.append(f"{path}: rows out of time order; stably sorted by epoch")
+    V = V[order]
+    return MeasurementLog(
+        path=path, epoch0=epoch0, t_s=t_s[order], kind=kind_arr[order], xyz=V[:, :3].copy(),
+        sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
+        line=line, warnings=warnings, dropped={})
+
+
+def _fmt(v: float) -> str:
+    return "" if math.isnan(v) else repr(float(v))
+
+
+def _fmt_epoch(ns: int) -> str:
+    from fgnav.time import format_utc
+
+    t = np.datetime64(int(ns), "ns")
+    if ns % 1000 == 0:
+        return format_utc(t)
+    return np.datetime_as_string(t, unit="ns") + "Z"
+
+
+def write_log(path, log: MeasurementLog, *, comments=()) -> None:
+    """Write ``log`` to ``path`` (CSV v1) atomically; rows in the log's order.
+
+    The extra columns are written only when some row uses them. Each row is validated
+    first (a log that cannot be read back is never written).
+    """
+    from fgnav.io.atomic import atomic_writer
+    from fgnav.time import add_seconds
+
+    M = len(log.t_s)
+    kind = np.asarray(log.kind).astype(str)
+    xyz = np.asarray(log.xyz, dtype=float)
+    sigma = np.asarray(log.sigma, dtype=float)
+    extra = {c: np.asarray(log.extra[c], dtype=float) for c in EXTRA_COLUMNS
+             if c in (log.extra or {})}
+    unknown = set(log.extra or {}) - set(EXTRA_COLUMNS)
+    if unknown:
+        raise UserError(f"write_log: unknown extra column(s) {sorted(unknown)}")
+    used = [c for c in EXTRA_COLUMNS if c in extra and np.any(~np.isnan(extra[c]))]
+    ns = add_seconds(log.epoch0, log.t_s).astype(np.int64)
+    header = list(BASE_COLUMNS) + used
+    out = ["# fgnav measurement log, CSV format v1 (see fgnav.io.log_csv)\n"]
+    out += [f"# {c}\n" for c in comments]
+    out.append(",".join(header) + "\n")
+    for i in range(M):
+        v = np.array([*xyz[i], sigma[i]] + [extra[c][i] if c in extra else np.nan
+                                            for c in EXTRA_COLUMNS])
+        try:
+            _check_values(str(kind[i]), v)
+        except _RowError as err:
+            raise UserError(f"write_log: row {i}, column '{err.column}': expected "
+                            f"{err.expected}, found {err.found!r}") from None
+        row = [_fmt_epoch(int(ns[i])), str(kind[i]), _fmt(xyz[i, 0]), _fmt(xyz[i, 1]),
+               _fmt(xyz[i, 2]), _fmt(sigma[i])] + [_fmt(extra[c][i]) for c in used]
+        out.append(",".join(row) + "\n")
+    with atomic_writer(path, "w") as f:
+        f.write("".join(out))

@@ -1,0 +1,482 @@
+"""CCSDS Orbit Ephemeris Message (OEM), KVN form (CCSDS 502.0-B-3, "Orbit Data Messages").
+
+Written (``write_oem``, atomically)::
+
+    CCSDS_OEM_VERS = 2.0
+    COMMENT ...                      (optional, one per comment)
+    CREATION_DATE = 2024-03-01T12:00:00.000000
+    ORIGINATOR = FGNAV
+
+    META_START
+    OBJECT_NAME = FGNAV
+    OBJECT_ID = UNKNOWN
+    CENTER_NAME = EARTH
+    REF_FRAME = EME2000
+    TIME_SYSTEM = UTC
+    START_TIME = <first epoch>
+    STOP_TIME = <last epoch>
+    META_STOP
+
+    <epoch> X Y Z X_DOT Y_DOT Z_DOT     km, km/s (one line per epoch)
+
+    COVARIANCE_START                    (only when a covariance is given)
+    EPOCH = <epoch>
+    COV_REF_FRAME = EME2000
+    C_XX                                lower triangle of the 6x6 covariance, one row
+    C_YX C_YY                           per line: km**2, km**2/s, km**2/s**2
+    ...
+    COVARIANCE_STOP
+
+Epochs are CCSDS ASCII time code A, ``YYYY-MM-DDThh:mm:ss.ffffff`` (microseconds, or
+nanoseconds when needed), UTC. Positions are written with 9 decimals in km (1 µm),
+velocities with 12 decimals in km/s, covariance entries with 17 significant digits; the
+covariance written is the symmetric part (P + P^T)/2, and an epoch whose covariance is not
+finite gets no block.
+
+Read (``read_oem``): versions 1.0-3.0; calendar (``YYYY-MM-DD``) or day-of-year
+(``YYYY-DDD``) epochs with or without ``Z``; ephemeris lines of 7 fields (or 10, with
+accelerations, which are ignored); several segments are concatenated in file order.
+Supported: ``TIME_SYSTEM = UTC``, ``CENTER_NAME = EARTH``, ``REF_FRAME`` EME2000 / GCRF /
+ICRF (treated as the same inertial frame, as in the rest of fgnav) and a ``COV_REF_FRAME``
+equal to the segment's ``REF_FRAME``; anything else is an
+:class:`~fgnav.errors.InputFormatError` naming the line, as is any malformed line, a missing
+required keyword, epochs not increasing inside a segment or outside START/STOP_TIME.
+Covariance blocks are matched to ephemeris epochs exactly; ``P_eci`` is ``None`` when the
+file has none, otherwise (N, 6, 6) with NaN for epochs without one
+(``meta["covariance_missing"]`` counts them, ``meta["covariance_unmatched"]`` counts blocks at
+epochs with no ephemeris line).
+
+(The PyPI ``oem`` package reads and writes OEM with covariance but pulls in astropy and
+lxml and reports errors without line numbers; this small module is used instead.)
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fgnav.errors import InputFormatError, UserError
+
+__all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch"]
+
+_M_PER_KM = 1000.0
+_INERTIAL_FRAMES = ("EME2000", "GCRF", "ICRF")
+_META_REQUIRED = ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM",
+                  "START_TIME", "STOP_TIME")
+_META_OPTIONAL = ("REF_FRAME_EPOCH", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
+                  "INTERPOLATION", "INTERPOLATION_DEGREE")
+_HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
+
+_EPOCH_RE = re.compile(
+    r"^(\d{4})-(?:(\d{2})-(\d{2})|(\d{3}))T(\d{2}):(\d{2}):(\d{2})(?:\.(\d+))?Z?$")
+_NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
+_KVN_RE = re.compile(r"^([A-Z][A-Z0-9_]*)\s*=\s*(.*?)\s*$")
+_EPOCH_EXPECTED = "a CCSDS epoch YYYY-MM-DDThh:mm:ss[.f] or YYYY-DDDThh:mm:ss[.f]"
+
+
+@dataclass
+class OemData:
+    """An OEM read back in SI: ``epoch0`` (datetime64[ns] UTC, the first epoch), ``t_s`` (N,)
+    s from it, ``x_eci`` (N, 6) [m, m/s], ``P_eci`` (N, 6, 6) SI or None, ``meta``."""
+
+    epoch0: np.datetime64
+    t_s: np.ndarray
+    x_eci: np.ndarray
+    P_eci: np.ndarray | None
+    meta: dict = field(default_factory=dict)
+
+
+def parse_ccsds_epoch(text: str) -> np.datetime64:
+    """CCSDS ASCII time (calendar or day-of-year form, optional ``Z``) -> datetime64[ns].
+
+    Fractions beyond nanoseconds are truncated. Raises ``ValueError`` if malformed.
+    """
+    from fgnav.time import parse_utc
+
+    m = _EPOCH_RE.match(text.strip())
+    if m is None:
+        raise ValueError(f"not a CCSDS epoch: {text!r}")
+    year, month, day, doy, hh, mm, ss, frac = m.groups()
+    if doy is not None:
+        d = int(doy)
+        try:
+            base = np.datetime64(f"{year}-01-01", "D")
+        except ValueError:
+            raise ValueError(f"not a valid date: {text!r}") from None
+        date = base + np.timedelta64(d - 1, "D")
+        if d < 1 or str(date)[:4] != year:
+            raise ValueError(f"day of year out of range: {text!r}")
+        day_text = str(date)
+    else:
+        day_text = f"{year}-{month}-{day}"
+    frac_text = f".{frac[:9]}" if frac else ""
+    try:
+        t = parse_utc(f"{day_text}T{hh}:{mm}:{ss}{frac_text}Z")
+    except OverflowError:
+        raise ValueError(f"epoch out of range: {text!r}") from None
+    if str(t)[:4] != year:  # datetime64[ns] wraps silently outside 1678..2261
+        raise ValueError(f"epoch out of range (years 1678..2261): {text!r}")
+    return t
+
+
+def format_ccsds_epoch(t64) -> str:
+    """datetime64 -> ``YYYY-MM-DDThh:mm:ss.ffffff`` (UTC, microseconds; ns when needed)."""
+    from fgnav.time import format_utc
+
+    t = np.datetime64(t64, "ns")
+    ns = int(t.astype(np.int64))
+    if ns % 1000 == 0:
+        return format_utc(t)[:-1]
+    return np.datetime_as_string(t, unit="ns")
+
+
+def _read_lines(path) -> list[tuple[int, str]]:
+    """(line number, text without line end) of every line; UTF-8 (ASCII in practice)."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as exc:
+        raise UserError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    out = []
+    for i, raw in enumerate(data.split(b"\n")):
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise InputFormatError(path, i + 1, None, "ASCII/UTF-8 text",
+                                   f"byte 0x{raw[exc.start]:02x}") from None
+        out.append((i + 1, text.rstrip("\r")))
+    return out
+
+
+def _kvn(path, lineno, text, context):
+    """Split ``KEY = value``; raise naming the line if it is not one."""
+    m = _KVN_RE.match(text.strip())
+    if m is None:
+        raise InputFormatError(path, lineno, None, f"a 'KEYWORD = value' line ({context})",
+                               text.strip())
+    return m.group(1), m.group(2)
+
+
+def _epoch(path, lineno, column, text):
+    try:
+        return parse_ccsds_epoch(text)
+    except ValueError:
+        raise InputFormatError(path, lineno, column, _EPOCH_EXPECTED, text) from None
+
+
+def _number(path, lineno, column, text, scale=1.0):
+    """Parse a decimal number and multiply by ``scale`` (unit conversion); finite or raise."""
+    if not _NUMBER_RE.match(text):
+        raise InputFormatError(path, lineno, column, "a decimal number", text)
+    x = float(text) * scale  # Python floats: overflow gives inf, no warning
+    if not math.isfinite(x):
+        raise InputFormatError(path, lineno, column, "a finite number (in range for SI units)",
+                               text)
+    return x
+
+
+_STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
+
+
+def read_oem(path) -> OemData:
+    """Read an OEM (KVN) file into SI arrays (see the module docstring for what is accepted)."""
+    from fgnav.time import seconds_since
+
+    lines = _read_lines(path)
+    it = iter([(n, t) for n, t in lines if t.strip()])
+    meta: dict = {"comments": [], "segments": []}
+
+    # --- header
+    first = next(it, None)
+    if first is None:
+        raise InputFormatError(path, 1, "CCSDS_OEM_VERS", "an OEM starting with "
+                               "'CCSDS_OEM_VERS = 2.0'", "empty file")
+    n0, t0 = first
+    key, val = _kvn(path, n0, t0, "the first line is CCSDS_OEM_VERS = 2.0")
+    if key != "CCSDS_OEM_VERS":
+        raise InputFormatError(path, n0, key, "CCSDS_OEM_VERS = 2.0 as the first line", t0.strip())
+    if val not in ("1.0", "2.0", "3.0"):
+        raise InputFormatError(path, n0, "CCSDS_OEM_VERS", "version 1.0, 2.0 or 3.0", val)
+    meta["CCSDS_OEM_VERS"] = val
+
+    epochs: list[int] = []
+    states: list[list[float]] = []
+    covs: list[tuple[int, int, np.ndarray]] = []  # (epoch ns, line, P in SI)
+    segment = None
+    state = "header"
+    last_line = n0
+    cov_epoch = cov_line = None
+    cov_vals: list[float] = []
+    seg_epochs: list[int] = []
+
+    def close_segment(lineno):
+        if segment is None:
+            return
+        if not seg_epochs:
+            raise InputFormatError(path, lineno, None, "at least one ephemeris data line in the "
+                                   "segment", "none")
+
+    def finish_cov_block(lineno):
+        if cov_epoch is None:
+            return
+        if len(cov_vals) != 21:
+            raise InputFormatError(path, lineno, "covariance", "21 lower-triangular covariance "
+                                   "values after EPOCH", f"{len(cov_vals)} values")
+        P = np.zeros((6, 6))
+        P[np.tril_indices(6)] = cov_vals
+        P = P + np.tril(P, -1).T
+        covs.append((cov_epoch, cov_line, P))
+
+    for lineno, text in it:
+        last_line = lineno
+        s = text.strip()
+        if s.startswith("COMMENT"):
+            if s == "COMMENT" or s[7] in " \t":
+                (segment or meta).setdefault("comments", []).append(s[7:].strip())
+                continue
+        if state == "header":
+            if s == "META_START":
+                for k in ("CREATION_DATE", "ORIGINATOR"):
+                    if k not in meta:
+                        raise InputFormatError(path, lineno, k, f"header keyword {k} before "
+                                               "META_START", "META_START")
+                state = "meta"
+                segment = {"comments": [], "line": lineno}
+                continue
+            key, val = _kvn(path, lineno, text, "OEM header")
+            if key not in _HEADER_KEYS:
+                raise InputFormatError(path, lineno, key, "a header keyword (CREATION_DATE, "
+                                       "ORIGINATOR, MESSAGE_ID, COMMENT) or META_START", s)
+            if key == "CREATION_DATE":
+                _epoch(path, lineno, key, val)
+            meta[key] = val
+            continue
+        if state == "meta":
+            if s == "META_STOP":
+                for k in _META_REQUIRED:
+                    if k not in segment:
+                        raise InputFormatError(path, lineno, k, f"metadata keyword {k} before "
+                                               "META_STOP", "META_STOP")
+                state = "data"
+                seg_epochs = []
+                meta["segments"].append(segment)
+                continue
+            key, val = _kvn(path, lineno, text, "OEM metadata")
+            if key not in _META_REQUIRED + _META_OPTIONAL:
+                raise InputFormatError(path, lineno, key, "an OEM metadata keyword "
+                                       f"({', '.join(_META_REQUIRED + _META_OPTIONAL)})", s)
+            if key in segment:
+                raise InputFormatError(path, lineno, key, "each metadata keyword once",
+                                       f"{key} repeated")
+            if key == "TIME_SYSTEM" and val != "UTC":
+                raise InputFormatError(path, lineno, key, "TIME_SYSTEM = UTC (the only time "
+                                       "system fgnav reads)", val)
+            if key == "CENTER_NAME" and val.upper() != "EARTH":
+                raise InputFormatError(path, lineno, key, "CENTER_NAME = EARTH", val)
+            if key == "REF_FRAME" and val not in _INERTIAL_FRAMES:
+                raise InputFormatError(path, lineno, key, "REF_FRAME = EME2000 (or GCRF, ICRF)",
+                                       val)
+            if key in ("START_TIME", "STOP_TIME", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
+                       "REF_FRAME_EPOCH"):
+                segment[key + "_ns"] = int(_epoch(path, lineno, key, val).astype(np.int64))
+            segment[key] = val
+            continue
+        if s == "META_START" and state in ("data", "cov_done"):
+            close_segment(lineno)
+            state = "meta"
+            segment = {"comments": [], "line": lineno}
+            continue
+        if state == "data":
+            if s == "COVARIANCE_START":
+                close_segment(lineno)
+                state = "cov"
+                cov_epoch = None
+                cov_vals = []
+                continue
+            parts = s.split()
+            if len(parts) not in (7, 10):
+                raise InputFormatError(path, lineno, None, "an ephemeris line 'epoch X Y Z X_DOT "
+                                       "Y_DOT Z_DOT' (7 fields, or 10 with accelerations), "
+                                       "META_START or COVARIANCE_START",
+                                       f"{len(parts)} fields: {s[:60]!r}")
+            t = int(_epoch(path, lineno, "epoch", parts[0]).astype(np.int64))
+            vals = [_number(path, lineno, _STATE_COLS[j], p, _M_PER_KM)
+                    for j, p in enumerate(parts[1:])]
+            if seg_epochs and t <= seg_epochs[-1]:
+                raise InputFormatError(path, lineno, "epoch", "epochs increasing within a "
+                                       "segment", parts[0])
+            if not segment["START_TIME_ns"] <= t <= segment["STOP_TIME_ns"]:
+                raise InputFormatError(path, lineno, "epoch", "an epoch between START_TIME "
+                                       f"{segment['START_TIME']} and STOP_TIME "
+                                       f"{segment['STOP_TIME']}", parts[0])
+            seg_epochs.append(t)
+            epochs.append(t)
+            states.append(vals[:6])
+            continue
+        if state == "cov":
+            if s == "COVARIANCE_STOP":
+                finish_cov_block(lineno)
+                cov_epoch = None
+                state = "cov_done"
+                continue
+            if "=" in s:
+                key, val = _kvn(path, lineno, text, "OEM covariance section")
+                if key == "EPOCH":
+                    finish_cov_block(lineno)
+                    cov_epoch = int(_epoch(path, lineno, key, val).astype(np.int64))
+                    cov_line = lineno
+                    cov_vals = []
+                    continue
+                if key == "COV_REF_FRAME":
+                    if cov_epoch is None or cov_vals:
+                        raise InputFormatError(path, lineno, key, "COV_REF_FRAME right after "
+                                               "EPOCH", s)
+                    if val != segment["REF_FRAME"]:
+                        raise InputFormatError(path, lineno, key, "COV_REF_FRAME equal to the "
+                                               f"segment's REF_FRAME {segment['REF_FRAME']} "
+                                               "(other covariance frames are not supported)", val)
+                    continue
+                raise InputFormatError(path, lineno, key, "EPOCH, COV_REF_FRAME, covariance "
+                                       "rows or COVARIANCE_STOP", s)
+            if cov_epoch is None:
+                raise InputFormatError(path, lineno, "EPOCH", "'EPOCH = ...' before covariance "
+                                       "rows", s[:60])
+            parts = s.split()
+            n_before = len(cov_vals)
+            # Rows of the lower triangle: after k full rows (k(k+1)/2 values) row k+1 has k+1.
+            k = 0
+            while k * (k + 1) // 2 < n_before:
+                k += 1
+            if k * (k + 1) // 2 != n_before or len(parts) != k + 1 or k >= 6:
+                raise InputFormatError(path, lineno, f"covariance row {k + 1}",
+                                       f"{k + 1} values (row {k + 1} of the lower triangle)"
+                                       if k < 6 else "EPOCH or COVARIANCE_STOP after 6 rows",
+                                       f"{len(parts)} values")
+            for j, p in enumerate(parts):
+                cov_vals.append(_number(path, lineno, f"covariance row {k + 1}, value {j + 1}", p,
+                                        _M_PER_KM**2))
+            continue
+        if state == "cov_done":
+            raise InputFormatError(path, lineno, None, "META_START (a new segment) or end of file"
+                                   " after COVARIANCE_STOP", s[:60])
+        raise AssertionError(state)  # pragma: no cover (all states handled above)
+
+    if state == "header":
+        raise InputFormatError(path, last_line + 1, "META_START", "a segment (META_START ... "
+                               "META_STOP, then ephemeris lines)", "end of file")
+    if state == "meta":
+        raise InputFormatError(path, last_line + 1, "META_STOP", "META_STOP closing the "
+                               "metadata", "end of file")
+    if state == "cov":
+        raise InputFormatError(path, last_line + 1, "COVARIANCE_STOP", "COVARIANCE_STOP closing "
+                               "the covariance section", "end of file")
+    if state == "data":
+        close_segment(last_line + 1)
+
+    ns = np.array(epochs, dtype=np.int64)
+    X = np.array(states, dtype=float)  # already in m, m/s
+    epoch0 = np.datetime64(int(ns[0]), "ns")
+    t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
+    P = None
+    if covs:
+        P = np.full((len(ns), 6, 6), np.nan)
+        index = {}
+        for j, t in enumerate(ns.tolist()):
+            index.setdefault(t, []).append(j)
+        unmatched = 0
+        for t, _line, Pk in covs:
+            js = index.get(t)
+            if js is None:
+                unmatched += 1
+                continue
+            for j in js:
+                P[j] = Pk  # already in m**2, m**2/s, m**2/s**2
+        meta["covariance_missing"] = int(np.isnan(P[:, 0, 0]).sum())
+        meta["covariance_unmatched"] = unmatched
+    first_seg = meta["segments"][0]
+    for k in _META_REQUIRED + _META_OPTIONAL:
+        if k in first_seg:
+            meta.setdefault(k, first_seg[k])
+    return OemData(epoch0=epoch0, t_s=t_s, x_eci=X, P_eci=P, meta=meta)
+
+
+def _check_meta_value(name, value):
+    value = str(value)
+    if not value.strip() or any(c in value for c in "\r\n="):
+        raise UserError(f"write_oem: {name} must be a non-empty single-line value without "
+                        f"'=', found {value!r}")
+    return value.strip()
+
+
+def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
+              object_id="UNKNOWN", originator="FGNAV", center_name="EARTH",
+              ref_frame="EME2000", time_system="UTC", comments=(), creation_date=None) -> None:
+    """Write states (and covariances) as a CCSDS OEM 2.0 KVN file, atomically.
+
+    ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (N,) s from ``epoch0``, increasing;
+    ``x_eci`` (N, 6) [m, m/s] in ``ref_frame``; ``P_eci`` (N, 6, 6) SI or None; an epoch
+    whose covariance has a NaN/inf gets no covariance block (read back as NaN). Written in
+    km, km/s, km**2 (see the module docstring). ``creation_date`` (datetime64) defaults to now.
+    """
+    from fgnav.io.atomic import atomic_writer
+    from fgnav.time import add_seconds, parse_utc
+
+    if isinstance(epoch0, str):
+        epoch0 = parse_utc(epoch0)
+    t_s = np.asarray(t_s, dtype=float).reshape(-1)
+    x = np.asarray(x_eci, dtype=float)
+    N = len(t_s)
+    if N == 0 or x.shape != (N, 6):
+        raise UserError(f"write_oem: need t_s (N,) and x_eci (N, 6) with N >= 1; found "
+                        f"{t_s.shape}, {x.shape}")
+    if not (np.all(np.isfinite(t_s)) and np.all(np.isfinite(x))):
+        raise UserError("write_oem: t_s and x_eci must be finite")
+    t64 = add_seconds(epoch0, t_s)
+    if np.any(np.diff(t64.astype(np.int64)) <= 0):
+        raise UserError("write_oem: epochs must be strictly increasing")
+    P = None
+    if P_eci is not None:
+        P = np.asarray(P_eci, dtype=float)
+        if P.shape != (N, 6, 6):
+            raise UserError(f"write_oem: P_eci must have shape ({N}, 6, 6), found {P.shape}")
+        P = 0.5 * (P + np.swapaxes(P, 1, 2))
+    if time_system != "UTC":
+        raise UserError(f"write_oem: only TIME_SYSTEM = UTC is supported, found {time_system!r}")
+    names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
+             "REF_FRAME": ref_frame, "TIME_SYSTEM": time_system, "ORIGINATOR": originator}
+    names = {k: _check_meta_value(k, v) for k, v in names.items()}
+    if creation_date is None:
+        creation_date = np.datetime64("now", "us")
+    ep = [format_ccsds_epoch(t) for t in t64]
+
+    out = ["CCSDS_OEM_VERS = 2.0\n"]
+    for c in comments:
+        for part in str(c).splitlines() or [""]:
+            out.append(f"COMMENT {part}\n")
+    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
+    out.append(f"ORIGINATOR = {names['ORIGINATOR']}\n\n")
+    out.append("META_START\n")
+    for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
+        out.append(f"{k} = {names[k]}\n")
+    out.append(f"START_TIME = {ep[0]}\nSTOP_TIME = {ep[-1]}\nMETA_STOP\n\n")
+    xk = x / _M_PER_KM
+    for i in range(N):
+        r, v = xk[i, :3], xk[i, 3:]
+        out.append(f"{ep[i]} {r[0]:.9f} {r[1]:.9f} {r[2]:.9f} "
+                   f"{v[0]:.12f} {v[1]:.12f} {v[2]:.12f}\n")
+    has_cov = [] if P is None else np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    if len(has_cov):
+        Pk = P / _M_PER_KM**2
+        out.append("\nCOVARIANCE_START\n")
+        for i in has_cov:
+            out.append(f"EPOCH = {ep[i]}\nCOV_REF_FRAME = {names['REF_FRAME']}\n")
+            for a in range(6):
+                out.append(" ".join(f"{Pk[i, a, b]:.16e}" for b in range(a + 1)) + "\n")
+        out.append("COVARIANCE_STOP\n")
+    with atomic_writer(path, "w") as f:
+        f.write("".join(out))
