@@ -174,11 +174,12 @@ def make_state_prior_factor(key, sl, mean, sigma):
     return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(3, float(sigma)), [key], error)
 
 
-def factors_for_rows(kind, fam, rows, key, robust=None):
+def factors_for_rows(kind, fam, rows, key, robust=None, x_guess=None):
     """CustomFactors (iSAM2 route) for the given rows of a family, all on state ``key``.
 
     ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping the noise model of every
-    measurement but the priors.
+    measurement but the priors. ``x_guess`` (6,): the state's first guess, for noise that
+    depends on geometry (the refraction line-of-sight term, as in the batch route).
     """
     import gtsam
 
@@ -204,7 +205,8 @@ def factors_for_rows(kind, fam, rows, key, robust=None):
             out.append(make_altitude_factor(key, fam.values["h_m"][j], fam.values["r_ref_m"][j],
                                             noise(fam.sigma[j])))
         elif kind == "refraction":
-            sig = refraction_sigma(fam)[j]
+            sub = fam.subset(np.array([j]), 0)
+            sig = refraction_sigma(sub, None if x_guess is None else np.asarray(x_guess)[None])[0]
             out.append(make_refraction_factor(key, fam.values["s_eci"][j], fam.values["gamma_rad"][j],
                                               noise(sig), R_EARTH_M, 0.0))
     return out

@@ -123,7 +123,12 @@ def read_measurements(path: str | Path):
         from fgnav.io.tdm import read_tdm
         return read_tdm(path)
     from fgnav.io.log_csv import read_log
-    return read_log(path)
+    log = read_log(path)
+    if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
+        # Seed 001's scheme: TRIAD attitude from the Sun and Moon, Earth direction to ECI.
+        from fgnav.sem import preprocess_log
+        log = preprocess_log(log)[0]
+    return log
 
 
 def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:

@@ -15,7 +15,8 @@ import numpy as np
 from fgnav.errors import InputFormatError, UserError
 from fgnav.paths import data_dir
 
-SENSOR_KINDS = ("earth_direction", "limb_radius", "altitude")
+SENSOR_KINDS = ("earth_direction", "limb_radius", "altitude", "refraction",
+                "earth_direction_body", "sun_direction_body", "moon_direction_body")
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,16 @@ class SensorSpec:
     sigma_m: float | None = None
     period_s: float | None = None
     r_limb_km: float = 6375.0
+    # refraction sensor (seed 004; fgnav.simulate.refraction_sim): heads grazing the limb
+    gamma_halfwidth_arcsec: float = 1.0    # refraction-angle error, uniform on [-D, D]
+    sigma_model_m: float = 100.0           # atmosphere-model error on the tangent height, 1σ
+    star_sigma_arcsec: float = 3.0         # centroid 1σ of an unrefracted star (attitude)
+    fov_deg: float = 20.0                  # full width of each head's square field
+    vmag_max: float = 6.0                  # faintest star used
+    azimuths_deg: tuple = (0.0, 120.0, 240.0)  # head boresights about nadir, from velocity
+    boresight_tangent_km: float = 35.0     # tangent height of the ray at the field centre
+    # body-frame directions (seed 001; fgnav.simulate.sem_sim): body = LVLH
+    min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
 
 
 @dataclass(frozen=True)
@@ -40,6 +51,8 @@ class Scenario:
     x0_eci: tuple                      # (6,) truth initial state, SI
     truth_j2: bool = True
     truth_third_body: bool = False
+    truth_drag: bool = False
+    truth_srp: bool = False
     prior_position_sigma_m: float = 10000.0
     prior_velocity_sigma_mps: float = 2.0
     prior_mode: str = "random"         # "random" | "fixed"
@@ -101,6 +114,7 @@ def load_scenario(name_or_path: str) -> Scenario:
             epoch=d["epoch"], duration_h=float(d["duration_h"]), step_s=float(d["step_s"]),
             x0_eci=_orbit_state(path, d["orbit"]), truth_j2=bool(truth.get("j2", True)),
             truth_third_body=bool(truth.get("third_body", False)),
+            truth_drag=bool(truth.get("drag", False)), truth_srp=bool(truth.get("srp", False)),
             prior_position_sigma_m=float(prior.get("position_sigma_m", 10000.0)),
             prior_velocity_sigma_mps=float(prior.get("velocity_sigma_mps", 2.0)),
             prior_mode=prior.get("mode", "random"), sensors=tuple(sensors), source=str(path))

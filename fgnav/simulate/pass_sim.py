@@ -58,14 +58,16 @@ def simulate_pass(scn: Scenario, seed: int = 0) -> SimulatedPass:
     t_by_sensor = [sensor_epochs(scn, s.period_s) for s in scn.sensors]
     t_all = np.unique(np.concatenate([[0.0], *t_by_sensor]))
     x_true = integrate_truth(np.array(scn.x0_eci), t_all, j2=scn.truth_j2,
-                             third_body=scn.truth_third_body, t0_j2000_s=float(j2000_seconds(epoch0)))
-    kinds, ts, xyz, sig = [], [], [], []
+                             third_body=scn.truth_third_body, t0_j2000_s=float(j2000_seconds(epoch0)),
+                             drag=scn.truth_drag or None, srp=scn.truth_srp or None)
+    kinds, ts, xyz, sig, extras = [], [], [], [], []
 
-    def add(kind, t, values, sigma):
+    def add(kind, t, values, sigma, extra=None):
         kinds.extend([kind] * len(t))
         ts.append(t)
         xyz.append(values)
         sig.append(np.broadcast_to(sigma, (len(t),)).astype(float))
+        extras.append((len(t), extra))
 
     sp, sv = scn.prior_position_sigma_m, scn.prior_velocity_sigma_mps
     if scn.prior_mode == "random":
@@ -91,8 +93,21 @@ def simulate_pass(scn: Scenario, seed: int = 0) -> SimulatedPass:
             h = rn - R_EARTH_M + spec.sigma_m * rng.standard_normal(len(t))
             add("altitude", t, np.column_stack([h, np.full(len(t), R_EARTH_M), np.full(len(t), np.nan)]),
                 spec.sigma_m)
+        elif spec.kind == "refraction":
+            from fgnav.simulate.refraction_sim import simulate_refraction_rows
+            for chunk in simulate_refraction_rows(spec, t, x_true[idx], epoch0, rng):
+                add(*chunk)
+        elif spec.kind in ("earth_direction_body", "sun_direction_body", "moon_direction_body"):
+            from fgnav.simulate.sem_sim import simulate_body_direction_rows
+            for chunk in simulate_body_direction_rows(spec, t, x_true[idx], epoch0, rng):
+                add(*chunk)
     t_cat = np.concatenate(ts)
     order = np.argsort(t_cat, kind="stable")
+    extra = None
+    if any(e is not None for _, e in extras):  # extra columns (refraction rows) only
+        extra = {c: np.concatenate([np.full(n, np.nan) if e is None or c not in e
+                                    else np.asarray(e[c], dtype=float) for n, e in extras])[order]
+                 for c in ("gamma", "sigma_model_m")}
     log = log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
-                          np.concatenate(xyz)[order], np.concatenate(sig)[order])
+                          np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log)

@@ -120,7 +120,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         for kind, rows in per_epoch[k]:
             if gate is not None and kind not in PRIOR_KINDS:
                 rows = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate, rejected)
-            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel):
+            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel, guess):
                 graph.add(f)
         values.insert(X(k), guess)
         try:

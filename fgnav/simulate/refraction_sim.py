@@ -1,0 +1,150 @@
+"""Starlight-refraction sensor simulation (seed 004 = CN104236546B, claim 1 steps 2-4).
+
+Attitude plan (step 2): the body is Earth pointing (LVLH, ``fgnav.simulate.sem_sim``); the
+refraction sensor has one or more heads (``spec.azimuths_deg``, measured about nadir from
+the body x axis ~ velocity towards body y), each a square field ``spec.fov_deg`` wide whose
+centre ray grazes the Earth at tangent height ``spec.boresight_tangent_km``: the centre is
+``asin((R_e + h_b)/|r|)`` from nadir, so the lower part of the field sees the Earth, the
+upper part the sky (unrefracted stars, >= 50 deg^2 for fields >= 10 deg as the seed asks),
+and the refraction band (20-50 km) crosses the field horizontally.
+
+Stars (step 3): the project's BSC5 catalogue (``fgnav.vision.catalogue``, V <=
+``spec.vmag_max``, proper motion to the pass epoch) rotated into each head. For a catalogue
+direction ``s`` at the true position ``r`` the refracted ray's tangent height ``h`` solves
+the factor's own geometry (``factors.refraction.apparent_tangent_height_m`` with
+``R_e``, ``a = 0``):
+
+    h = sqrt(|r|^2 - (r.s)^2) + |r.s| tan(gamma_real(h)) - R_e,
+
+(a scalar root, Newton; ``h - q + R_e`` is increasing since gamma decreases with h), with
+the real atmosphere ``gamma_real(h) = gamma_model(h + dh_model)``, ``dh_model ~ N(0,
+sigma_model_m^2)`` per star: the inverse model then returns ``h + dh_model``, which is the
+seed's "atmosphere-model error added to the tangent height" (step 4). The measured angle is
+``gamma_real(h) + U(-D, D)``, ``D = gamma_halfwidth_arcsec`` (the seed's uniform
+refraction-angle error). Stars whose ray grazes in the valid band
+(``factors.refraction.REFRACTION_VALID_BAND_M``) give ``refraction`` rows (catalogue
+direction, ECI; ``sigma = D/sqrt(3)``; ``gamma``; ``sigma_model_m``); stars whose straight
+ray passes > 100 km above the surface are unrefracted and give the attitude: one
+``attitude`` row per epoch with >= 3 of them, its 1σ per axis
+``star_sigma_arcsec / sqrt(n)``. The Earth is a sphere of radius ``R_e`` here, as in the
+factor (``a = 0``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factors.constants import ARCSEC, DEG, R_EARTH_M
+from factors.geometry import so3_exp, so3_log
+from factors.refraction import REFRACTION_VALID_BAND_M, refraction_model
+
+__all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
+           "simulate_refraction_rows", "SIGMA_FLOOR_RAD"]
+
+UNREFRACTED_MIN_HEIGHT_M = 100e3
+"""A star whose straight ray passes higher than this above R_e counts as unrefracted, m."""
+
+SIGMA_FLOOR_RAD = 1e-9
+"""Logged angle 1σ when the angle error is switched off (D = 0), rad (the log needs > 0)."""
+
+
+def head_frames_body(r_norm_m, azimuths_deg, boresight_tangent_m, r_earth_m=R_EARTH_M):
+    """Head frames in the body (LVLH) frame: (H, 3, 3), columns (horizontal, up, boresight).
+
+    Boresight ``b = (sin t cos a, sin t sin a, cos t)``, ``t = asin((R_e + h_b)/|r|)`` from
+    nadir (body z); ``up`` points away from the Earth in the vertical plane of ``b``.
+    """
+    t = np.arcsin((r_earth_m + boresight_tangent_m) / r_norm_m)
+    out = []
+    for a in np.asarray(azimuths_deg, dtype=float) * DEG:
+        b = np.array([np.sin(t) * np.cos(a), np.sin(t) * np.sin(a), np.cos(t)])
+        up = np.array([-np.cos(t) * np.cos(a), -np.cos(t) * np.sin(a), np.sin(t)])
+        hz = np.cross(up, b)
+        out.append(np.column_stack([hz, up, b]))
+    return np.array(out)
+
+
+def true_tangent_height_m(q_m, los_m, model, dh_model_m=0.0, r_earth_m=R_EARTH_M, iters=30):
+    """Tangent height ``h`` (m) of the refracted ray: root of
+    ``h = q + los tan(gamma_model(h + dh)) - R_e`` (``q = sqrt(|r|^2 - (r.s)^2)``,
+    ``los = |r.s|``, arrays). Newton from ``h = q - R_e``; converged to < 1 mm."""
+    q = np.asarray(q_m, dtype=float)
+    los = np.asarray(los_m, dtype=float)
+    dh = np.asarray(dh_model_m, dtype=float)
+    m = refraction_model(model)
+    h = q - r_earth_m
+    for _ in range(iters):
+        g = m.gamma_rad(h + dh)
+        f = q + los * np.tan(g) - r_earth_m - h
+        df = los / np.cos(g) ** 2 * (-g / m.scale_height_m) - 1.0
+        step = f / df
+        h = h - step
+        if np.all(np.abs(step) < 1e-4):
+            break
+    return h
+
+
+def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-seed004",
+                             catalogue=None):
+    """Rows of the refraction sensor ``spec`` at epochs ``t_s`` (``pass_sim`` protocol):
+    a list of ``(kind, t, xyz, sigma[, extra])`` chunks, kinds ``refraction`` and
+    ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator."""
+    from fgnav.simulate.sem_sim import lvlh_R_eci_from_body
+    from fgnav.vision.catalogue import decimal_year, load_catalogue
+
+    if catalogue is None:
+        catalogue = load_catalogue(epoch_year=decimal_year(epoch0),
+                                   vmag_max=spec.vmag_max)
+    S = catalogue.u_eci
+    m = refraction_model(model)
+    D = spec.gamma_halfwidth_arcsec * ARCSEC
+    sig_g = max(D / np.sqrt(3.0), SIGMA_FLOOR_RAD)
+    half = 0.5 * spec.fov_deg * DEG
+    tan_half = np.tan(half)
+    R_all = lvlh_R_eci_from_body(x_true)
+    t_r, s_r, g_r, t_a, w_a, sig_a = [], [], [], [], [], []
+    h_lo, h_hi = REFRACTION_VALID_BAND_M
+    for n, t in enumerate(np.asarray(t_s, dtype=float)):
+        r = x_true[n, :3]
+        rn = float(np.linalg.norm(r))
+        heads = head_frames_body(rn, spec.azimuths_deg, spec.boresight_tangent_km * 1e3)
+        s_body = S @ R_all[n]                         # (M, 3): R^T s for every star
+        in_field = np.zeros(len(S), dtype=bool)
+        for F in heads:
+            c = s_body @ F                            # (M, 3): horizontal, up, boresight
+            ok = c[:, 2] > 0
+            in_field |= ok & (np.abs(c[:, 0]) <= tan_half * c[:, 2]) & \
+                (np.abs(c[:, 1]) <= tan_half * c[:, 2])
+        idx = np.flatnonzero(in_field)
+        if not len(idx):
+            continue
+        s = S[idx]
+        p = s @ r
+        q = np.sqrt(np.maximum(rn * rn - p * p, 0.0))
+        ahead = p < 0                                  # closest approach in front
+        clear = ~ahead | (q - R_EARTH_M > UNREFRACTED_MIN_HEIGHT_M)
+        cand = np.flatnonzero(ahead & (q - R_EARTH_M > h_lo - 10e3) & (q - R_EARTH_M < h_hi + 10e3))
+        dh = spec.sigma_model_m * rng.standard_normal(len(cand))
+        h = true_tangent_height_m(q[cand], -p[cand], m, dh)
+        keep = (h >= h_lo) & (h <= h_hi)
+        g_true = m.gamma_rad(h[keep] + dh[keep])
+        g_meas = g_true + (rng.uniform(-D, D, size=len(g_true)) if D > 0 else 0.0)
+        t_r.append(np.full(int(keep.sum()), t))
+        s_r.append(s[cand[keep]])
+        g_r.append(g_meas)
+        n_clear = int(clear.sum())
+        if n_clear >= 3:
+            sa = spec.star_sigma_arcsec * ARCSEC / np.sqrt(n_clear)
+            R_meas = R_all[n] @ so3_exp(sa * rng.standard_normal(3))
+            t_a.append(t)
+            w_a.append(so3_log(R_meas))
+            sig_a.append(sa)
+    chunks = []
+    if t_r:
+        tt = np.concatenate(t_r)
+        g = np.concatenate(g_r)
+        chunks.append(("refraction", tt, np.concatenate(s_r), sig_g,
+                       {"gamma": g, "sigma_model_m": np.full(len(tt), float(spec.sigma_model_m))}))
+    if t_a:
+        chunks.append(("attitude", np.array(t_a), np.array(w_a), np.array(sig_a)))
+    return chunks

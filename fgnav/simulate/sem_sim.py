@@ -1,0 +1,90 @@
+"""Body-frame Sun / Moon / Earth directions of the seed-001 scheme (and the LVLH attitude plan).
+
+Seed 001 ("基于日地月信息的航天器天文导航"): a Sun sensor, a Moon sensor (UV) and a UV Earth
+sensor measure the directions from the spacecraft to the Sun, the Moon and the Earth's
+centre in the body frame; an altimeter measures the height (``fgnav.simulate.pass_sim``,
+kind ``altitude``). The body is three-axis stabilized, Earth pointing: body = LVLH,
+``z_b = -r/|r|`` (nadir), ``y_b = -(r x v)/|r x v|`` (minus orbit normal), ``x_b = y_b x z_b``
+(along the velocity for a circular orbit) -- :func:`lvlh_R_eci_from_body`.
+
+Directions are geometric, spacecraft -> body, so the Moon's parallax (up to
+``asin(|r|/|r_moon|)`` ~ 1.0 deg in LEO) and the Sun's (~9 arcsec) are in the data; the
+preprocessing (``fgnav.sem``) removes them with the seed's triangle. Noise: the true unit
+vector rotated by isotropic tangent-plane noise (``pass_sim.perturb_directions``),
+``sigma_deg`` 1σ per axis. Visibility: the Sun is not seen when the Earth's disc (radius
+``R_e``) hides it (eclipse); the Moon likewise, and not closer than
+``min_sun_elongation_deg`` to the Sun (stray light). Ephemeris: ``factors.ephemeris``
+(the estimator's reference vectors come from the same analytic series: the ephemeris
+error is not simulated).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factors.constants import DEG, R_EARTH_M
+from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+
+__all__ = ["lvlh_R_eci_from_body", "occulted_by_earth", "simulate_body_direction_rows"]
+
+
+def lvlh_R_eci_from_body(x_eci):
+    """Earth-pointing attitude plan: ``R_eci_from_body`` (N, 3, 3) of states ``x_eci`` (N, 6).
+
+    Columns (body axes in ECI): ``x_b = y_b x z_b``, ``y_b = -h/|h|``, ``z_b = -r/|r|``.
+    """
+    x = np.atleast_2d(np.asarray(x_eci, dtype=float))
+    r, v = x[:, :3], x[:, 3:6]
+    z = -r / np.linalg.norm(r, axis=1, keepdims=True)
+    h = np.cross(r, v)
+    y = -h / np.linalg.norm(h, axis=1, keepdims=True)
+    xb = np.cross(y, z)
+    return np.stack([xb, y, z], axis=-1)
+
+
+def occulted_by_earth(r_eci_m, p_target_eci_m, r_earth_m=R_EARTH_M):
+    """True where the Earth's disc (sphere of radius ``r_earth_m``) hides the target.
+
+    Hidden when the angle between the target and the Earth's centre, seen from ``r``, is
+    below the Earth's angular radius ``asin(R/|r|)`` and the target is farther than the limb.
+    """
+    r = np.asarray(r_eci_m, dtype=float)
+    d = np.asarray(p_target_eci_m, dtype=float) - r
+    dn = np.linalg.norm(d, axis=1)
+    rn = np.linalg.norm(r, axis=1)
+    cos_sep = np.sum(d * (-r), axis=1) / (dn * rn)
+    rho = np.arcsin(np.clip(r_earth_m / rn, -1.0, 1.0))
+    return (np.arccos(np.clip(cos_sep, -1.0, 1.0)) < rho) & (dn > np.sqrt(rn ** 2 - r_earth_m ** 2))
+
+
+def simulate_body_direction_rows(spec, t_s, x_true, epoch0, rng):
+    """Rows ``(kind, t, xyz, sigma)`` of one body-direction sensor (``pass_sim`` protocol).
+
+    ``spec.kind`` is ``earth_direction_body``, ``sun_direction_body`` or
+    ``moon_direction_body``; ``spec.sigma_deg`` the 1σ per tangent axis (deg);
+    ``x_true`` (N, 6) the truth at ``t_s`` (s from ``epoch0``).
+    """
+    from fgnav.simulate.pass_sim import perturb_directions
+    from fgnav.time import j2000_seconds
+
+    r = x_true[:, :3]
+    R = lvlh_R_eci_from_body(x_true)
+    t_j = float(j2000_seconds(epoch0)) + np.asarray(t_s, dtype=float)
+    if spec.kind == "earth_direction_body":
+        p = np.zeros_like(r)
+        seen = np.ones(len(r), dtype=bool)
+    elif spec.kind == "sun_direction_body":
+        p = sun_position_eci_m(t_j)
+        seen = ~occulted_by_earth(r, p)
+    else:
+        p = moon_position_eci_m(t_j)
+        s = sun_position_eci_m(t_j)
+        d_m, d_s = p - r, s - r
+        cos_el = np.sum(d_m * d_s, axis=1) / (np.linalg.norm(d_m, axis=1) * np.linalg.norm(d_s, axis=1))
+        seen = ~occulted_by_earth(r, p) & (cos_el < np.cos(spec.min_sun_elongation_deg * DEG))
+    d = p - r
+    u_body = np.einsum("nji,nj->ni", R, d / np.linalg.norm(d, axis=1, keepdims=True))
+    sig = spec.sigma_deg * DEG
+    u_meas = perturb_directions(u_body, np.full(len(u_body), sig), rng)
+    i = np.flatnonzero(seen)
+    return [(spec.kind, np.asarray(t_s, dtype=float)[i], u_meas[i], sig)]
