@@ -20,7 +20,8 @@ METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
 
 def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
-          lag_s: float = 300.0, progress=None, gap_factor: float | None = 10.0) -> Solution:
+          lag_s: float = 300.0, progress=None, gap_factor: float | None = 10.0,
+          checkpoint: str | None = None, checkpoint_every: int = 100, resume: bool = False) -> Solution:
     """Run one estimator over a pass (after the observability checks).
 
     Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
@@ -44,7 +45,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         return run_ekf(p, options, progress=progress)
     from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                              progress=progress)
+                              progress=progress, checkpoint=checkpoint,
+                              checkpoint_every=checkpoint_every, resume=resume)
 
 
 def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -93,12 +95,12 @@ class SmoothResult:
 
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
-                progress=None) -> tuple[SmoothResult, Pass]:
+                progress=None, **solve_kw) -> tuple[SmoothResult, Pass]:
     """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given)."""
     t0 = time.perf_counter()
     log = read_measurements(log_path)
     p = build_pass(log)
-    sol = solve(p, method, options, lag_s=lag_s, progress=progress)
+    sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
     x_true = None
@@ -145,33 +147,49 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
 
 
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
-    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv)."""
+    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv).
+
+    Nothing lost: every file is first written into a staging directory inside ``out_dir``
+    and the set replaces the previous outputs only once all are complete (``os.replace``
+    per file, microseconds apart). An error or interrupt before that leaves the previous
+    outputs untouched and removes the staging directory.
+    """
+    import os
+    import shutil
+    import tempfile
+
     from fgnav.io.atomic import atomic_write_text
     from fgnav.io.oem import write_oem
     from fgnav.io.summary import write_summary
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    sol = res.solution
-    written = []
-    comments = (f"fgnav {sol.method} solution", f"states and marginal covariances at every epoch")
-    write_oem(out / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci, comments=comments)
-    written.append(out / "trajectory.oem")
-    if sol.online_x_eci is not None and sol.method != "ekf":
-        write_oem(out / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
-                  comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
-        written.append(out / "online.oem")
-    lines = ["t_s,kind,component,whitened"]
-    for kind, r in sol.residuals.items():
-        t = p.t_s[p.families[kind].k]
-        lines.extend(f"{t[i]:.6f},{kind},{j},{r[i, j]:.6g}"
-                     for i in range(len(r)) for j in range(r.shape[1]) if np.isfinite(r[i, j]))
-    atomic_write_text(out / "residuals.csv", "\n".join(lines) + "\n")
-    written.append(out / "residuals.csv")
-    if sol.latency_s is not None:
-        atomic_write_text(out / "latency.csv", "t_s,latency_s\n" + "".join(
-            f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
-        written.append(out / "latency.csv")
-    write_summary(out / "summary.json", res.summary)
-    written.append(out / "summary.json")
-    return written
+    stage = Path(tempfile.mkdtemp(prefix=".fgnav-staging-", dir=out))
+    try:
+        sol = res.solution
+        names = ["trajectory.oem"]
+        write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
+                  comments=(f"fgnav {sol.method} solution",
+                            "states and marginal covariances at every epoch"))
+        if sol.online_x_eci is not None and sol.method != "ekf":
+            write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
+                      comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
+            names.append("online.oem")
+        lines = ["t_s,kind,component,whitened"]
+        for kind, r in sol.residuals.items():
+            t = p.t_s[p.families[kind].k]
+            lines.extend(f"{t[i]:.6f},{kind},{j},{r[i, j]:.6g}"
+                         for i in range(len(r)) for j in range(r.shape[1]) if np.isfinite(r[i, j]))
+        atomic_write_text(stage / "residuals.csv", "\n".join(lines) + "\n")
+        names.append("residuals.csv")
+        if sol.latency_s is not None:
+            atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(
+                f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
+            names.append("latency.csv")
+        write_summary(stage / "summary.json", res.summary)
+        names.append("summary.json")
+        for name in names:
+            os.replace(stage / name, out / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+    return [out / n for n in names]

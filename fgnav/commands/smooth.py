@@ -47,6 +47,12 @@ def register(sub):
     p.add_argument("--truth", help="truth OEM: adds errors and NEES to summary.json")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("--checkpoint", metavar="FILE.npz",
+                   help="isam2: save the online state every --checkpoint-every epochs")
+    p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
+                   help="epochs between checkpoints (default 100)")
+    p.add_argument("--resume", action="store_true",
+                   help="isam2: continue from --checkpoint (same log and options)")
     add_solver_options(p)
     p.set_defaults(func=run)
 
@@ -57,7 +63,8 @@ def run(args) -> int:
     from fgnav.pipeline import smooth_file, write_outputs
 
     res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
-                         lag_s=args.lag_s)
+                         lag_s=args.lag_s, checkpoint=args.checkpoint,
+                         checkpoint_every=args.checkpoint_every, resume=args.resume)
     write_outputs(args.out, res, p)
     if args.rerun:
         from fgnav.viz.rerun_log import log_solution

@@ -25,7 +25,7 @@ import numpy as np
 
 from factors.dynamics import process_noise, propagate
 from factors.motion import make_motion_factor
-from fgnav.errors import NotObservableError
+from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
 from fgnav.robust import RobustKernel, chi2_gate
 from fgnav.measurements import Pass
@@ -72,8 +72,16 @@ def rows_by_epoch(p: Pass) -> list[list[tuple[str, np.ndarray]]]:
 
 def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                        inc: IncrementalOptions = IncrementalOptions(), *, method: str = "isam2",
-                       progress=None) -> Solution:
-    """Run iSAM2 (``method="isam2"``) or the fixed-lag smoother (``"fixed-lag"``) over a pass."""
+                       progress=None, checkpoint: str | None = None, checkpoint_every: int = 100,
+                       resume: bool = False) -> Solution:
+    """Run iSAM2 (``method="isam2"``) or the fixed-lag smoother (``"fixed-lag"``) over a pass.
+
+    ``checkpoint``: a file (.npz) written atomically every ``checkpoint_every`` epochs with
+    the estimates so far, the online history and the gating decisions (full-history iSAM2
+    only). ``resume=True`` restarts from it: the graph of the processed epochs is rebuilt
+    from the log at the saved estimates in one update, and the run continues where it
+    stopped (the final answer agrees with an uninterrupted run to ~1e-6 sigma).
+    """
     t_start = time.perf_counter()
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
@@ -98,7 +106,43 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     kernel = RobustKernel.create(options.robust, options.robust_k)
     gate = options.gate_probability
     rejected: dict[str, int] = {}
-    for k in range(N):
+    rejected_rows = {kind: np.zeros(len(f), bool) for kind, f in p.families.items()}
+    if (checkpoint or resume) and fixed_lag:
+        raise UserError("checkpoint/resume is available for --method isam2 (full history) only")
+    fingerprint = _fingerprint(p, options, method)
+
+    def add_epoch_factors(graph, k, guess, kept_only):
+        for kind, rows in per_epoch[k]:
+            if kept_only:
+                rows = rows[~rejected_rows[kind][rows]]
+            elif gate is not None and kind not in PRIOR_KINDS:
+                rows = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate, rejected)
+                rejected_rows[kind][np.setdiff1d(per_rows(kind, k), rows)] = True
+            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel, guess):
+                graph.add(f)
+
+    def per_rows(kind, k):
+        return dict(per_epoch[k])[kind]
+
+    k_start = 0
+    if resume:
+        if not checkpoint:
+            raise UserError("resume needs a checkpoint file")
+        k_start, x_est, rejected, rejected_rows = _load_checkpoint(
+            checkpoint, fingerprint, online_x, online_P, latency, rejected_rows)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        for k in range(k_start):
+            if k > 0:
+                dt = p.t_s[k] - p.t_s[k - 1]
+                graph.add(make_motion_factor(X(k - 1), X(k), dt, options.q_m2_s3, model,
+                                             t0_j2000 + p.t_s[k - 1]))
+            add_epoch_factors(graph, k, x_est[k], kept_only=True)
+            values.insert(X(k), x_est[k])
+        isam.update(graph, values)
+        held_lp = isam.getLinearizationPoint()
+        x_prev = isam.calculateEstimateVector(X(k_start - 1))
+    for k in range(k_start, N):
         t_k0 = time.perf_counter()
         if fixed_lag:
             while oldest < k and p.t_s[oldest] < p.t_s[k] - inc.lag_s:
@@ -117,11 +161,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         if gate is not None:
             P_pred = (prior_covariance(p) if k == 0 else
                       Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, options.q_m2_s3))
-        for kind, rows in per_epoch[k]:
-            if gate is not None and kind not in PRIOR_KINDS:
-                rows = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate, rejected)
-            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel, guess):
-                graph.add(f)
+        add_epoch_factors(graph, k, guess, kept_only=False)
         values.insert(X(k), guess)
         try:
             if fixed_lag:
@@ -144,6 +184,11 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         online_x[k] = x_prev
         online_P[k] = P
         latency[k] = time.perf_counter() - t_k0
+        if checkpoint and ((k + 1) % checkpoint_every == 0 or k == N - 1):
+            est = isam.calculateEstimate()
+            _save_checkpoint(checkpoint, fingerprint, k + 1, online_x, online_P, latency,
+                             np.array([est.atVector(X(j)) for j in range(k + 1)]), rejected,
+                             rejected_rows)
         if progress is not None:
             progress(k)
     if fixed_lag:
@@ -171,6 +216,55 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                             **({"lag_s": inc.lag_s} if fixed_lag else {}),
                             **({"gate_probability": gate, "rejected": rejected} if gate else {}),
                             **robust_counts(options, lin.weights)})
+
+
+def _fingerprint(p: Pass, options: SmootherOptions, method: str) -> str:
+    """Identifies the run a checkpoint belongs to: the pass's epochs and rows, the options."""
+    import hashlib
+
+    h = hashlib.sha256()
+    h.update(np.ascontiguousarray(p.t_s).tobytes())
+    for kind, fam in sorted(p.families.items()):
+        h.update(kind.encode())
+        h.update(np.ascontiguousarray(fam.k).tobytes())
+        h.update(np.ascontiguousarray(fam.sigma).tobytes())
+    h.update(repr((method, options)).encode())
+    return h.hexdigest()
+
+
+def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_est, rejected,
+                     rejected_rows):
+    import io
+    import json
+
+    from fgnav.io.atomic import atomic_writer
+
+    buf = io.BytesIO()
+    np.savez(buf, fingerprint=fingerprint, k_next=k_next, online_x=online_x[:k_next],
+             online_P=online_P[:k_next], latency=latency[:k_next], x_est=x_est,
+             rejected=json.dumps(rejected),
+             **{f"rejected_rows/{kind}": m for kind, m in rejected_rows.items()})
+    with atomic_writer(path, "wb") as f:
+        f.write(buf.getvalue())
+
+
+def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows):
+    import json
+    import os
+
+    if not os.path.exists(path):
+        raise UserError(f"{path}: no checkpoint to resume from")
+    try:
+        z = np.load(path, allow_pickle=False)
+        fp = str(z["fingerprint"])
+        k = int(z["k_next"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise UserError(f"{path}: not an fgnav checkpoint ({exc})") from None
+    if fp != fingerprint:
+        raise UserError(f"{path}: the checkpoint belongs to another log or other options")
+    online_x[:k], online_P[:k], latency[:k] = z["online_x"], z["online_P"], z["latency"]
+    rows = {kind: z[f"rejected_rows/{kind}"] for kind in rejected_rows}
+    return k, z["x_est"], json.loads(str(z["rejected"])), rows
 
 
 def _gate_rows(fam, kind, rows, x_pred, P_pred, probability, rejected):
