@@ -146,6 +146,11 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     return s
 
 
+def residual_times(res: SmoothResult, p: Pass) -> dict:
+    """kind -> (M,) seconds from epoch0 of each row of ``solution.residuals``."""
+    return {kind: p.t_s[p.families[kind].k] for kind in res.solution.residuals if kind in p.families}
+
+
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
     """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv).
 
@@ -176,8 +181,9 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
                       comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
             names.append("online.oem")
         lines = ["t_s,kind,component,whitened"]
+        times = residual_times(res, p)
         for kind, r in sol.residuals.items():
-            t = p.t_s[p.families[kind].k]
+            t = times[kind]
             lines.extend(f"{t[i]:.6f},{kind},{j},{r[i, j]:.6g}"
                          for i in range(len(r)) for j in range(r.shape[1]) if np.isfinite(r[i, j]))
         atomic_write_text(stage / "residuals.csv", "\n".join(lines) + "\n")

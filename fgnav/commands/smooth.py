@@ -57,18 +57,44 @@ def register(sub):
     p.set_defaults(func=run)
 
 
+class ProgressCallback:
+    """The solvers' progress callback drawn as a bar: epochs for the online methods,
+    Gauss-Newton iterations (with the largest position update) for batch."""
+
+    def __init__(self, method: str, quiet: bool):
+        from fgnav.progress import progress
+
+        self.batch = method == "batch"
+        self.bar = progress(desc=f"{method}", unit="iter" if self.batch else "epoch", quiet=quiet)
+
+    def __call__(self, *state):
+        if self.batch:
+            q, iteration, step_m = state
+            self.bar.set_postfix_str(f"q={q:.0e} m2/s3, update {step_m:.3g} m", refresh=False)
+        self.bar.update(1)
+
+    def close(self):
+        self.bar.close()
+
+
 def run(args) -> int:
     import json
 
-    from fgnav.pipeline import smooth_file, write_outputs
+    from fgnav.pipeline import read_measurements, residual_times, smooth_file, write_outputs
 
-    res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
-                         lag_s=args.lag_s, checkpoint=args.checkpoint,
-                         checkpoint_every=args.checkpoint_every, resume=args.resume)
+    bar = ProgressCallback(args.method, args.quiet)
+    try:
+        res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
+                             lag_s=args.lag_s, checkpoint=args.checkpoint,
+                             checkpoint_every=args.checkpoint_every, resume=args.resume,
+                             progress=bar)
+    finally:
+        bar.close()
     write_outputs(args.out, res, p)
     if args.rerun:
         from fgnav.viz.rerun_log import log_solution
-        log_solution(args.rerun, res.solution, truth_x_eci=res.x_true)
+        log_solution(args.rerun, res.solution, truth_x_eci=res.x_true,
+                     measurements=read_measurements(args.log), residual_t_s=residual_times(res, p))
     if not args.quiet:
         keys = ["method", "epochs", "iterations", "wall_s", "crb_position_rms_m", "position_rms_m",
                 "velocity_rms_mps", "nees_mean"]
