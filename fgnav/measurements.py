@@ -183,3 +183,14 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0) -> Pass:
     return Pass(epoch0=p.epoch0, t_s=t_new, families=fams, source=p.source,
                 warnings=p.warnings + [f"{n_ins} state epochs inserted across "
                                        f"{len(extra)} gap(s) longer than {gap_factor * step:g} s"])
+
+
+def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
+    """Initial covariance (diagonal, SI) from the prior rows at epoch ``k0`` (else the first)."""
+    P = np.zeros((6, 6))
+    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
+        fam = p.families[kind]
+        j = np.flatnonzero(fam.k == k0)
+        sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
+        P[sl, sl] = np.eye(3) * sig ** 2
+    return P

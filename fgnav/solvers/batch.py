@@ -56,6 +56,7 @@ class SmootherOptions:
     robust_k: float | None = None      # kernel threshold in sigmas (default: 95% efficiency)
     reject_probability: float = 1.0 - 1e-6  # after a robust solve: chi2 gate for rejection
     gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
+    init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
@@ -101,17 +102,6 @@ def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
     return Xg
 
 
-def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
-    """Initial covariance from the prior rows at epoch ``k0`` (diagonal, SI)."""
-    P = np.zeros((6, 6))
-    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
-        fam = p.families[kind]
-        j = np.flatnonzero(fam.k == k0)
-        sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
-        P[sl, sl] = np.eye(3) * sig ** 2
-    return P
-
-
 @dataclass
 class Linearization:
     R: np.ndarray        # (N,6,6) conditionals
@@ -142,17 +132,31 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
         b_mot = -np.einsum("kij,kj->ki", W, Xs[1:] - F)
     else:
         W = A0_mot = b_mot = np.zeros((0, 6, 6))
+    # Stack each epoch's measurement rows over its motion rows, grouped by row count so the
+    # stacking is one numpy call per group rather than one per epoch (0.45 -> 0.35 s per
+    # iteration at 14,400 epochs, same factors in the same order).
+    counts = np.diff(starts)
+    factors = [None] * N
+    JF = gtsam.JacobianFactor
+    for m in np.unique(counts).tolist():
+        ks = np.flatnonzero(counts == m)
+        idx = starts[ks][:, None] + np.arange(m)
+        Am, bm = A_rows[idx], b_rows[idx]
+        mot = ks < N - 1
+        km = ks[mot]
+        if len(km):
+            A0 = np.concatenate([Am[mot], A0_mot[km]], axis=1)
+            A1 = np.concatenate([np.zeros((len(km), m, 6)), W[km]], axis=1)
+            b = np.concatenate([bm[mot], b_mot[km]], axis=1)
+            unit = _unit(m + 6)
+            for i, k in enumerate(km.tolist()):
+                factors[k] = JF(X(k), A0[i], X(k + 1), A1[i], b[i], unit)
+        if m and not mot.all():
+            factors[N - 1] = JF(X(N - 1), Am[~mot][0], bm[~mot][0], _unit(m))
     graph = gtsam.GaussianFactorGraph()
-    for k in range(N):
-        s, e = starts[k], starts[k + 1]
-        m = e - s
-        if k < N - 1:
-            A0 = np.vstack([A_rows[s:e], A0_mot[k]]) if m else A0_mot[k]
-            A1 = np.vstack([np.zeros((m, 6)), W[k]]) if m else W[k]
-            b = np.concatenate([b_rows[s:e], b_mot[k]]) if m else b_mot[k]
-            graph.push_back(gtsam.JacobianFactor(X(k), A0, X(k + 1), A1, b, _unit(m + 6)))
-        elif m:
-            graph.push_back(gtsam.JacobianFactor(X(k), A_rows[s:e], b_rows[s:e], _unit(m)))
+    for f in factors:
+        if f is not None:
+            graph.push_back(f)
     return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), rows
 
 
@@ -218,9 +222,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     kernel = RobustKernel.create(options.robust, options.robust_k)
     iterations = 0
 
-    def converge(q, stage_kernel, rejected, tol_scale):
+    def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
-        for _ in range(options.max_iterations):
+        for _ in range(max_iterations):
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected)
             _check_rank(p, lin)
             dx = back_substitute(lin.R, lin.S, lin.d)
@@ -236,7 +240,25 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                 return lin, True
         return lin, False
 
-    for stage, q in enumerate(q_stages):
+    x_ekf = _ekf_first_guess(p, options) if x_init is None and kernel is None else None
+    if x_ekf is not None:
+        # The filtered trajectory is a first guess close enough for Gauss-Newton at the
+        # target process noise: 3 iterations instead of 7 on gto-transfer (1.2 s vs 3.3 s at
+        # 14,400 epochs, same solution to 0.2 mm). Continuation from the prior if it fails.
+        x_prior_guess, Xs = Xs, x_ekf
+        try:
+            lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
+        except NotObservableError:
+            converged = False
+        if converged:
+            q_stages = [options.q_m2_s3]
+            stage_loop = []
+        else:
+            Xs = x_prior_guess
+            stage_loop = q_stages
+    else:
+        stage_loop = q_stages
+    for stage, q in enumerate(stage_loop):
         final = stage == len(q_stages) - 1
         # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last stage.
         stage_kernel = kernel
@@ -263,6 +285,22 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                             "chi2_motion": lin.chi2_motion,
                             "n_measurement_rows": int(sum(v.size for v in lin.residuals.values())),
                             **robust_counts(options, lin.weights)})
+
+
+def _ekf_first_guess(p: Pass, options: SmootherOptions):
+    """The numba EKF's filtered states as a first guess, or None where it does not apply
+    (measurement kinds it does not model, ``init="prior"``, or a filter that fails)."""
+    if options.init != "auto":
+        return None
+    from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+
+    if not set(p.families) <= set(SUPPORTED_KINDS):
+        return None
+    try:
+        x = run_ekf_numba(p, options).x_eci
+    except (ValueError, ZeroDivisionError, np.linalg.LinAlgError):
+        return None
+    return x if np.all(np.isfinite(x)) else None
 
 
 def outlier_mask(residuals: dict, probability: float) -> dict:

@@ -17,7 +17,8 @@ from fgnav.graph import LINEARIZERS, PRIOR_KINDS
 from fgnav.robust import chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
-from fgnav.solvers.batch import SmootherOptions, initial_guess, prior_covariance
+from fgnav.measurements import prior_covariance
+from fgnav.solvers.batch import SmootherOptions, initial_guess
 from fgnav.solvers.incremental import rows_by_epoch
 from fgnav.time import j2000_seconds
 

@@ -39,6 +39,7 @@ from numba import njit
 
 from factors.dynamics import propagate, propagate_nb
 from factors.geometry import tangent_basis
+from fgnav.measurements import prior_covariance
 from fgnav.solution import Solution
 from fgnav.time import j2000_seconds
 
@@ -347,18 +348,6 @@ def first_state(p, model, t0_j2000_s: float) -> np.ndarray:
     for k in range(k0 - 1, -1, -1):
         x = propagate(x, p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
     return x
-
-
-def prior_covariance(p, k0: int = 0) -> np.ndarray:
-    """Initial covariance from the prior rows at epoch ``k0`` (diagonal, SI); same as
-    ``fgnav.solvers.ekf.prior_covariance`` (kept here so this module needs no GTSAM)."""
-    P = np.zeros((6, 6))
-    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
-        fam = p.families[kind]
-        j = np.flatnonzero(fam.k == k0)
-        sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
-        P[sl, sl] = np.eye(3) * sig ** 2
-    return P
 
 
 # ----------------------------------------------------------------------------- driver
