@@ -12,6 +12,12 @@ def register(sub):
     p.add_argument("--step-s", type=float, help="measurement period (s), overrides the scenario")
     p.add_argument("--duration-h", type=float, help="pass length (h), overrides the scenario")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.add_argument("--images", action="store_true",
+                   help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
+                        "seed 000 sensor, Earth-pointing plan) into DIR/frames/ with the index "
+                        "DIR/frames.csv (input of `fgnav extract`)")
+    p.add_argument("--image-period-s", type=float,
+                   help="image period (s; default the measurement period)")
     p.set_defaults(func=run)
 
 
@@ -35,4 +41,13 @@ def run(args) -> int:
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
               f"{out / 'measurements.csv'}, {out / 'truth.oem'}")
+    if getattr(args, "images", False):
+        from fgnav.simulate.images import ImageConfig, render_pass_frames
+
+        recs = render_pass_frames(sim, out, seed=args.seed, quiet=args.quiet,
+                                  config=ImageConfig(period_s=args.image_period_s))
+        if not args.quiet:
+            n_limb = sum(r.camera_name.startswith("limb") for r in recs)
+            print(f"{len(recs)} frames ({len(recs) - n_limb} star, {n_limb} limb) -> "
+                  f"{out / 'frames'}/, {out / 'frames.csv'}")
     return 0
