@@ -18,9 +18,10 @@ Per epoch:
    the body frame. Edge-curvature correction: a gradient-centroid edge locator on a
    blurred disk of radius ``R_px`` finds the edge inside the true limb by
    ``(s_psf^2 + s_loc^2) / (2 R_px)`` px (the blurred edge of a curved boundary moves towards
-   its centre of curvature; ``s_loc^2`` = :data:`EDGE_LOCATOR_VAR_PX2`); with the
-   calibrated ``psf_sigma_px`` of the frame, the points are moved outward by that amount
-   (``R_px = f_px tan(rho)`` from a first fit) and refitted. Measured on noise-free seed-000
+   its centre of curvature; ``s_loc^2`` = :data:`fgnav.vision.limb.EDGE_LOCATOR_VAR_PX2`);
+   with the calibrated ``psf_sigma_px`` of the frame, the points are moved outward by that
+   amount (``R_px = f_px tan(rho)`` from a first fit) and refitted
+   (``estimate_horizon(..., psf_sigma_px=...)``, :func:`fgnav.vision.horizon.correct_edge_curvature`). Measured on noise-free seed-000
    renders at GEO (R_px = 250): bias -0.0040 px (PSF 1 px) vs -0.0038 predicted; without
    it the Christian-Robinson limb radius of a GEO pass is biased by ~1.9 of its per-frame
    sigma (range +0.7 km). Applied to ``christian-robinson`` only: the ``ellipse`` method's
@@ -58,6 +59,7 @@ import numpy as np
 
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
+from fgnav.vision.limb import EDGE_LOCATOR_VAR_PX2  # noqa: F401  (re-export; defined by the edge locator)
 
 __all__ = ["REQUIRED_COLUMNS", "FrameEntry", "EpochProducts", "ExtractionResult",
            "find_frames_index", "read_frames_index", "attitude_from_star_frame",
@@ -67,10 +69,6 @@ REQUIRED_COLUMNS = ("epoch", "file", "camera", "focal_mm", "pixel_um", "width_px
                     "cx_px", "cy_px", "field_radius_px", "q_body_from_cam_w", "q_body_from_cam_x",
                     "q_body_from_cam_y", "q_body_from_cam_z", "r_limb_m")
 ROW_MODES = ("eci", "body")
-EDGE_LOCATOR_VAR_PX2 = 1.0 / 12.0 + 1.0 / 6.0 + 2.0 / 3.0
-"""Blur variance (px^2) the limb edge locator adds to the optics PSF: pixel area (1/12),
-bilinear profile sampling (1/6), three profile lines 1 px apart averaged (2/3)
-(``fgnav.vision.limb.extract_limb_points``)."""
 
 
 @dataclass
@@ -268,7 +266,7 @@ def horizon_from_limb_frame(img: np.ndarray, e: FrameEntry, method: str, seed,
     """Horizon fix of one limb frame (camera frame), field stop applied as a mask; ``seed``
     (int or sequence) seeds the RANSAC generator."""
     from fgnav.vision.horizon import estimate_horizon
-    from fgnav.vision.limb import LimbPoints, extract_limb_points, ransac_limb
+    from fgnav.vision.limb import extract_limb_points, ransac_limb
 
     cam = e.camera
     mask = None
@@ -276,15 +274,10 @@ def horizon_from_limb_frame(img: np.ndarray, e: FrameEntry, method: str, seed,
         vv, uu = np.mgrid[0:cam.height_px, 0:cam.width_px]
         mask = np.hypot(uu - cam.cx, vv - cam.cy) <= e.field_radius_px
     pts = ransac_limb(extract_limb_points(img, valid_mask=mask), cam, rng=np.random.default_rng(seed))
-    fix = estimate_horizon(pts, cam, method, e.r_limb_m)
-    if e.psf_sigma_px is not None and curvature_correction and method == "christian-robinson":
-        # edge-curvature bias (module doc, step 2): move the points outward and refit
-        r_px = cam.f_px * math.tan(fix.rho_rad)
-        d_px = (e.psf_sigma_px ** 2 + EDGE_LOCATOR_VAR_PX2) / (2.0 * r_px)
-        pts = LimbPoints(pts.uv_px + d_px * pts.normal, pts.normal, pts.contrast, pts.inlier)
-        fix = estimate_horizon(pts, cam, method, e.r_limb_m)
-        fix.extra["curvature_correction_px"] = d_px
-    return fix
+    # edge-curvature correction (module doc, step 2): christian-robinson only, done by the
+    # front end (fgnav.vision.horizon.correct_edge_curvature)
+    psf = e.psf_sigma_px if curvature_correction else None
+    return estimate_horizon(pts, cam, method, e.r_limb_m, psf_sigma_px=psf)
 
 
 def fuse_horizons(fixes_body: list[tuple[np.ndarray, np.ndarray, float]]):

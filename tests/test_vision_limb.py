@@ -7,11 +7,14 @@ import pytest
 
 from factors.constants import R_LIMB_SEED_M
 from fgnav.cli import main
+from fgnav.errors import UserError
 from fgnav.simulate.limb_render import (LimbRadiance, LimbScene, _radiance_e, render_limb,
                                         render_limb_ideal, scene_from_altitude)
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.horizon import horizon_christian_robinson, horizon_ellipse
-from fgnav.vision.limb import LimbPoints, extract_limb_points, ransac_limb
+from fgnav.vision.horizon import estimate_horizon
+from fgnav.vision.limb import (EDGE_LOCATOR_VAR_PX2, LimbPoints, edge_curvature_bias_px,
+                               extract_limb_points, ransac_limb)
 from fgnav.vision.sensor import (SEED000_LIMB_TILT_RAD, SEED000_SUBAPERTURE_CAMERA,
                                  earth_apparent_diameter_deg, limb_half_angle_rad,
                                  seed000_limb_subapertures)
@@ -148,6 +151,86 @@ def test_cli_limb_errors(tmp_path, capsys):
     np.save(flat, np.zeros((64, 64), np.uint16))
     assert main(["limb", str(flat), "--focal-mm", "18", "--pixel-um", "11", "--json"]) == 2
     assert "error" in capsys.readouterr().err
+
+
+GEO_ALT_M = 42_164e3 - R_LIMB_SEED_M
+"""Geostationary radius minus the limb sphere: R_px = f tan(rho) = 250 px on CAM."""
+
+
+def _geo_render(psf_px, off_px, noisy_seed=None):
+    from dataclasses import replace
+
+    from fgnav.simulate.limb_render import SEED000_DETECTOR
+
+    det = replace(SEED000_DETECTOR, psf_sigma_px=psf_px)
+    scene = scene_from_altitude(GEO_ALT_M, CAM.pixel_to_ray(np.array([CAM.cx, CAM.cy]) + off_px))
+    kw = dict(radiance=LimbRadiance(signal_e=5000.0), detector=det, field_radius_px=445.0)
+    if noisy_seed is None:
+        fr = render_limb_ideal(CAM, scene, **kw)
+        img = fr.ideal_e
+    else:
+        fr = render_limb(CAM, scene, np.random.default_rng(noisy_seed), **kw)
+        img = fr.image_dn
+    return scene, fr, ransac_limb(extract_limb_points(img, valid_mask=fr.valid_mask), CAM)
+
+
+@pytest.mark.parametrize("psf_px", [0.5, 1.0])
+def test_edge_curvature_correction_unbiases_cr_rho(psf_px):
+    """Noise-free GEO renders (R_px = 250, four sub-pixel placements of the Earth centre):
+    the uncorrected Christian-Robinson limb radius sits inside the truth by about the
+    predicted (psf^2 + 0.917)/(2 R_px) px (measured -0.0024 / -0.0040 px for PSF 0.5 / 1 px,
+    predicted -0.0023 / -0.0038), i.e. 1.5 / 2.7 per-frame sigmas of a high-SNR frame; with
+    ``psf_sigma_px`` the mean error is within 0.3 sigma. Truth: the scene geometry."""
+    errs = {False: [], True: []}
+    sig = []
+    for k, off in enumerate([(0.0, 0.0), (0.37, 0.11), (-0.23, 0.41), (0.13, -0.29)]):
+        scene, _, pts = _geo_render(psf_px, np.array(off))
+        px_per_rad = CAM.f_px / np.cos(scene.rho_rad) ** 2          # d(f tan rho)/d rho
+        for corr in (False, True):
+            fix = estimate_horizon(pts, CAM, "christian-robinson",
+                                   psf_sigma_px=psf_px if corr else None)
+            errs[corr].append((fix.rho_rad - scene.rho_rad) * px_per_rad)
+        r_px = CAM.f_px * np.tan(scene.rho_rad)
+        assert fix.extra["curvature_correction_px"] == pytest.approx(edge_curvature_bias_px(r_px, psf_px), rel=1e-3)
+        if k < 2:                                                   # per-frame sigma: noisy twin
+            scene, _, pts_n = _geo_render(psf_px, np.array(off), noisy_seed=k)
+            sig.append(estimate_horizon(pts_n, CAM, "christian-robinson").sigma_rho_rad * px_per_rad)
+    sigma = float(np.mean(sig))
+    pred = (psf_px ** 2 + EDGE_LOCATOR_VAR_PX2) / (2 * CAM.f_px * np.tan(scene.rho_rad))
+    bias0, bias1 = float(np.mean(errs[False])), float(np.mean(errs[True]))
+    print(f"PSF {psf_px} px: bias {bias0:+.4f} px uncorrected (predicted {-pred:+.4f}), "
+          f"{bias1:+.4f} px corrected; per-frame sigma {sigma:.4f} px")
+    assert bias0 == pytest.approx(-pred, rel=0.25)
+    assert bias0 < -1.0 * sigma
+    assert abs(bias1) < 0.3 * sigma
+
+
+def test_edge_curvature_correction_not_applied_to_ellipse():
+    """The ellipse fit is left alone (its own outward bias cancels the locator's)."""
+    _, _, pts = _geo_render(1.0, np.zeros(2))
+    a = estimate_horizon(pts, CAM, "ellipse")
+    b = estimate_horizon(pts, CAM, "ellipse", psf_sigma_px=1.0)
+    assert a.rho_rad == b.rho_rad and "curvature_correction_px" not in b.extra
+    with pytest.raises(UserError):
+        estimate_horizon(pts, CAM, "christian-robinson", psf_sigma_px=-1.0)
+
+
+def test_cli_limb_psf_correction(tmp_path, capsys):
+    scene, fr, _ = _geo_render(1.0, np.array([0.37, 0.11]))
+    path = tmp_path / "geo.npy"
+    np.save(path, fr.ideal_e)
+    px_per_rad = CAM.f_px / np.cos(scene.rho_rad) ** 2
+    out = {}
+    for key, extra in (("none", []), ("psf", ["--psf-px", "1.0"])):
+        assert main(["limb", str(path), "--focal-mm", "18", "--pixel-um", "11", "--json"] + extra) == 0
+        out[key] = json.loads(capsys.readouterr().out)
+    assert out["none"]["curvature_correction_px"] == 0.0
+    assert out["psf"]["curvature_correction_px"] == pytest.approx(
+        edge_curvature_bias_px(CAM.f_px * np.tan(scene.rho_rad), 1.0), rel=1e-3)
+    e0 = (out["none"]["rho_rad"] - scene.rho_rad) * px_per_rad
+    e1 = (out["psf"]["rho_rad"] - scene.rho_rad) * px_per_rad
+    assert e0 < -0.003 and abs(e1) < 0.001
+    assert main(["limb", str(path), "--focal-mm", "18", "--pixel-um", "11", "--psf-px", "-1"]) == 2
 
 
 @pytest.mark.bench

@@ -12,7 +12,12 @@ QR factorization throughout (Cholesky refuses this problem). Relinearization thr
 component in SI units, 1 km and 1 m/s, checked every update: on gto-transfer at 10 s
 (1,441 epochs) they cut the wall time from 25.6 s (1 m / 1 mm/s, skip 10) to 3.9 s, p99
 latency from 365 ms to 34 ms, and the final estimate still equals the batch solution to
-< 0.001 sigma (the models are nearly linear over 1 km at these ranges).
+< 0.001 sigma (the models are nearly linear over 1 km at these ranges). The wildfire
+threshold of the back-substitution is 100 (m, m/s): the newest state (the root of the
+chain's Bayes tree) is always solved, older states only when their update is large, so an
+update no longer touches the whole history (1,800 epochs at 1 Hz: p50 0.83 -> 0.28 ms,
+p99 42 -> 11 ms); the final trajectory uses a full back-substitution
+(``calculateBestEstimate``) and is unchanged (< 1e-4 sigma).
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ class IncrementalOptions:
     relinearize_velocity_mps: float = 1.0
     relinearize_skip: int = 1
     lag_s: float = 300.0
+    wildfire_threshold: float = 100.0  # back-substitution stops below this update (SI units)
 
 
 def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
@@ -54,6 +60,9 @@ def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
     tmap.insert(("x", thresholds))
     params.setRelinearizeThreshold(tmap)
     params.relinearizeSkip = opt.relinearize_skip
+    gn = gtsam.ISAM2GaussNewtonParams()
+    gn.setWildfireThreshold(opt.wildfire_threshold)
+    params.setOptimizationParams(gn)
     return params
 
 
@@ -200,7 +209,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         x_final, P_final = lagged_x, lagged_P
         lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
     else:
-        est = isam.calculateEstimate()
+        est = isam.calculateBestEstimate()  # full back-substitution, whatever the wildfire
         x_final = np.array([est.atVector(X(k)) for k in range(N)])
         # All marginals in O(N): one linearization of the chain at the iSAM2 estimate
         # (isam.marginalCovariance of an old state costs ~0.1-0.25 s each).

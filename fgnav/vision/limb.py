@@ -15,7 +15,19 @@ sub-pixel step):
    would bias the ratio: the shot noise is larger on the disk side). For a
    symmetric PSF the centroid of ``-dL/dt`` sits where the radiance-gradient centroid of
    the limb profile is, i.e. on the limb surface as the renderer defines it (no bias from
-   the blur, unlike a max-gradient pick on a skewed profile).
+   the blur, unlike a max-gradient pick on a skewed profile) -- for a *straight* edge.
+   On a curved edge every blur moves the centroid towards the centre of curvature:
+   convolving a disk of radius ``R`` with an isotropic kernel of variance ``s^2`` per axis
+   shifts its edge inward by ``s^2 / (2 R)`` to first order (the kernel sees
+   ``R + x - y^2/(2R)``). The locator's own blur adds :data:`EDGE_LOCATOR_VAR_PX2` to the
+   optics PSF: pixel area (box, 1/12), bilinear profile sampling (triangle, 1/6) and the
+   profile lines at tangential offsets ``w`` (:data:`PROFILE_LINE_OFFSETS_PX`), each of
+   which meets the curved edge ``w^2 / (2R)`` further in (mean of ``w^2``: 2/3).
+   :func:`edge_curvature_bias_px` gives the total inward offset
+   ``(psf_sigma_px^2 + EDGE_LOCATOR_VAR_PX2) / (2 R_px)``; measured on noise-free renders
+   at GEO (R_px = 250, :mod:`fgnav.simulate.limb_render`): PSF 0.5 / 1.0 / 1.5 px ->
+   -0.0022 / -0.0040 / -0.0070 px vs -0.0023 / -0.0038 / -0.0063 predicted.
+   :func:`fgnav.vision.horizon.estimate_horizon` (``psf_sigma_px``) applies it.
 3. Outliers: RANSAC with a least-median-of-squares score (no noise level needed) on the
    horizon-cone model ``s_i^T n = 1`` (rays ``s_i`` through the camera; a sphere's limb
    rays form a circular cone) or, without a camera, on a circle in the image; then
@@ -35,7 +47,28 @@ import numpy as np
 from fgnav.errors import UserError
 from fgnav.vision.camera import PinholeCamera
 
-__all__ = ["LimbPoints", "extract_limb_points", "ransac_limb", "cone_point_gain"]
+__all__ = ["LimbPoints", "extract_limb_points", "ransac_limb", "cone_point_gain",
+           "PROFILE_LINE_OFFSETS_PX", "EDGE_LOCATOR_VAR_PX2", "edge_curvature_bias_px"]
+
+PROFILE_LINE_OFFSETS_PX = (-1.0, 0.0, 1.0)
+"""Tangential offsets (px) of the parallel profile lines averaged by the sub-pixel step."""
+
+EDGE_LOCATOR_VAR_PX2 = (1.0 / 12.0 + 1.0 / 6.0
+                        + sum(w * w for w in PROFILE_LINE_OFFSETS_PX) / len(PROFILE_LINE_OFFSETS_PX))
+"""Blur variance (px^2) the sub-pixel edge locator adds to the optics PSF (module doc,
+step 2): pixel area 1/12 + bilinear sampling 1/6 + mean squared offset of the averaged
+profile lines (2/3 for :data:`PROFILE_LINE_OFFSETS_PX`) = 0.917."""
+
+
+def edge_curvature_bias_px(radius_px: float, psf_sigma_px: float) -> float:
+    """Inward offset (px, > 0) of the located edge of a limb with radius of curvature
+    ``radius_px`` (px) under a Gaussian optics PSF of sigma ``psf_sigma_px`` (px):
+    ``(psf_sigma_px^2 + EDGE_LOCATOR_VAR_PX2) / (2 radius_px)`` (module doc, step 2)."""
+    if not radius_px > 0:
+        raise UserError(f"edge curvature bias: limb radius must be > 0 px, got {radius_px}")
+    if not psf_sigma_px >= 0:
+        raise UserError(f"edge curvature bias: PSF sigma must be >= 0 px, got {psf_sigma_px}")
+    return (psf_sigma_px ** 2 + EDGE_LOCATOR_VAR_PX2) / (2.0 * radius_px)
 
 
 @dataclass
@@ -58,6 +91,12 @@ class LimbPoints:
     def inliers(self) -> "LimbPoints":
         m = self.inlier
         return LimbPoints(self.uv_px[m], self.normal[m], self.contrast[m], np.ones(int(m.sum()), bool))
+
+    def shifted(self, d_px) -> "LimbPoints":
+        """Copy with every point moved by ``d_px`` (px, scalar or (N,)) along its outward normal."""
+        d = np.asarray(d_px, float)
+        d = d[:, None] if d.ndim == 1 else d
+        return LimbPoints(self.uv_px + d * self.normal, self.normal, self.contrast, self.inlier)
 
 
 def _coarse_contour(img: np.ndarray, valid: np.ndarray | None, k: int):
@@ -105,7 +144,7 @@ def _coarse_contour(img: np.ndarray, valid: np.ndarray | None, k: int):
     return cont, g, keep
 
 
-def _sample_profiles(img, p, n, t_offsets, widths=(-1.0, 0.0, 1.0)):
+def _sample_profiles(img, p, n, t_offsets, widths=PROFILE_LINE_OFFSETS_PX):
     """Mean of bilinear profiles along normals: p (N,2), n (N,2), t_offsets (N,M) -> (N,M)."""
     import cv2
 
