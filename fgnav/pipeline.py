@@ -41,6 +41,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if method == "batch":
         return smooth_batch(p, options, progress=progress)
     if method == "ekf":
+        # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
+        # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
+        from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+        if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
+            return run_ekf_numba(p, options, progress=progress)
         from fgnav.solvers.ekf import run_ekf
         return run_ekf(p, options, progress=progress)
     from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
