@@ -39,6 +39,9 @@ def register(subparsers) -> None:
     p.add_argument("--no-curvature-correction", action="store_true",
                    help="do not correct the limb edge-curvature bias (needs psf_sigma_px in frames.csv)")
     p.add_argument("--seed", type=int, default=0, help="RANSAC random seed (default 0)")
+    p.add_argument("--attitude-out", metavar="FILE.csv",
+                   help="also write the star-derived attitude per epoch (quaternion w,x,y,z of "
+                        "R_eci_from_body and its covariance; columns in fgnav/io/attitude_csv.py)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors")
     p.set_defaults(func=run)
@@ -62,6 +65,14 @@ def run(args) -> int:
                                       f"rows {args.rows}, seed {args.seed}",))
     s = res.summary()
     s["out"] = str(out)
+    if args.attitude_out:
+        from fgnav.io.attitude_csv import write_attitude_csv
+
+        att = [e for e in res.epochs if e.R_eci_from_body is not None]
+        write_attitude_csv(args.attitude_out, [e.epoch for e in att],
+                           [e.R_eci_from_body for e in att], [e.P_att_rad2 for e in att],
+                           comments=(f"fgnav extract {args.frames}: star-derived attitude",))
+        s["attitude_out"] = str(args.attitude_out)
     if args.json:
         print(json.dumps(s))
     elif not args.quiet:
