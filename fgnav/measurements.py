@@ -194,3 +194,17 @@ def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
         sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
         P[sl, sl] = np.eye(3) * sig ** 2
     return P
+
+
+def prior_state(p: Pass) -> tuple[int, np.ndarray]:
+    """The a-priori state (6,) and its epoch index: the first epoch that has both a
+    ``prior_position`` and a ``prior_velocity`` row."""
+    pp, pv = p.families.get("prior_position"), p.families.get("prior_velocity")
+    if pp is None or pv is None:
+        raise UserError(f"{p.source}: a first guess needs 'prior_position' and 'prior_velocity' rows")
+    common = np.intersect1d(pp.k, pv.k)
+    if len(common) == 0:
+        raise UserError(f"{p.source}: 'prior_position' and 'prior_velocity' must share an epoch")
+    k0 = int(common[0])
+    return k0, np.concatenate([pp.values["xyz"][np.flatnonzero(pp.k == k0)[0]],
+                               pv.values["xyz"][np.flatnonzero(pv.k == k0)[0]]])

@@ -25,10 +25,10 @@ import gtsam
 import numpy as np
 
 from factors.dynamics import MotionModel, propagate, propagate_many, process_noise_sqrt_information
-from fgnav.errors import NotObservableError, UserError
+from fgnav.errors import NotObservableError
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
-from fgnav.measurements import Pass
+from fgnav.measurements import Pass, prior_state
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.time import j2000_seconds
@@ -83,15 +83,7 @@ def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
 
     Uses the first epoch that has both a ``prior_position`` and a ``prior_velocity`` row.
     """
-    pp, pv = p.families.get("prior_position"), p.families.get("prior_velocity")
-    if pp is None or pv is None:
-        raise UserError(f"{p.source}: a first guess needs 'prior_position' and 'prior_velocity' rows")
-    common = np.intersect1d(pp.k, pv.k)
-    if len(common) == 0:
-        raise UserError(f"{p.source}: 'prior_position' and 'prior_velocity' must share an epoch")
-    k0 = int(common[0])
-    x0 = np.concatenate([pp.values["xyz"][np.flatnonzero(pp.k == k0)[0]],
-                         pv.values["xyz"][np.flatnonzero(pv.k == k0)[0]]])
+    k0, x0 = prior_state(p)
     N = p.n_epochs
     Xg = np.empty((N, 6))
     Xg[k0] = x0

@@ -39,7 +39,7 @@ from numba import njit
 
 from factors.dynamics import propagate, propagate_nb
 from factors.geometry import tangent_basis
-from fgnav.measurements import prior_covariance
+from fgnav.measurements import prior_covariance, prior_state
 from fgnav.solution import Solution
 from fgnav.time import j2000_seconds
 
@@ -334,17 +334,7 @@ def first_state(p, model, t0_j2000_s: float) -> np.ndarray:
     """State at epoch 0 from the priors: the same numbers as
     ``fgnav.solvers.batch.initial_guess(p, model, t0)[0]`` without propagating the whole pass
     (the priors at the first epoch ``k0`` sharing both, propagated back to epoch 0)."""
-    pp, pv = p.families.get("prior_position"), p.families.get("prior_velocity")
-    if pp is None or pv is None:
-        from fgnav.errors import UserError
-        raise UserError(f"{p.source}: a first guess needs 'prior_position' and 'prior_velocity' rows")
-    common = np.intersect1d(pp.k, pv.k)
-    if len(common) == 0:
-        from fgnav.errors import UserError
-        raise UserError(f"{p.source}: 'prior_position' and 'prior_velocity' must share an epoch")
-    k0 = int(common[0])
-    x = np.concatenate([pp.values["xyz"][np.flatnonzero(pp.k == k0)[0]],
-                        pv.values["xyz"][np.flatnonzero(pv.k == k0)[0]]])
+    k0, x = prior_state(p)
     for k in range(k0 - 1, -1, -1):
         x = propagate(x, p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
     return x
