@@ -29,7 +29,7 @@ from fgnav.vision.star_id import (DatabaseParams, build_database, database_fov_f
                                   solve_lost_in_space)
 from fgnav.vision.stars import detect_stars
 
-IMG_DIR = Path("/work/shared/data/star_images")
+IMG_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "star_images"
 
 
 def _stats_ms(t):

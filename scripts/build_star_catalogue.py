@@ -18,7 +18,7 @@ import hashlib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_SRC = Path("/work/shared/data/stars_bsc5.csv")
+DEFAULT_SRC = Path(__file__).resolve().parents[2] / "shared" / "data" / "stars_bsc5.csv"
 DEFAULT_OUT = ROOT / "data" / "catalogue" / "bsc5.csv"
 
 

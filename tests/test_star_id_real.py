@@ -8,6 +8,7 @@ eight solved boresights must leave small residuals, and with the timestamp read 
 implied site must be a real place: it comes out at ESA ESTEC, Noordwijk (52.22 N, 4.42 E).
 """
 
+from shared_data import SHARED_DATA  # noqa: E402
 import json
 from pathlib import Path
 
@@ -24,7 +25,7 @@ from fgnav.vision.star_id import (DatabaseParams, StarIdentificationError, build
                                   get_database, solve_lost_in_space)
 from fgnav.vision.stars import detect_stars
 
-IMG_DIR = Path("/work/shared/data/star_images")
+IMG_DIR = SHARED_DATA / "star_images"
 IMAGES = sorted(IMG_DIR.glob("*.tiff"))
 EPOCH = decimal_year("2019-07-29T20:47:26Z")
 FOV_NOMINAL_DEG = 11.4

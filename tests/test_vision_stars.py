@@ -6,6 +6,7 @@ independent of the centroiding code.
 
 from pathlib import Path
 
+from shared_data import SHARED_DATA  # noqa: E402
 import numpy as np
 import pytest
 
@@ -17,7 +18,7 @@ from fgnav.vision.catalogue import (DEFAULT_CATALOGUE_PATH, decimal_year, load_c
                                     radec_to_unit, unit_to_radec)
 from fgnav.vision.stars import detect_stars, estimate_background
 
-SHARED_BSC5 = Path("/work/shared/data/stars_bsc5.csv")
+SHARED_BSC5 = SHARED_DATA / "stars_bsc5.csv"
 CAM = PinholeCamera.from_fov(11.4, 1024, 768)
 
 
