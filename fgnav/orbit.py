@@ -120,6 +120,23 @@ def elements_to_state(a_m, e, i_rad, raan_rad, argp_rad, nu_rad, mu=MU_EARTH_M3_
     return np.concatenate([R @ r_pqw, R @ v_pqw])
 
 
+def kepler_states(t_s, a_m, e, i_rad, raan_rad, argp_rad, M0_rad, mu=MU_EARTH_M3_S2):
+    """Two-body ECI states (N, 6) [m, m/s] at times ``t_s`` (s) from classical elements with
+    mean anomaly ``M0_rad`` at t = 0: M = M0 + n t, n = sqrt(mu / a^3), then COE2RV
+    (:func:`elements_to_state`, vectorized over the true anomaly)."""
+    if not (a_m > 0.0 and 0.0 <= e < 1.0):
+        raise UserError(f"kepler_states needs a > 0 m and 0 <= e < 1, got a = {a_m}, e = {e}")
+    n = math.sqrt(mu / a_m ** 3)
+    nu = np.atleast_1d(mean_to_true_anomaly(M0_rad + n * np.asarray(t_s, dtype=float), e))
+    p = a_m * (1.0 - e * e)
+    cn, sn = np.cos(nu), np.sin(nu)
+    zero = np.zeros_like(nu)
+    r_pqw = np.stack([cn, sn, zero], axis=1) * (p / (1.0 + e * cn))[:, None]
+    v_pqw = np.stack([-sn, e + cn, zero], axis=1) * math.sqrt(mu / p)
+    R = _rot_pqw_to_eci(i_rad, raan_rad, argp_rad)
+    return np.concatenate([r_pqw @ R.T, v_pqw @ R.T], axis=1)
+
+
 def state_to_elements(x, mu=MU_EARTH_M3_S2, tol=1e-11) -> Elements:
     """Classical elements (``Elements``) of the ECI state ``x`` (6,) [m, m/s] (Vallado Algorithm 9, RV2COE).
 

@@ -17,28 +17,6 @@ from pathlib import Path
 import numpy as np
 
 
-def kepler_states(t_s, a_m, e, i_rad, raan_rad, argp_rad, M0_rad):
-    """Two-body ECI states (N, 6) from classical elements (Vallado alg. 10)."""
-    from factors.constants import MU_EARTH_M3_S2
-
-    n = np.sqrt(MU_EARTH_M3_S2 / a_m**3)
-    M = M0_rad + n * np.asarray(t_s, float)
-    E = M.copy()
-    for _ in range(50):
-        E -= (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
-    cE, sE = np.cos(E), np.sin(E)
-    r_pf = np.stack([a_m * (cE - e), a_m * np.sqrt(1 - e**2) * sE, 0 * E], axis=1)
-    rdot = np.sqrt(MU_EARTH_M3_S2 * a_m) / (a_m * (1 - e * cE))
-    v_pf = np.stack([-rdot * sE, rdot * np.sqrt(1 - e**2) * cE, 0 * E], axis=1)
-    ci, si, cO, sO, cw, sw = (np.cos(i_rad), np.sin(i_rad), np.cos(raan_rad), np.sin(raan_rad),
-                              np.cos(argp_rad), np.sin(argp_rad))
-    Rz_O = np.array([[cO, -sO, 0], [sO, cO, 0], [0, 0, 1]])
-    Rx_i = np.array([[1, 0, 0], [0, ci, -si], [0, si, ci]])
-    Rz_w = np.array([[cw, -sw, 0], [sw, cw, 0], [0, 0, 1]])
-    Q = Rz_O @ Rx_i @ Rz_w
-    return np.concatenate([r_pf @ Q.T, v_pf @ Q.T], axis=1)
-
-
 def synthetic_pass(n, dt_s, seed):
     """Seed-002-like transfer orbit, RTN-diagonal covariance, estimate = truth + draw."""
     from fgnav.solution import Solution
@@ -46,6 +24,8 @@ def synthetic_pass(n, dt_s, seed):
 
     rng = np.random.default_rng(seed)
     t = np.arange(n) * dt_s
+    from fgnav.orbit import kepler_states
+
     truth = kepler_states(t, 26_332_437.9, 0.72, np.radians(90.0), 0.0, np.radians(13.75),
                           np.radians(1.89))
     R = rtn_rotations(truth)

@@ -202,3 +202,17 @@ def test_rtn_frame():
     Fs = rtn_frame(np.stack([x, elements_to_state(*LEO_ELEMENTS)]))
     assert Fs.shape == (2, 3, 3)
     np.testing.assert_allclose(Fs[0], F)
+
+
+def test_kepler_states_equal_coe2rv_and_the_two_body_integrator():
+    """fgnav.orbit.kepler_states: Kepler's equation + COE2RV, vectorized over time."""
+    from fgnav.orbit import integrate_truth, kepler_states
+
+    a, e, i, raan, argp, M0 = 26_332_437.9, 0.72, np.radians(90.0), 0.0, np.radians(13.75), 0.033
+    t = np.linspace(0.0, 4 * 3600.0, 9)
+    x = kepler_states(t, a, e, i, raan, argp, M0)
+    np.testing.assert_allclose(x[0], elements_to_state(a, e, i, raan, argp,
+                                                       mean_to_true_anomaly(M0, e)), atol=1e-6)
+    ref = integrate_truth(x[0], t, j2=False)
+    assert np.max(np.linalg.norm(x[:, :3] - ref[:, :3], axis=1)) < 1e-3
+    assert np.max(np.linalg.norm(x[:, 3:] - ref[:, 3:], axis=1)) < 1e-6

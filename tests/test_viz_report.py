@@ -11,8 +11,9 @@ import pytest
 
 matplotlib.use("Agg")
 
-from factors.constants import MU_EARTH_M3_S2, R_EARTH_M  # noqa: E402
+from factors.constants import R_EARTH_M  # noqa: E402
 from fgnav.errors import InputFormatError, UserError  # noqa: E402
+from fgnav import orbit  # noqa: E402
 from fgnav.orbit import rtn_frame  # noqa: E402
 from fgnav.viz import report  # noqa: E402
 
@@ -21,20 +22,8 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 def kepler_states(t_s, a_m=R_EARTH_M + 700e3, e=0.01, i=np.radians(97.0), raan=np.radians(77.0),
                   argp=np.radians(55.0), M0=0.3):
-    """Two-body ECI states (N, 6) from classical elements (Vallado alg. 10, COE2RV)."""
-    n = np.sqrt(MU_EARTH_M3_S2 / a_m**3)
-    M = M0 + n * np.asarray(t_s, float)
-    E = M.copy()
-    for _ in range(50):
-        E -= (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
-    cE, sE = np.cos(E), np.sin(E)
-    r_pf = np.stack([a_m * (cE - e), a_m * np.sqrt(1 - e**2) * sE, 0 * E], axis=1)
-    rdot = np.sqrt(MU_EARTH_M3_S2 * a_m) / (a_m * (1 - e * cE))
-    v_pf = np.stack([-rdot * sE, rdot * np.sqrt(1 - e**2) * cE, 0 * E], axis=1)
-    cO, sO, ci, si, cw, sw = np.cos(raan), np.sin(raan), np.cos(i), np.sin(i), np.cos(argp), np.sin(argp)
-    Q = (np.array([[cO, -sO, 0], [sO, cO, 0], [0, 0, 1]]) @ np.array([[1, 0, 0], [0, ci, -si], [0, si, ci]])
-         @ np.array([[cw, -sw, 0], [sw, cw, 0], [0, 0, 1]]))
-    return np.concatenate([r_pf @ Q.T, v_pf @ Q.T], axis=1)
+    """Two-body ECI states (N, 6) of the test's LEO (fgnav.orbit.kepler_states)."""
+    return orbit.kepler_states(t_s, a_m, e, i, raan, argp, M0)
 
 
 SIG_RTN = np.array([40.0, 150.0, 25.0, 0.15, 0.04, 0.03])

@@ -13,33 +13,12 @@ import pytest
 
 rr = pytest.importorskip("rerun")
 
-from factors.constants import MU_EARTH_M3_S2, R_EARTH_M  # noqa: E402
+from factors.constants import R_EARTH_M  # noqa: E402
+from fgnav.orbit import kepler_states  # noqa: E402
 from fgnav.solution import Solution  # noqa: E402
 from fgnav.viz import rerun_log  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def kepler_states(t_s, a_m, e, i_rad, raan_rad, argp_rad, M0_rad):
-    """Two-body states (N, 6) in ECI from classical elements (Vallado alg. 10, COE2RV)."""
-    n = np.sqrt(MU_EARTH_M3_S2 / a_m**3)
-    M = M0_rad + n * np.asarray(t_s, float)
-    E = M.copy()
-    for _ in range(50):
-        E -= (E - e * np.sin(E) - M) / (1.0 - e * np.cos(E))
-    cE, sE = np.cos(E), np.sin(E)
-    r_pf = np.stack([a_m * (cE - e), a_m * np.sqrt(1 - e**2) * sE, 0 * E], axis=1)
-    rdot = np.sqrt(MU_EARTH_M3_S2 * a_m) / (a_m * (1 - e * cE))
-    v_pf = np.stack([-rdot * sE, rdot * np.sqrt(1 - e**2) * cE, 0 * E], axis=1)
-
-    def rz(a):
-        return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-
-    def rx(a):
-        return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-
-    Q = rz(raan_rad) @ rx(i_rad) @ rz(argp_rad)
-    return np.concatenate([r_pf @ Q.T, v_pf @ Q.T], axis=1)
 
 
 def make_solution(n=300, dt_s=20.0, seed=1, sig_rtn=(40.0, 150.0, 25.0, 0.15, 0.04, 0.03),
