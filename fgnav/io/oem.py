@@ -183,6 +183,29 @@ def _number(path, lineno, column, text, scale=1.0):
 _STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
 
 
+def _header_line(path, lineno, s, meta) -> bool:
+    """One line of a CCSDS KVN message header (OEM, TDM) before the first META_START.
+
+    Stores CREATION_DATE / ORIGINATOR / MESSAGE_ID in ``meta`` (CREATION_DATE checked as an
+    epoch); at META_START checks that the required keywords came first and returns True.
+    """
+    if s == "META_START":
+        for k in ("CREATION_DATE", "ORIGINATOR"):
+            if k not in meta:
+                raise InputFormatError(path, lineno, k, f"header keyword {k} before "
+                                       "META_START", "META_START")
+        return True
+    m = _KVN_RE.match(s)
+    if m is None or m.group(1) not in _HEADER_KEYS:
+        raise InputFormatError(path, lineno, m.group(1) if m else None,
+                               "a header keyword (CREATION_DATE, ORIGINATOR, MESSAGE_ID, "
+                               "COMMENT) or META_START", s)
+    if m.group(1) == "CREATION_DATE":
+        _epoch(path, lineno, "CREATION_DATE", m.group(2))
+    meta[m.group(1)] = m.group(2)
+    return False
+
+
 def read_oem(path) -> OemData:
     """Read an OEM (KVN) file into SI arrays (see the module docstring for what is accepted)."""
     from fgnav.time import seconds_since
@@ -240,21 +263,9 @@ def read_oem(path) -> OemData:
                 (segment or meta).setdefault("comments", []).append(s[7:].strip())
                 continue
         if state == "header":
-            if s == "META_START":
-                for k in ("CREATION_DATE", "ORIGINATOR"):
-                    if k not in meta:
-                        raise InputFormatError(path, lineno, k, f"header keyword {k} before "
-                                               "META_START", "META_START")
+            if _header_line(path, lineno, s, meta):
                 state = "meta"
                 segment = {"comments": [], "line": lineno}
-                continue
-            key, val = _kvn(path, lineno, text, "OEM header")
-            if key not in _HEADER_KEYS:
-                raise InputFormatError(path, lineno, key, "a header keyword (CREATION_DATE, "
-                                       "ORIGINATOR, MESSAGE_ID, COMMENT) or META_START", s)
-            if key == "CREATION_DATE":
-                _epoch(path, lineno, key, val)
-            meta[key] = val
             continue
         if state == "meta":
             if s == "META_STOP":

@@ -45,13 +45,12 @@ import re
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
-from fgnav.io.oem import _KVN_RE, _epoch, _number, _read_lines
+from fgnav.io.oem import _KVN_RE, _epoch, _header_line, _number, _read_lines
 
 __all__ = ["read_tdm"]
 
 _SIGMA_RE = re.compile(r"\bsigma_deg\s*=\s*(\S+)")
 _DATA_RE = re.compile(r"^([A-Z][A-Z0-9_]*)\s*=\s*(\S+)\s+(\S+)\s*$")
-_HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
 
 
 def _sigma_from_comment(path, lineno, comment):
@@ -138,23 +137,10 @@ def read_tdm(path, sigma_rad: float | None = None):
                 meta.setdefault("comments", []).append(text)
             continue
         if state == "header":
-            if s == "META_START":
-                for k in ("CREATION_DATE", "ORIGINATOR"):
-                    if k not in meta:
-                        raise InputFormatError(path, lineno, k, f"header keyword {k} before "
-                                               "META_START", "META_START")
+            if _header_line(path, lineno, s, meta):
                 state = "meta"
                 seg = {"line": lineno, "comments": [], "sigma": None, "pending": {},
                        "rows": [], "n_angles": 0, "keys": {}, "paired": {}}
-                continue
-            m = _KVN_RE.match(s)
-            if m is None or m.group(1) not in _HEADER_KEYS:
-                raise InputFormatError(path, lineno, m.group(1) if m else None,
-                                       "a header keyword (CREATION_DATE, ORIGINATOR, MESSAGE_ID, "
-                                       "COMMENT) or META_START", s[:60])
-            if m.group(1) == "CREATION_DATE":
-                _epoch(path, lineno, "CREATION_DATE", m.group(2))
-            meta[m.group(1)] = m.group(2)
             continue
         if state == "meta":
             if s == "META_STOP":
