@@ -66,3 +66,11 @@ def chi2_gate(dim: int, probability: float) -> float:
     if not 0.0 < probability < 1.0:
         raise UserError(f"gate probability must be in (0, 1), got {probability}")
     return float(chi2.ppf(probability, dim))
+
+
+def passes_gate(A: np.ndarray, b: np.ndarray, P: np.ndarray, probability: float):
+    """Chi-square gate of one measurement with whitened rows ``A dx ~ b`` (m, 6) against the
+    state covariance ``P``: returns (passes, S) with the innovation covariance
+    ``S = A P A^T + I`` and ``NIS = b^T S^-1 b`` compared with :func:`chi2_gate`."""
+    S = A @ P @ A.T + np.eye(len(b))
+    return bool(b @ np.linalg.solve(S, b) <= chi2_gate(len(b), probability)), S

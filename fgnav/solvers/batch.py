@@ -205,7 +205,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     t_start = time.perf_counter()
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
-    Xs = initial_guess(p, model, t0_j2000) if x_init is None else np.array(x_init, dtype=float)
+    Xs = None
     q_stages = []
     q = max(options.q_start_m2_s3, options.q_m2_s3)
     while q > options.q_m2_s3 * (1 + 1e-9):
@@ -239,31 +239,29 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                 return lin, True
         return lin, False
 
+    converged = False
     x_ekf = _ekf_first_guess(p, options) if x_init is None and kernel is None else None
     if x_ekf is not None:
         # The filtered trajectory is a first guess close enough for Gauss-Newton at the
         # target process noise: 3 iterations instead of 7 on gto-transfer (1.2 s vs 3.3 s at
         # 14,400 epochs, same solution to 0.2 mm). Continuation from the prior if it fails.
-        x_prior_guess, Xs = Xs, x_ekf
+        Xs = x_ekf
         try:
             lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
         except NotObservableError:
             converged = False
         if converged:
             q_stages = [options.q_m2_s3]
-            stage_loop = []
-        else:
-            Xs = x_prior_guess
-            stage_loop = q_stages
-    else:
-        stage_loop = q_stages
-    for stage, q in enumerate(stage_loop):
-        final = stage == len(q_stages) - 1
-        # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last stage.
-        stage_kernel = kernel
-        if kernel is not None and kernel.name == "cauchy" and not final:
-            stage_kernel = RobustKernel.create("huber")
-        lin, converged = converge(q, stage_kernel, None, 1.0 if final else 100.0)
+    if not converged:
+        Xs = initial_guess(p, model, t0_j2000) if x_init is None else np.array(x_init, dtype=float)
+        for stage, q in enumerate(q_stages):
+            final = stage == len(q_stages) - 1
+            # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last
+            # stage.
+            stage_kernel = kernel
+            if kernel is not None and kernel.name == "cauchy" and not final:
+                stage_kernel = RobustKernel.create("huber")
+            lin, converged = converge(q, stage_kernel, None, 1.0 if final else 100.0)
     rejected = None
     if kernel is not None:
         # Reject what the kernel exposed as outliers (beyond the chi-square gate of

@@ -14,7 +14,7 @@ import numpy as np
 
 from factors.dynamics import propagate, process_noise
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS
-from fgnav.robust import chi2_gate
+from fgnav.robust import passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
@@ -55,14 +55,16 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 _, A, b, _ = fn(fam.subset(np.array([j]), 0), x[None])
                 A = A.reshape(-1, 6)
                 b = b.reshape(-1)
-                S = A @ P @ A.T + np.eye(len(b))
                 if kind not in residuals:
                     residuals[kind] = np.full((len(fam), len(b)), np.nan)
                 residuals[kind][j] = -b
                 if options.gate_probability is not None and kind not in PRIOR_KINDS:
-                    if b @ np.linalg.solve(S, b) > chi2_gate(len(b), options.gate_probability):
+                    ok, S = passes_gate(A, b, P, options.gate_probability)
+                    if not ok:
                         rejected[kind] = rejected.get(kind, 0) + 1
                         continue
+                else:
+                    S = A @ P @ A.T + np.eye(len(b))
                 K = np.linalg.solve(S, A @ P).T
                 x = x + K @ b
                 IKA = eye6 - K @ A

@@ -32,7 +32,7 @@ from factors.dynamics import process_noise, propagate
 from factors.motion import make_motion_factor
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
-from fgnav.robust import RobustKernel, chi2_gate
+from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
@@ -114,7 +114,6 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     latency = np.empty(N)
     kernel = RobustKernel.create(options.robust, options.robust_k)
     gate = options.gate_probability
-    rejected: dict[str, int] = {}
     rejected_rows = {kind: np.zeros(len(f), bool) for kind, f in p.families.items()}
     if (checkpoint or resume) and fixed_lag:
         raise UserError("checkpoint/resume is available for --method isam2 (full history) only")
@@ -125,19 +124,17 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
             elif gate is not None and kind not in PRIOR_KINDS:
-                rows = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate, rejected)
-                rejected_rows[kind][np.setdiff1d(per_rows(kind, k), rows)] = True
+                kept = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate)
+                rejected_rows[kind][np.setdiff1d(rows, kept)] = True
+                rows = kept
             for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel, guess):
                 graph.add(f)
-
-    def per_rows(kind, k):
-        return dict(per_epoch[k])[kind]
 
     k_start = 0
     if resume:
         if not checkpoint:
             raise UserError("resume needs a checkpoint file")
-        k_start, x_est, rejected, rejected_rows = _load_checkpoint(
+        k_start, x_est, rejected_rows = _load_checkpoint(
             checkpoint, fingerprint, online_x, online_P, latency, rejected_rows)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
@@ -198,8 +195,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         if checkpoint and ((k + 1) % checkpoint_every == 0 or k == N - 1):
             est = isam.calculateEstimate()
             _save_checkpoint(checkpoint, fingerprint, k + 1, online_x, online_P, latency,
-                             np.array([est.atVector(X(j)) for j in range(k + 1)]), rejected,
-                             rejected_rows)
+                             np.array([est.atVector(X(j)) for j in range(k + 1)]), rejected_rows)
         if progress is not None:
             progress(k)
     if fixed_lag:
@@ -225,7 +221,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                             "latency_p99_s": float(np.percentile(latency, 99)),
                             "latency_max_s": float(latency.max()),
                             **({"lag_s": inc.lag_s} if fixed_lag else {}),
-                            **({"gate_probability": gate, "rejected": rejected} if gate else {}),
+                            **({"gate_probability": gate,
+                                "rejected": {kind: int(m.sum()) for kind, m in rejected_rows.items()
+                                             if m.any()}} if gate else {}),
                             **robust_counts(options, lin.weights)})
 
 
@@ -243,24 +241,20 @@ def _fingerprint(p: Pass, options: SmootherOptions, method: str) -> str:
     return h.hexdigest()
 
 
-def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_est, rejected,
-                     rejected_rows):
+def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_est, rejected_rows):
     import io
-    import json
 
     from fgnav.io.atomic import atomic_writer
 
     buf = io.BytesIO()
     np.savez(buf, fingerprint=fingerprint, k_next=k_next, online_x=online_x[:k_next],
              online_P=online_P[:k_next], latency=latency[:k_next], x_est=x_est,
-             rejected=json.dumps(rejected),
              **{f"rejected_rows/{kind}": m for kind, m in rejected_rows.items()})
     with atomic_writer(path, "wb") as f:
         f.write(buf.getvalue())
 
 
 def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows):
-    import json
     import os
 
     if not os.path.exists(path):
@@ -275,18 +269,14 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
         raise UserError(f"{path}: the checkpoint belongs to another log or other options")
     online_x[:k], online_P[:k], latency[:k] = z["online_x"], z["online_P"], z["latency"]
     rows = {kind: z[f"rejected_rows/{kind}"] for kind in rejected_rows}
-    return k, z["x_est"], json.loads(str(z["rejected"])), rows
+    return k, z["x_est"], rows
 
 
-def _gate_rows(fam, kind, rows, x_pred, P_pred, probability, rejected):
-    """The rows whose innovation passes the chi-square gate; counts the others."""
+def _gate_rows(fam, kind, rows, x_pred, P_pred, probability):
+    """The rows whose innovation at the predicted state passes the chi-square gate."""
     keep = []
     for j in rows:
         _, A, b, _ = LINEARIZERS[kind](fam.subset(np.array([j]), 0), x_pred[None])
-        A, b = A.reshape(-1, 6), b.reshape(-1)
-        S = A @ P_pred @ A.T + np.eye(len(b))
-        if b @ np.linalg.solve(S, b) > chi2_gate(len(b), probability):
-            rejected[kind] = rejected.get(kind, 0) + 1
-        else:
+        if passes_gate(A.reshape(-1, 6), b.reshape(-1), P_pred, probability)[0]:
             keep.append(j)
     return np.array(keep, dtype=int)
