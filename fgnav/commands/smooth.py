@@ -1,12 +1,12 @@
 """``fgnav smooth LOG --method batch|isam2|fixed-lag|ekf --out DIR``."""
 
-DEFAULT_Q_TEXT = "1e-12"
+from fgnav.defaults import DEFAULT_Q_M2_S3
 
 
 def add_solver_options(p):
     """Options shared by smooth and demo (motion model and noise)."""
     p.add_argument("--process-noise", type=float, metavar="Q",
-                   help=f"white-acceleration PSD of the motion prior (m^2/s^3; default {DEFAULT_Q_TEXT}:"
+                   help=f"white-acceleration PSD of the motion prior (m^2/s^3; default {DEFAULT_Q_M2_S3:g}:"
                         " raise it when forces are missing from the model)")
     p.add_argument("--third-body", action="store_true",
                    help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")

@@ -26,19 +26,13 @@ import numpy as np
 
 from factors.dynamics import MotionModel, propagate, propagate_many, process_noise_sqrt_information
 from fgnav.errors import NotObservableError
+from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, prior_state
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.time import j2000_seconds
-
-DEFAULT_Q_M2_S3 = 1e-12
-"""Default white-acceleration PSD of the motion prior (m^2/s^3): 1e-12 lets the velocity
-wander by sqrt(q t) = 0.12 mm/s over 4 h, far below what direction measurements resolve
-when the dynamics are modelled (two-body + J2); raise it (e.g. 1e-9 ... 1e-7) when forces are
-missing from the model (drag, third body at GEO, manoeuvres)."""
-
 
 @dataclass(frozen=True)
 class SmootherOptions:
