@@ -142,6 +142,23 @@ def _rows(code, x, data, B, sigma, A, b, r0):
 
 
 @njit(cache=True)
+def _sandwich(M, P, T, out):
+    """out <- M P M^T for 6x6 matrices (T: 6x6 scratch; out may be P)."""
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for p in range(6):
+                s += M[i, p] * P[p, j]
+            T[i, j] = s
+    for i in range(6):
+        for j in range(6):
+            s = 0.0
+            for p in range(6):
+                s += T[i, p] * M[j, p]
+            out[i, j] = s
+
+
+@njit(cache=True)
 def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, q,
                g_ptr, g_code, g_row0, g_nmeas, m_data, m_B, m_sigma, x, P, xs, Ps, innov):
     """Filter epochs ``k_begin <= k < k_end`` in place; returns -1, or the failing measurement.
@@ -169,18 +186,7 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
             for i in range(6):
                 x[i] = x1[i]
             # P <- Phi P Phi^T + Q
-            for i in range(6):
-                for j in range(6):
-                    s = 0.0
-                    for p in range(6):
-                        s += Phi[i, p] * P[p, j]
-                    T[i, j] = s
-            for i in range(6):
-                for j in range(6):
-                    s = 0.0
-                    for p in range(6):
-                        s += T[i, p] * Phi[j, p]
-                    P[i, j] = s
+            _sandwich(Phi, P, T, P)
             adt = abs(dt)
             qpp = q * adt * adt * adt / 3.0
             qpv = q * dt * adt / 2.0
@@ -232,20 +238,11 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
                         s += Kt[p, i] * A[p, j]
                     IKA[i, j] = (1.0 if i == j else 0.0) - s
             # P <- IKA P IKA^T + K K^T
+            _sandwich(IKA, P, T, Phi)
             for i in range(6):
                 for j in range(6):
-                    s = 0.0
-                    for p in range(6):
-                        s += IKA[i, p] * P[p, j]
-                    T[i, j] = s
-            for i in range(6):
-                for j in range(6):
-                    s = 0.0
-                    for p in range(6):
-                        s += T[i, p] * IKA[j, p]
                     for p in range(m):
-                        s += Kt[p, i] * Kt[p, j]
-                    Phi[i, j] = s
+                        Phi[i, j] += Kt[p, i] * Kt[p, j]
             for i in range(6):
                 for j in range(6):
                     P[i, j] = Phi[i, j]
