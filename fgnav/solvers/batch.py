@@ -24,12 +24,13 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors.dynamics import MotionModel, propagate, propagate_many, process_noise_sqrt_information
+from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from fgnav.errors import NotObservableError
 from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
-from fgnav.measurements import Pass, prior_state
+from fgnav.measurements import Pass
+from fgnav.solvers.first_guess import initial_guess
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.time import j2000_seconds
@@ -71,22 +72,6 @@ def _unit(dim: int):
 
 
 X = gtsam.symbol_shorthand.X
-
-
-def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
-    """First guess of every state: the a-priori state propagated through all epochs.
-
-    Uses the first epoch that has both a ``prior_position`` and a ``prior_velocity`` row.
-    """
-    k0, x0 = prior_state(p)
-    N = p.n_epochs
-    Xg = np.empty((N, 6))
-    Xg[k0] = x0
-    for k in range(k0 + 1, N):
-        Xg[k] = propagate(Xg[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1])[0]
-    for k in range(k0 - 1, -1, -1):
-        Xg[k] = propagate(Xg[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
-    return Xg
 
 
 @dataclass

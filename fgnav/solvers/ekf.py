@@ -18,7 +18,8 @@ from fgnav.robust import passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
-from fgnav.solvers.batch import SmootherOptions, initial_guess
+from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.incremental import rows_by_epoch
 from fgnav.time import j2000_seconds
 
@@ -30,7 +31,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     t0_j2000 = float(j2000_seconds(p.epoch0))
     N = p.n_epochs
     per_epoch = rows_by_epoch(p)
-    x = initial_guess(p, model, t0_j2000)[0]
+    x = first_state(p, model, t0_j2000)
     P = prior_covariance(p)
     xs = np.empty((N, 6))
     Ps = np.empty((N, 6, 6))

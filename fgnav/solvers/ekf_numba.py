@@ -37,10 +37,11 @@ import time
 import numpy as np
 from numba import njit
 
-from factors.dynamics import propagate, propagate_nb
+from factors.dynamics import propagate_nb
 from factors.geometry import tangent_basis
-from fgnav.measurements import prior_covariance, prior_state
+from fgnav.measurements import prior_covariance
 from fgnav.solution import Solution
+from fgnav.solvers.first_guess import first_state
 from fgnav.time import j2000_seconds
 
 __all__ = ["SUPPORTED_KINDS", "run_ekf_numba", "pack_pass", "first_state", "prior_covariance"]
@@ -325,16 +326,6 @@ def pack_pass(p) -> Packed:
                   np.concatenate(g_row0)[o].astype(np.int64), np.concatenate(g_n)[o].astype(np.int64),
                   np.ascontiguousarray(np.concatenate(datas)), np.ascontiguousarray(np.concatenate(Bs)),
                   np.concatenate(sigmas), spans)
-
-
-def first_state(p, model, t0_j2000_s: float) -> np.ndarray:
-    """State at epoch 0 from the priors: the same numbers as
-    ``fgnav.solvers.batch.initial_guess(p, model, t0)[0]`` without propagating the whole pass
-    (the priors at the first epoch ``k0`` sharing both, propagated back to epoch 0)."""
-    k0, x = prior_state(p)
-    for k in range(k0 - 1, -1, -1):
-        x = propagate(x, p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
-    return x
 
 
 # ----------------------------------------------------------------------------- driver

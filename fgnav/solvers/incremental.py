@@ -36,8 +36,9 @@ from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
-from fgnav.solvers.batch import SmootherOptions, initial_guess, linearize_and_eliminate, robust_counts
+from fgnav.solvers.batch import SmootherOptions, linearize_and_eliminate, robust_counts
 from fgnav.solvers.chain import chain_marginals
+from fgnav.solvers.first_guess import first_state
 from fgnav.time import j2000_seconds
 
 X = gtsam.symbol_shorthand.X
@@ -97,7 +98,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     N = p.n_epochs
     per_epoch = rows_by_epoch(p)
     # The first guess of state 0 comes from the priors (propagated back if they are later).
-    x_prev = initial_guess(p, model, t0_j2000)[0]
+    x_prev = first_state(p, model, t0_j2000)
     fixed_lag = method == "fixed-lag"
     if fixed_lag:
         smoother = gtsam.IncrementalFixedLagSmoother(inc.lag_s, _isam2_params(inc))
