@@ -17,10 +17,12 @@ perturbation ``R <- R Exp(w)`` of ``R_eci_from_body``,
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
+from numba import njit
 
-from factors.adapters import (custom_factor, pad_position_jacobian, rot3_matrix,
+from factors.adapters import (custom_factor, noise_model, pad_position_jacobian, rot3_matrix,
                               vector_state)
 from factors.geometry import skew, tangent_basis, unit_and_jacobian
 
@@ -112,21 +114,52 @@ def star_direction_residual(R_eci_from_body, s_eci, u_meas_body, B=None):
 
 # --- GTSAM CustomFactor adapters (one epoch each) -------------------------------------
 
-def _earth_direction(key_x, u_meas, B, values):
-    x = vector_state(values, key_x)
-    e, H_r = earth_direction_residual(x[None, :3], u_meas, B)
-    return e[0], [pad_position_jacobian(H_r[0], x.shape[0])]
+@njit(cache=True)
+def earth_direction_kernel(x, B, want_H, e, H):
+    """One epoch of :func:`earth_direction_residual`, written out for the per-factor route.
+
+    x (>= 3,): state, position first; B (2, 3): ``tangent_basis(u_meas)``. Writes
+    ``e = -B r/|r|`` into e (2,) and, if want_H, ``H = [-B (I - u u^T)/|r|, 0]`` into H (2, 6).
+    """
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    u0, u1, u2 = x[0] / n, x[1] / n, x[2] / n
+    for i in range(2):
+        bu = B[i, 0] * u0 + B[i, 1] * u1 + B[i, 2] * u2
+        e[i] = -bu
+        if want_H:
+            H[i, 0] = -(B[i, 0] - bu * u0) / n
+            H[i, 1] = -(B[i, 1] - bu * u1) / n
+            H[i, 2] = -(B[i, 2] - bu * u2) / n
+            for j in range(3, H.shape[1]):
+                H[i, j] = 0.0
 
 
 def make_earth_direction_factor(key_x, u_meas_eci, sigma_rad):
     """CustomFactor on a state key ``[r; v]`` (Jacobian (2, 6), zeros for velocity).
 
     ``u_meas_eci``: (3,) measured geocentric direction in ECI; ``sigma_rad``: angular noise
-    per tangent axis (float or (2,)).
+    per tangent axis (float, (2,) or a gtsam noise model). The error function calls the numba
+    kernel of :func:`earth_direction_residual` directly: this factor is built and
+    relinearized once per epoch by iSAM2, where the generic numpy route cost 16 us a call
+    against 4 us (tests check both give the same linearization).
     """
+    import gtsam
+
     u = np.asarray(u_meas_eci, dtype=float).reshape(1, 3)
-    return custom_factor([key_x], sigma_rad,
-                         functools.partial(_earth_direction, key_x, u, tangent_basis(u)), dim=2)
+    B = np.ascontiguousarray(tangent_basis(u)[0])
+    k = int(key_x)
+
+    def error(this, values, H):
+        x = values.atVector(k)
+        e = np.empty(2)
+        Hx = np.empty((2, x.shape[0]))
+        want = H is not None
+        earth_direction_kernel(x, B, want, e, Hx)
+        if want:
+            H[0] = Hx
+        return e
+
+    return gtsam.CustomFactor(noise_model(sigma_rad, 2), [k], error)
 
 
 def _body_direction(key_x, key_R, p, u_meas, B, values):

@@ -113,18 +113,21 @@ def test_star_direction_recovers_attitude_error(rng):
 
 
 def test_earth_direction_factor_linearizes_like_numpy(rng):
-    r = random_positions_m(rng, 1)
-    v = rng.normal(size=(1, 3)) * 3e3
+    """The factor's numba kernel against the vectorized residual, over random geometries
+    (every axis choice of the tangent basis) and both noise-model kinds."""
+    r = random_positions_m(rng, 12)
+    v = rng.normal(size=(12, 3)) * 3e3
     u_meas = _perturb(_unit(-r), rng, 0.01)
-    sigma = 0.01 * DEG
-    f = make_earth_direction_factor(X, u_meas[0], sigma)
-    values = gtsam.Values()
-    values.insert(X, np.concatenate([r[0], v[0]]))
     e, H_r = earth_direction_residual(r, u_meas)
-    A_, b = whiten(e, pad_position_jacobian(H_r), sigma)
-    check_linearization(f, values, [A_[0]], b[0])
-    np.testing.assert_allclose(f.unwhitenedError(values), e[0], rtol=1e-12)
-    assert f.error(values) == pytest.approx(0.5 * np.sum((e[0] / sigma) ** 2), rel=1e-12)
+    for k in range(12):
+        sigma = 0.01 * DEG if k % 2 else np.array([0.01, 0.02]) * DEG
+        f = make_earth_direction_factor(X, u_meas[k], sigma)
+        values = gtsam.Values()
+        values.insert(X, np.concatenate([r[k], v[k]]))
+        A_, b = whiten(e[k:k + 1], pad_position_jacobian(H_r[k:k + 1]), np.broadcast_to(sigma, (1, 2)))
+        check_linearization(f, values, [A_[0]], b[0])
+        np.testing.assert_allclose(f.unwhitenedError(values), e[k], rtol=1e-12)
+        assert f.error(values) == pytest.approx(0.5 * np.sum((e[k] / sigma) ** 2), rel=1e-12)
 
 
 def test_body_direction_factor_linearizes_like_numpy(rng):

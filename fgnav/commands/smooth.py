@@ -10,7 +10,9 @@ def add_solver_options(p):
                         " raise it when forces are missing from the model)")
     p.add_argument("--third-body", action="store_true",
                    help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")
-    p.add_argument("--lag-s", type=float, default=300.0, help="fixed-lag window (s, default 300)")
+    p.add_argument("--lag-s", type=float, default=300.0,
+                   help="fixed-lag window (s, default 300): each state is reported smoothed with "
+                        "lag-s to lag-s + 60 s of later data")
     p.add_argument("--robust", choices=["none", "huber", "cauchy"], default="none",
                    help="robust cost on measurements (batch, isam2, fixed-lag): huber is convex, "
                         "cauchy rejects gross outliers (default none)")

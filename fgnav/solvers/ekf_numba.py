@@ -37,6 +37,7 @@ import time
 import numpy as np
 from numba import njit
 
+from factors.direction import earth_direction_kernel
 from factors.dynamics import propagate_nb
 from factors.geometry import tangent_basis
 from fgnav.measurements import prior_covariance
@@ -105,19 +106,11 @@ def _rows(code, x, data, B, sigma, A, b, r0):
     uy = ry / n
     uz = rz / n
     if code == 2:
-        # e = B (-u); H_r = -B (I - u u^T)/|r|
+        earth_direction_kernel(x, B, True, b[r0:r0 + 2], A[r0:r0 + 2])
         for i in range(2):
-            b0 = B[i, 0]
-            b1 = B[i, 1]
-            b2 = B[i, 2]
-            e = -(b0 * ux + b1 * uy + b2 * uz)
-            bu = b0 * ux + b1 * uy + b2 * uz
+            b[r0 + i] = -b[r0 + i] / sigma
             for j in range(6):
-                A[r0 + i, j] = 0.0
-            A[r0 + i, 0] = -((b0 - bu * ux) / n) / sigma
-            A[r0 + i, 1] = -((b1 - bu * uy) / n) / sigma
-            A[r0 + i, 2] = -((b2 - bu * uz) / n) / sigma
-            b[r0 + i] = -e / sigma
+                A[r0 + i, j] /= sigma
         return 2
     for j in range(6):
         A[r0, j] = 0.0
