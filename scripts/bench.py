@@ -332,6 +332,7 @@ def main(argv=None) -> int:
             cs = cold_start(args.quick, tmp)
             check_targets("cold_start", cs)
             result["cases"]["cold_start"] = cs
+    result["all_targets_met"] = all(c.get("meets_targets", True) for c in result["cases"].values())
     result["bench_wall_s"] = time.perf_counter() - t_all
     text = json.dumps(result, indent=1, sort_keys=False)
     if args.out:
