@@ -114,3 +114,17 @@ def test_check_jacobians_reports_wrong_jacobian(rng):
         check_jacobians(lambda x: unit_and_jacobian(x)[0], (r,), (J[:, :2],), ("vector",))
     with pytest.raises(ValueError, match="kind"):
         check_jacobians(lambda x: unit_and_jacobian(x)[0], (r,), (J,), ("quaternion",))
+
+
+def test_tangent_basis_kernel_equals_numpy_version(rng):
+    """The numba single-vector basis of the per-factor route is the numpy construction,
+    including ties of |u_i| (first axis wins in both) and the coordinate axes."""
+    from factors.direction import tangent_basis_kernel
+
+    u = rng.normal(size=(200, 3)) * rng.uniform(0.1, 10.0, size=(200, 1))
+    u = np.concatenate([u, np.eye(3), -np.eye(3), [[1.0, 1.0, 1.0], [0.0, 1.0, 1.0],
+                                                    [1.0, 0.0, 1.0], [-1.0, 1.0, -1.0]]])
+    B = np.empty((2, 3))
+    for v in u:
+        tangent_basis_kernel(v, B)
+        np.testing.assert_allclose(B, tangent_basis(v), atol=1e-15, rtol=0)
