@@ -65,12 +65,12 @@ class IncrementalOptions:
     relinearize_skip: int = 1
     lag_s: float = 300.0
     harvest_s: float = 60.0  # fixed-lag: smoothed states are read out in blocks this long
+    wildfire_threshold: float = 100.0  # back-substitution stops below this update (SI units)
 
     def __post_init__(self):
         if not (self.lag_s > 0 and self.harvest_s >= 0):
             raise UserError(f"fixed-lag smoother: the lag must be > 0 s and the harvest block "
                             f">= 0 s, got lag {self.lag_s} s, harvest {self.harvest_s} s")
-    wildfire_threshold: float = 100.0  # back-substitution stops below this update (SI units)
 
 
 def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
