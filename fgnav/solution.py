@@ -41,3 +41,11 @@ class Solution:
     online_P_eci: np.ndarray | None = None
     latency_s: np.ndarray | None = None
     extras: dict = field(default_factory=dict)
+
+
+def latency_summary(latency_s) -> dict:
+    """Median, 99th percentile and maximum of per-epoch latencies (s), as summary.json keys."""
+    lat = np.asarray(latency_s, dtype=float)
+    return {"latency_p50_s": float(np.median(lat)),
+            "latency_p99_s": float(np.percentile(lat, 99)),
+            "latency_max_s": float(lat.max())}

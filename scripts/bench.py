@@ -85,6 +85,7 @@ def worker(method: str, pass_file: str) -> dict:
     t_imp = time.perf_counter()
     with open(pass_file, "rb") as fh:
         p, x_true = pickle.load(fh)
+    from fgnav.solution import latency_summary
     from fgnav.solvers.batch import SmootherOptions
     options = SmootherOptions()
     out: dict = {"method": method, "epochs": int(p.n_epochs)}
@@ -102,8 +103,7 @@ def worker(method: str, pass_file: str) -> dict:
         sol = smooth_incremental(p, options, IncrementalOptions(lag_s=LAG_S), method=method)
         out["solver_s"] = time.perf_counter() - t0
         lat = np.asarray(sol.latency_s)
-        out.update(latency_p50_s=float(np.median(lat)), latency_p99_s=float(np.percentile(lat, 99)),
-                   latency_max_s=float(lat.max()), latency_max_at_epoch=int(lat.argmax()),
+        out.update(latency_summary(lat), latency_max_at_epoch=int(lat.argmax()),
                    latency_sum_s=float(lat.sum()))
         err_on = np.linalg.norm(sol.online_x_eci[:, :3] - x_true[:, :3], axis=1)
         out["online_final_position_error_m"] = float(err_on[-1])
@@ -117,8 +117,7 @@ def worker(method: str, pass_file: str) -> dict:
         out["step_s"] = float(sol.extras["ekf_step_mean_s"])
         # a second run, one kernel call per epoch: latency as a Python host loop sees it
         lat = np.asarray(run_ekf_numba(p, options, step_latency=True).latency_s)
-        out.update(latency_p50_s=float(np.median(lat)), latency_p99_s=float(np.percentile(lat, 99)),
-                   latency_max_s=float(lat.max()))
+        out.update(latency_summary(lat))
     elif method == "ekf-numpy":
         from fgnav.solvers.ekf import run_ekf
         t0 = time.perf_counter()
@@ -126,8 +125,7 @@ def worker(method: str, pass_file: str) -> dict:
         out["solver_s"] = time.perf_counter() - t0
         out["step_s"] = out["solver_s"] / p.n_epochs
         lat = np.asarray(sol.latency_s)
-        out.update(latency_p50_s=float(np.median(lat)), latency_p99_s=float(np.percentile(lat, 99)),
-                   latency_max_s=float(lat.max()))
+        out.update(latency_summary(lat))
     else:
         raise SystemExit(f"unknown method {method}")
     err = np.linalg.norm(sol.x_eci[:, :3] - x_true[:, :3], axis=1)

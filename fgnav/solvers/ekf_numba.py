@@ -101,10 +101,6 @@ def _rows(code, x, data, B, sigma, A, b, r0):
             A[r0 + i, off + i] = 1.0 / sigma
             b[r0 + i] = -(x[off + i] - data[i]) / sigma
         return 3
-    n = math.sqrt(rx * rx + ry * ry + rz * rz)
-    ux = rx / n
-    uy = ry / n
-    uz = rz / n
     if code == 2:
         earth_direction_kernel(x, B, True, b[r0:r0 + 2], A[r0:r0 + 2])
         for i in range(2):
@@ -112,6 +108,10 @@ def _rows(code, x, data, B, sigma, A, b, r0):
             for j in range(6):
                 A[r0 + i, j] /= sigma
         return 2
+    n = math.sqrt(rx * rx + ry * ry + rz * rz)
+    ux = rx / n
+    uy = ry / n
+    uz = rz / n
     for j in range(6):
         A[r0, j] = 0.0
     if code == 3:

@@ -47,7 +47,7 @@ from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass
-from fgnav.solution import Solution
+from fgnav.solution import Solution, latency_summary
 from fgnav.measurements import prior_covariance
 from fgnav.solvers.batch import SmootherOptions, linearize_and_eliminate, robust_counts
 from fgnav.solvers.chain import chain_marginals
@@ -238,9 +238,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     residuals=lin.residuals, online_x_eci=online_x,
                     online_P_eci=online_P, latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3,
-                            "latency_p50_s": float(np.median(latency)),
-                            "latency_p99_s": float(np.percentile(latency, 99)),
-                            "latency_max_s": float(latency.max()),
+                            **latency_summary(latency),
                             **({"lag_s": inc.lag_s, "harvest_s": inc.harvest_s} if fixed_lag else {}),
                             **({"gate_probability": gate,
                                 "rejected": {kind: int(m.sum()) for kind, m in rejected_rows.items()
