@@ -36,12 +36,13 @@ def test_earth_direction_zero_at_truth_and_angle_scale(rng):
     e, H_r = earth_direction_residual(r, _unit(-r))
     assert e.shape == (N, 2) and H_r.shape == (N, 2, 3)
     np.testing.assert_allclose(e, 0.0, atol=1e-15)
-    # a measurement rotated by a known small angle theta gives |e| = sin(theta)
-    theta = 0.01 * DEG
+    # a measurement rotated by a known angle theta gives |e| = theta (the log map), at
+    # every angle up to the antipode, where the tangent-plane projection gave sin(theta)
     axis = _unit(np.cross(r, rng.normal(size=(N, 3))))
-    u_meas = np.einsum("nij,nj->ni", so3_exp(theta * axis), _unit(-r))
-    e, _ = earth_direction_residual(r, u_meas)
-    np.testing.assert_allclose(np.linalg.norm(e, axis=1), np.sin(theta), rtol=1e-12)
+    for theta in (0.01 * DEG, 30 * DEG, 90 * DEG, 170 * DEG, 179.9 * DEG):
+        u_meas = np.einsum("nij,nj->ni", so3_exp(theta * axis), _unit(-r))
+        e, _ = earth_direction_residual(r, u_meas)
+        np.testing.assert_allclose(np.linalg.norm(e, axis=1), theta, rtol=1e-12)
 
 
 def test_earth_direction_jacobian(rng):
