@@ -25,21 +25,22 @@ unit-vector difference would be rank-deficient.) ``B`` depends on the measuremen
 every residual takes an optional precomputed ``B`` (N, 2, 3), which the single-epoch GTSAM
 adapters compute once per factor; ``u_meas`` is taken as ``b1 x b2``.
 
-Jacobian of the log map with respect to the predicted direction (derivation): with
-``dt = B du``, ``dn = u_meas^T du``, ``ds = t^T dt / s`` and
-``d theta = (n ds - s dn)/rho^2`` (``rho^2 = s^2 + n^2 = |u_pred|^2 = 1``),
+Jacobian of the log map with respect to the predicted direction (derivation, unit
+``u_pred``): with ``dt = B du``, ``dn = u_meas^T du``, ``ds = t^T dt / s`` and
+``d theta = n ds - s dn`` (derivative of ``atan2(s, n)`` where ``s^2 + n^2 = 1``),
 ``de = f dt + t df``, ``df = (d theta - f ds)/s``, hence
 
-    J_u = de/du_pred = f B - g t t^T B - t u_meas^T / rho^2,   g = (f - n/rho^2)/s^2.
+    J_u = de/du_pred = f B - g t t^T B - t u_meas^T,   g = (f - n)/s^2.
 
-``J_u u_pred = t (f - g s^2 - n/rho^2) = 0``: the residual depends on the direction of
-``u_pred`` only. For ``s < 1e-6`` and ``n > 0`` the series ``f = 1 + s^2/6``,
+``J_u u_pred = t (f - g s^2 - n) = 0``: the residual depends on the direction of ``u_pred``
+only (the kernel normalizes ``u_pred`` first, so for a length ``rho`` the Jacobian is
+``J_u/rho``). For ``s < 1e-6`` and ``n > 0`` the series ``f = 1 + s^2/6``,
 ``g = 2/3 + s^2/5`` (from ``theta/sin theta = 1 + theta^2/6 + 7 theta^4/360``) replace the
 quotients (error < 1e-24). Near the antipode (``s < 1e-6``, ``n < 0``: the cut locus, where
 the log map is not differentiable) the residual keeps ``e = theta t/s`` (``t/s = (1, 0)``,
 i.e. along ``b1``, when ``s = 0`` exactly), magnitude ``~pi``, and the Jacobian keeps only
-the derivative of the angle, ``t/s (n t^T B/s - s u_meas^T)/rho^2``, dropping the
-tangential part ``f (I - t t^T/s^2) B`` that grows like ``pi/s``: finite, never NaN.
+the derivative of the angle, ``(t/s)(n t^T B/s - s u_meas^T)``, dropping the tangential part
+``f (I - t t^T/s^2) B`` that grows like ``pi/s``: finite, never NaN.
 
 Jacobian chain into the states (each link tested): ``d(r/|r|)/dr = (I - u u^T)/|r|``; for a
 right perturbation ``R <- R Exp(w)`` of ``R_eci_from_body``, ``d(R^T v)/dw = skew(R^T v)``
@@ -74,10 +75,12 @@ SERIES_BELOW = 1e-6
 
 @njit(cache=True)
 def sphere_log_kernel(B, p0, p1, p2, want_J, e, J):
-    """Log map of the unit sphere at ``u_meas = b1 x b2`` of ``u_pred = (p0, p1, p2)``.
+    """Log map of the unit sphere at ``u_meas = b1 x b2`` of the direction of ``(p0, p1, p2)``.
 
-    B (2, 3): ``tangent_basis(u_meas)``; ``u_pred`` a unit vector. Writes ``e`` (2,), rad,
-    and, if want_J, ``J = de/du_pred`` (2, 3), rad per unit (module docstring).
+    B (2, 3): ``tangent_basis(u_meas)``; ``p = (p0, p1, p2)`` the predicted direction (any
+    non-zero length ``rho``: it is normalized first, so ``e`` depends on its direction only and
+    ``J = J_unit/rho``). Writes ``e`` (2,), rad, and, if want_J, ``J = de/dp`` (2, 3), rad per
+    unit of p (module docstring).
     """
     m0 = B[0, 1] * B[1, 2] - B[0, 2] * B[1, 1]
     m1 = B[0, 2] * B[1, 0] - B[0, 0] * B[1, 2]
@@ -85,14 +88,15 @@ def sphere_log_kernel(B, p0, p1, p2, want_J, e, J):
     t0 = B[0, 0] * p0 + B[0, 1] * p1 + B[0, 2] * p2
     t1 = B[1, 0] * p0 + B[1, 1] * p1 + B[1, 2] * p2
     n = m0 * p0 + m1 * p1 + m2 * p2
+    rho = math.sqrt(t0 * t0 + t1 * t1 + n * n)
+    t0, t1, n = t0 / rho, t1 / rho, n / rho
     s2 = t0 * t0 + t1 * t1
     s = math.sqrt(s2)
-    rho2 = s2 + n * n
     theta = math.atan2(s, n)
     cut = False
     if s >= SERIES_BELOW:
         f = theta / s
-        g = (f - n / rho2) / s2
+        g = (f - n) / s2
     elif n > 0.0:
         f = 1.0 + s2 / 6.0
         g = 2.0 / 3.0 + s2 / 5.0
@@ -109,19 +113,19 @@ def sphere_log_kernel(B, p0, p1, p2, want_J, e, J):
     if not want_J:
         return
     if cut:
-        # angle part only: t^ (n t^T B - s u_meas^T)/rho^2 with t^ = (t0, t1) unit
+        # angle part only: t^ (n t^T B - s u_meas^T) with t^ = (t0, t1) unit
         for j in range(3):
             tb = t0 * B[0, j] + t1 * B[1, j]
             mj = m0 if j == 0 else (m1 if j == 1 else m2)
-            d = (n * tb - s * mj) / rho2
+            d = (n * tb - s * mj) / rho
             J[0, j] = t0 * d
             J[1, j] = t1 * d
         return
     for j in range(3):
         tb = t0 * B[0, j] + t1 * B[1, j]
         mj = m0 if j == 0 else (m1 if j == 1 else m2)
-        J[0, j] = f * B[0, j] - g * t0 * tb - t0 * mj / rho2
-        J[1, j] = f * B[1, j] - g * t1 * tb - t1 * mj / rho2
+        J[0, j] = (f * B[0, j] - g * t0 * tb - t0 * mj) / rho
+        J[1, j] = (f * B[1, j] - g * t1 * tb - t1 * mj) / rho
 
 
 @njit(cache=True)
