@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-import fault_logs as F
+from fgnav.simulate import faults as F
 from fgnav.cli import main
 from fgnav.integrity import assess, largest_run, stderr_line
 from fgnav.io.log_csv import write_log

@@ -1,4 +1,6 @@
-"""Faulty logs made from simulated passes with independent truth (DOP853), for integrity tests.
+"""Faulty logs made from simulated passes with independent truth (DOP853): outliers, mirrored
+directions, a wrong or missing prior, gaps, an unmodelled manoeuvre. For integrity tests and
+studies (scripts/study_integrity.py).
 
 Each builder returns ``(log, t_truth_s, x_truth)``: a :class:`fgnav.io.log_csv.MeasurementLog`
 with the fault in it and the true states at ``t_truth_s`` (seconds from the log's epoch0).
