@@ -105,20 +105,44 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     t0 = time.perf_counter()
     log = read_measurements(log_path)
     p = build_pass(log)
+    truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
     x_true = None
-    if truth_path is not None:
-        from fgnav.io.oem import read_oem
-        from fgnav.time import seconds_since
-
-        oem = read_oem(truth_path)
-        t_truth = seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype("timedelta64[ns]")), p.epoch0)
-        x_true = truth_at(np.asarray(t_truth, dtype=float), oem.x_eci, sol.t_s)
+    if truth is not None:
+        x_true = truth_at(*truth, sol.t_s)
         summary.update(accuracy_metrics(sol, x_true))
         summary["truth_path"] = str(truth_path)
     return SmoothResult(sol, summary, x_true), p
+
+
+def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
+    """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
+    validated before any solving: readable, finite states, epochs covering the pass."""
+    from fgnav.io.oem import read_oem
+    from fgnav.time import seconds_since
+
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"--truth {path}: no such file")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise UserError(f"--truth {path}: cannot read: {exc.strerror or exc}") from None
+    oem = read_oem(path)
+    t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
+        "timedelta64[ns]")), p.epoch0), dtype=float)
+    x = np.asarray(oem.x_eci, dtype=float)
+    if len(t_truth) == 0 or not np.all(np.isfinite(x)):
+        raise UserError(f"--truth {path}: expected finite states, found "
+                        f"{'none' if len(t_truth) == 0 else 'NaN or infinite values'}")
+    if t_truth[0] > p.t_s[0] + 1e-6 or t_truth[-1] < p.t_s[-1] - 1e-6:
+        raise UserError(f"--truth {path}: the truth does not cover the log's epochs "
+                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {p.t_s[0]:.1f}.."
+                        f"{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
+    return t_truth, x
 
 
 def read_measurements(path: str | Path):
@@ -175,18 +199,22 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
     and the set replaces the previous outputs only once all are complete (``os.replace``
     per file, microseconds apart). An error or interrupt before that leaves the previous
     outputs untouched and removes the staging directory.
+
+    One set: files of ours from an earlier run that this one did not rewrite (online.oem
+    and latency.csv of an online method, a report's plots) are removed, and so are staging
+    folders left by a killed run (:mod:`fgnav.io.outputs`); other files are left alone.
     """
-    import os
     import shutil
-    import tempfile
 
     from fgnav.io.atomic import atomic_write_text
     from fgnav.io.oem import write_oem
+    from fgnav.io.outputs import commit_outputs, make_staging, remove_stale_staging
     from fgnav.io.summary import write_summary
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=".fgnav-staging-", dir=out))
+    remove_stale_staging(out)
+    stage = make_staging(out)
     try:
         sol = res.solution
         names = ["trajectory.oem"]
@@ -211,8 +239,6 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
             names.append("latency.csv")
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
-        for name in names:
-            os.replace(stage / name, out / name)
+        return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))
     finally:
         shutil.rmtree(stage, ignore_errors=True)
-    return [out / n for n in names]

@@ -24,12 +24,23 @@ def run(args) -> int:
     import time
     from pathlib import Path
 
-    from fgnav.commands.smooth import solver_options
+    from fgnav.commands.smooth import check_solver_args, solver_options
+    from fgnav.errors import UserError
     from fgnav.measurements import build_pass
-    from fgnav.pipeline import SmoothResult, accuracy_metrics, solve, summarize, write_outputs
+    from fgnav.pipeline import (METHODS, SmoothResult, accuracy_metrics, solve, summarize,
+                                write_outputs)
     from fgnav.scenarios import load_scenario
     from fgnav.simulate.pass_sim import simulate_pass
 
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise UserError(f"--methods: expected a comma-separated list of {', '.join(METHODS)}, "
+                        f"found {args.methods!r}")
+    check_solver_args(args, methods)  # an option none of the methods uses is an error
+    if args.out:
+        from fgnav.io.outputs import check_output_paths
+        check_output_paths(args.out, rerun=args.rerun)
     options = solver_options(args)
     scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
     t0 = time.perf_counter()
@@ -40,7 +51,7 @@ def run(args) -> int:
           f" (simulated in {time.perf_counter() - t0:.1f} s)")
     rows = []
     crb = None
-    for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+    for method in methods:
         sol = solve(p, method, options, lag_s=args.lag_s)
         x_true = sim.x_true[sim.t_s.searchsorted(sol.t_s)]
         summary = summarize(sol, p, options)

@@ -2,6 +2,9 @@
 
 from fgnav.defaults import DEFAULT_Q_M2_S3
 
+DEFAULT_LAG_S = 300.0
+DEFAULT_CHECKPOINT_EVERY = 100
+
 
 def add_solver_options(p):
     """Options shared by smooth and demo (motion model and noise)."""
@@ -10,9 +13,9 @@ def add_solver_options(p):
                         " raise it when forces are missing from the model)")
     p.add_argument("--third-body", action="store_true",
                    help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")
-    p.add_argument("--lag-s", type=float, default=300.0,
-                   help="fixed-lag window (s, default 300): each state is reported smoothed with "
-                        "lag-s to lag-s + 60 s of later data")
+    p.add_argument("--lag-s", type=float, default=None,
+                   help=f"fixed-lag window (s, default {DEFAULT_LAG_S:g}): each state is reported "
+                        "smoothed with lag-s to lag-s + 60 s of later data")
     p.add_argument("--robust", choices=["none", "huber", "cauchy"], default="none",
                    help="robust cost on measurements (batch, isam2, fixed-lag): huber is convex, "
                         "cauchy rejects gross outliers (default none)")
@@ -21,6 +24,71 @@ def add_solver_options(p):
     p.add_argument("--gate", type=float, metavar="P",
                    help="EKF / iSAM2: reject a measurement whose innovation exceeds the chi-square "
                         "quantile P of its dimension (e.g. 0.9999)")
+
+
+# Which methods each method-specific option applies to (the others would ignore it).
+OPTION_METHODS = {
+    "--gate": ("isam2", "fixed-lag", "ekf"),
+    "--robust": ("batch", "isam2", "fixed-lag"),
+    "--robust-k": ("batch", "isam2", "fixed-lag"),
+    "--lag-s": ("fixed-lag",),
+    "--checkpoint": ("isam2",),
+    "--checkpoint-every": ("isam2",),
+    "--resume": ("isam2",),
+}
+
+
+def _given(args) -> dict:
+    """The method-specific options the user gave (option name -> value)."""
+    given = {"--gate": args.gate, "--robust": None if args.robust == "none" else args.robust,
+             "--robust-k": args.robust_k, "--lag-s": args.lag_s,
+             "--checkpoint": getattr(args, "checkpoint", None),
+             "--checkpoint-every": getattr(args, "checkpoint_every", None),
+             "--resume": getattr(args, "resume", False) or None}
+    return {k: v for k, v in given.items() if v is not None}
+
+
+def check_solver_args(args, methods) -> None:
+    """Validate the solver options before any work (``UserError`` naming the option).
+
+    Values: ``--process-noise`` finite and > 0; ``--lag-s`` finite and > 0; ``--robust-k``
+    finite and > 0 (and only with ``--robust huber|cauchy``); ``--gate`` a probability in
+    (0, 1); ``--checkpoint-every`` >= 1. An option that none of ``methods`` uses is an error,
+    not silently ignored (see ``OPTION_METHODS``). Fills the documented defaults of
+    ``--lag-s`` (300 s) and ``--checkpoint-every`` (100) afterwards.
+    """
+    import math
+
+    from fgnav.errors import UserError
+
+    def finite_positive(name, v, unit):
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UserError(f"{name} must be a finite number > 0 ({unit}), got {v}")
+
+    finite_positive("--process-noise", args.process_noise, "m^2/s^3")
+    finite_positive("--lag-s", args.lag_s, "s")
+    finite_positive("--robust-k", args.robust_k, "sigmas")
+    if args.gate is not None and not 0.0 < args.gate < 1.0:
+        raise UserError(f"--gate must be a probability in (0, 1), e.g. 0.9999, got {args.gate}")
+    every = getattr(args, "checkpoint_every", None)
+    if every is not None and every < 1:
+        raise UserError(f"--checkpoint-every must be an epoch count >= 1, got {every}")
+    if args.robust_k is not None and args.robust == "none":
+        raise UserError("--robust-k is the threshold of a robust kernel: give --robust huber "
+                        "or --robust cauchy with it")
+    for name, value in _given(args).items():
+        if not set(methods) & set(OPTION_METHODS[name]):
+            uses = ", ".join(OPTION_METHODS[name])
+            raise UserError(f"{name} does not apply to --method {'/'.join(methods)} (it is used "
+                            f"by {uses} only); remove it or choose one of those methods")
+    if not getattr(args, "checkpoint", None):
+        for name in ("--resume", "--checkpoint-every"):
+            if name in _given(args):
+                raise UserError(f"{name} needs --checkpoint FILE.npz")
+    if args.lag_s is None:
+        args.lag_s = DEFAULT_LAG_S
+    if hasattr(args, "checkpoint_every") and args.checkpoint_every is None:
+        args.checkpoint_every = DEFAULT_CHECKPOINT_EVERY
 
 
 def solver_options(args):
@@ -54,8 +122,8 @@ def register(sub):
                    help="exit 3 when the integrity verdict is not 'ok' (outputs are written)")
     p.add_argument("--checkpoint", metavar="FILE.npz",
                    help="isam2: save the online state every --checkpoint-every epochs")
-    p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
-                   help="epochs between checkpoints (default 100)")
+    p.add_argument("--checkpoint-every", type=int, default=None, metavar="N",
+                   help=f"epochs between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})")
     p.add_argument("--resume", action="store_true",
                    help="isam2: continue from --checkpoint (same log and options)")
     add_solver_options(p)
@@ -85,8 +153,12 @@ class ProgressCallback:
 def run(args) -> int:
     import json
 
+    from fgnav.io.outputs import check_output_paths
     from fgnav.pipeline import read_measurements, residual_times, smooth_file, write_outputs
 
+    # Every option and output path before any solving (the truth in smooth_file).
+    check_solver_args(args, [args.method])
+    check_output_paths(args.out, rerun=args.rerun, checkpoint=args.checkpoint, resume=args.resume)
     bar = ProgressCallback(args.method, args.quiet)
     try:
         res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,

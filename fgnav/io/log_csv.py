@@ -45,7 +45,13 @@ kind                      x, y, z (and extra columns)                      sigma
                           optional)
 ========================  ===============================================  ==============
 
-Columns a kind does not use must be empty. ``sigma`` is always required, finite and > 0.
+Columns a kind does not use must be empty. ``sigma`` is always required, finite and within
+the physically meaningful range of its kind (``SIGMA_RANGE``): angles (directions, limb
+radius, refraction) 1e-9..1 rad, attitude 1e-9..pi rad, ``prior_position`` 1e-3..1e9 m,
+``prior_velocity`` 1e-6..1e5 m/s, ``altitude`` 1e-3..1e7 m. Below the range a measurement
+would be trusted beyond any sensor (and beyond double precision in the solvers' whitened
+rows); above it, it carries no information. A ``prior_position`` lies outside the Earth
+(|r| >= 6,378,137 m, the equatorial radius).
 
 Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the file, the
 1-based line, the column and what was expected, unless stated otherwise)
@@ -58,10 +64,12 @@ Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the f
   and no newline at end of file; ``encoding`` a line that is not UTF-8; ``bad_epoch``
   epoch not ISO-8601 UTC with ``Z``; ``unknown_kind``; ``bad_number`` unparsable number;
   ``not_finite`` NaN or inf; ``missing_value`` a required field empty;
-  ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0;
+  ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0
+  or outside the kind's ``SIGMA_RANGE``;
   ``not_unit`` a direction with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are
   renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
-  <= 0, altitude below the centre, ``sigma_model_m`` < 0; ``epoch_outlier`` an epoch more
+  <= 0, altitude below the centre, ``sigma_model_m`` < 0, a ``prior_position`` inside the
+  Earth; ``epoch_outlier`` an epoch more
   than 30 days from the median epoch of the file.
 - With ``on_bad_row="drop"`` the row-level errors do not raise: the row is dropped and
   counted per reason in ``dropped``, with one warning per reason quoting the first case.
@@ -90,7 +98,8 @@ from fgnav.errors import InputFormatError, UserError
 
 __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
-    "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL",
+    "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
+    "PRIOR_MIN_RADIUS_M",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
@@ -102,6 +111,22 @@ UNIT_TOL = 1e-6
 _RENORM_TOL = 1e-12
 EPOCH_OUTLIER_DAYS = 30.0
 """An epoch further than this from the median epoch of the file is an error, days."""
+
+SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
+    "prior_position": (1e-3, 1e9, "m"),
+    "prior_velocity": (1e-6, 1e5, "m/s"),
+    "earth_direction": (1e-9, 1.0, "rad"),
+    "limb_radius": (1e-9, 1.0, "rad"),
+    "earth_direction_body": (1e-9, 1.0, "rad"),
+    "attitude": (1e-9, math.pi, "rad"),
+    "altitude": (1e-3, 1e7, "m"),
+    "sun_direction_body": (1e-9, 1.0, "rad"),
+    "moon_direction_body": (1e-9, 1.0, "rad"),
+    "refraction": (1e-9, 1.0, "rad"),
+}
+"""Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""
+PRIOR_MIN_RADIUS_M = 6378137.0
+"""A ``prior_position`` closer to the Earth's centre than this (m) is an error."""
 
 DIRECTION_KINDS = ("earth_direction", "earth_direction_body", "sun_direction_body",
                    "moon_direction_body", "refraction")
@@ -214,6 +239,13 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
         raise _RowError("missing_value", "sigma", "a 1-sigma > 0", "empty field")
     if not sigma > 0.0:
         raise _RowError("bad_sigma", "sigma", "a 1-sigma > 0", _fmt_found(sigma))
+    lo, hi, unit = SIGMA_RANGE[kind]
+    if not lo <= sigma <= hi:
+        raise _RowError("bad_sigma", "sigma", f"a 1-sigma within {lo:g}..{hi:g} {unit} for "
+                        f"{kind}", _fmt_found(sigma))
+    if kind == "prior_position" and not math.hypot(x, y, z) >= PRIOR_MIN_RADIUS_M:
+        raise _RowError("out_of_range", "x,y,z", f"a position outside the Earth (|r| >= "
+                        f"{PRIOR_MIN_RADIUS_M:.0f} m)", f"|r| = {math.hypot(x, y, z)!r} m")
     renorm = False
     if kind in DIRECTION_KINDS:
         n = math.hypot(x, y, z)

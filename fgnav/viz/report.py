@@ -411,6 +411,10 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
         h += [f"<h2>{esc(captions[name])}</h2>", f"<img src='{esc(p.name)}' alt='{esc(captions[name])}'>"]
     h.append("</body></html>")
     atomic_write_text(out / "report.html", "\n".join(h) + "\n")
+    from fgnav.io.outputs import commit_outputs  # drop a previous report's other plots
+
+    commit_outputs(out, None, [p.name for p in images.values()] + ["report.md", "report.html"],
+                   "report", replaces=("report",))
     return {"markdown": out / "report.md", "html": out / "report.html", "images": images,
             "figures": figs}
 
