@@ -33,6 +33,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
+    if (checkpoint or resume) and method != "isam2":
+        raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_observable(p)
     if gap_factor is not None:
         p = fill_gaps(p, gap_factor)

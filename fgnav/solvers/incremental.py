@@ -154,6 +154,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     rejected_rows = {kind: np.zeros(len(f), bool) for kind, f in p.families.items()}
     if (checkpoint or resume) and fixed_lag:
         raise UserError("checkpoint/resume is available for --method isam2 (full history) only")
+    if checkpoint and not (isinstance(checkpoint_every, (int, np.integer)) and checkpoint_every >= 1):
+        raise UserError(f"--checkpoint-every must be an epoch count >= 1, got {checkpoint_every}")
     fingerprint = _fingerprint(p, options, inc, method)
 
     def add_epoch_factors(graph, k, guess, kept_only):
