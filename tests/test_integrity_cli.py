@@ -404,3 +404,20 @@ def test_resume_after_an_interruption_equals_the_uninterrupted_run(small_pass, t
     sa = json.loads((whole / "summary.json").read_text())
     sb = json.loads((cut / "summary.json").read_text())
     assert sa.get("rejected") == sb.get("rejected")
+
+
+# ---- chi-square of the online methods ---------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["isam2", "fixed-lag"])
+def test_the_chi2_of_an_online_method_is_split_and_matches_its_residuals(small_pass, tmp_path,
+                                                                          method):
+    out = tmp_path / "out"
+    assert _smooth(small_pass / "measurements.csv", out, "--method", method) == 0
+    s = json.loads((out / "summary.json").read_text())
+    rows = (out / "residuals.csv").read_text().splitlines()[1:]
+    sum_sq = sum(float(r.split(",")[3]) ** 2 for r in rows)
+    assert s["chi2_measurements"] == pytest.approx(sum_sq, rel=1e-4)  # residuals at 6 digits
+    if method == "isam2":
+        assert s["chi2"] == pytest.approx(s["chi2_measurements"] + s["chi2_motion"], rel=1e-12)
+    else:  # states from different windows: the motion rows between them are not the fit
+        assert "chi2_motion" not in s and s["chi2"] == s["chi2_measurements"]

@@ -239,6 +239,12 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         _harvest(smoother, p.t_s, oldest, N, np.inf, lagged_x, lagged_P)
         x_final, P_final = lagged_x, lagged_P
         lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
+        # Consecutive reported states come from different windows, so the motion rows between
+        # them measure the windows' disagreement, not the fit (4.5e17 on gto-transfer at
+        # 10 s, q = 1e-12 m^2/s^3): the chi-square of the fixed-lag solution is that of the
+        # measurements.
+        chi2_motion = None
+        polish_iterations = 0
     else:
         est = isam.calculateBestEstimate()  # full back-substitution, whatever the wildfire
         # Gauss-Newton over the whole chain from the iSAM2 estimate: the final trajectory is
@@ -249,14 +255,18 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         x_final, lin, P_final, polish_iterations = polish_chain(
             p, np.array([est.atVector(X(k)) for k in range(N)]), options.q_m2_s3, model,
             t0_j2000, kernel, rejected_rows if gate is not None else None)
+        chi2_motion = lin.chi2_motion
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final,
-                    P_eci=P_final, iterations=N, wall_s=wall, chi2=lin.chi2_meas + lin.chi2_motion,
+                    P_eci=P_final, iterations=N, wall_s=wall,
+                    chi2=lin.chi2_meas + (chi2_motion or 0.0),
                     residuals=lin.residuals, online_x_eci=online_x,
                     online_P_eci=online_P, latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3,
                             **latency_summary(latency),
-                            **({} if fixed_lag else {"final_polish_iterations": polish_iterations}),
+                            "chi2_measurements": lin.chi2_meas,
+                            **({} if fixed_lag else {"chi2_motion": chi2_motion,
+                                                     "final_polish_iterations": polish_iterations}),
                             **({"lag_s": inc.lag_s, "harvest_s": inc.harvest_s} if fixed_lag else {}),
                             **({"gate_probability": gate,
                                 "rejected": {kind: int(m.sum()) for kind, m in rejected_rows.items()
