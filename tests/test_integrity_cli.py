@@ -421,3 +421,18 @@ def test_the_chi2_of_an_online_method_is_split_and_matches_its_residuals(small_p
         assert s["chi2"] == pytest.approx(s["chi2_measurements"] + s["chi2_motion"], rel=1e-12)
     else:  # states from different windows: the motion rows between them are not the fit
         assert "chi2_motion" not in s and s["chi2"] == s["chi2_measurements"]
+
+
+def test_two_epochs_a_millisecond_apart_are_smoothed_by_batch(small_pass, tmp_path):
+    """The rank check compares a state's pivots with its own: a 1 ms step (motion pivots of
+    1e11) no longer makes the last state look unobservable."""
+    lines = (small_pass / "measurements.csv").read_text().splitlines()
+    i = next(j for j, line in enumerate(lines) if line.startswith("2025-03-01T01:00:00.000000Z,earth"))
+    lines.insert(i + 1, lines[i].replace("01:00:00.000000Z", "01:00:00.001000Z"))
+    log = tmp_path / "ms.csv"
+    log.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "out"
+    assert _smooth(log, out, "--truth", str(small_pass / "truth.oem")) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["converged"] and s["epochs"] == 122
+    assert s["position_rms_m"] < 3 * s["crb_position_rms_m"] and s["nees_mean"] < 12

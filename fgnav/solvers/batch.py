@@ -164,8 +164,11 @@ def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionMode
 
 
 def _check_rank(p: Pass, lin: Linearization) -> None:
+    # A zero pivot relative to the same state's other pivots: a scale over the whole pass
+    # would call a state weak next to two epochs 1 ms apart (their motion factor's pivots
+    # reach 1e11 and the last state's position pivot is 1e-3, 1/m).
     diag = np.abs(np.diagonal(lin.R, axis1=1, axis2=2))
-    scale = diag.max()
+    scale = diag.max(axis=1, keepdims=True)
     bad = np.argwhere(diag < 1e-13 * scale)
     if len(bad):
         k, i = bad[0]
