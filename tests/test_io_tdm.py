@@ -158,3 +158,12 @@ def test_two_segments_and_out_of_order_rows(tmp_path):
     np.testing.assert_array_equal(log.t_s, [0, 10.5, 20, 60, 70.5, 80])
     np.testing.assert_allclose(log.sigma, np.radians([0.02] * 3 + [0.01] * 3), rtol=1e-15)
     assert any("out of time order" in w for w in log.warnings)
+
+
+@pytest.mark.parametrize("sigma_deg", ["1e-300", "1e-12", "90"])
+def test_a_sigma_outside_the_direction_range_is_refused(tmp_path, sigma_deg):
+    p = tmp_path / "t.tdm"
+    p.write_text(TDM.replace("sigma_deg=0.01", f"sigma_deg={sigma_deg}"))
+    line = TDM.splitlines().index("COMMENT sigma_deg=0.01") + 1
+    with pytest.raises(InputFormatError, match=rf"line {line}, column 'sigma_deg'.*within"):
+        read_tdm(p)

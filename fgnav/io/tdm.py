@@ -62,8 +62,13 @@ def _sigma_from_comment(path, lineno, comment):
     except InputFormatError:
         raise InputFormatError(path, lineno, "sigma_deg", "COMMENT sigma_deg=<1-sigma in deg, "
                                "a number > 0>", m.group(1)) from None
-    if not s > 0.0:
-        raise InputFormatError(path, lineno, "sigma_deg", "a 1-sigma > 0 deg", m.group(1))
+    from fgnav.io.log_csv import SIGMA_RANGE
+
+    lo, hi, _ = SIGMA_RANGE["earth_direction"]
+    if not lo <= math.radians(s) <= hi:
+        raise InputFormatError(path, lineno, "sigma_deg", f"a 1-sigma within {math.degrees(lo):.3g}.."
+                               f"{math.degrees(hi):.3g} deg (the range of an earth_direction)",
+                               m.group(1))
     return math.radians(s)
 
 
