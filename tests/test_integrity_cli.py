@@ -436,3 +436,14 @@ def test_two_epochs_a_millisecond_apart_are_smoothed_by_batch(small_pass, tmp_pa
     s = json.loads((out / "summary.json").read_text())
     assert s["converged"] and s["epochs"] == 122
     assert s["position_rms_m"] < 3 * s["crb_position_rms_m"] and s["nees_mean"] < 12
+
+
+def test_a_checkpoint_inside_a_new_output_directory_is_accepted(small_pass, tmp_path):
+    out = tmp_path / "new" / "result"
+    ck = out / "run.npz"
+    assert _smooth(small_pass / "measurements.csv", out, "--method", "isam2", "--checkpoint",
+                   str(ck), "--checkpoint-every", "50") == 0
+    assert ck.is_file() and (out / "trajectory.oem").is_file()
+    assert _smooth(small_pass / "measurements.csv", out, "--method", "isam2", "--checkpoint",
+                   str(ck), "--resume") == 0
+    assert ck.is_file()  # not one of the outputs a later run removes

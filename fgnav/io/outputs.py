@@ -152,9 +152,9 @@ def check_output_paths(out_dir, *, rerun=None, checkpoint=None, resume: bool = F
     """Check every output path of a run before it starts (``UserError`` naming the option).
 
     ``out_dir`` (``--out``): a directory, or a path that can be created (its nearest existing
-    ancestor is a writable directory). ``rerun`` (``--rerun``): a file name in a writable
-    existing folder, or inside ``out_dir``. ``checkpoint`` (``--checkpoint``): a file name in
-    a writable existing folder; with ``resume`` it must exist and be readable.
+    ancestor is a writable directory). ``rerun`` (``--rerun``) and ``checkpoint``
+    (``--checkpoint``): a file name in a writable existing folder, or inside ``out_dir``;
+    with ``resume`` the checkpoint must exist and be readable.
     """
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
@@ -166,23 +166,21 @@ def check_output_paths(out_dir, *, rerun=None, checkpoint=None, resume: bool = F
     if not base.is_dir():
         raise UserError(f"--out {out}: cannot create the directory, {base} is not a directory")
     check_writable_dir(base, f"--out {out}")
-    if rerun is not None:
-        r = Path(rerun)
-        if r.is_dir():
-            raise UserError(f"--rerun {r}: is a directory (expected a file name, FILE.rrd)")
-        parent = r.parent.resolve()
-        in_out = parent == out.resolve() or out.resolve() in parent.parents
-        if not in_out:
+    for option, path, form in (("--rerun", rerun, "FILE.rrd"), ("--checkpoint", checkpoint,
+                                                                 "FILE.npz")):
+        if path is None:
+            continue
+        f = Path(path)
+        if f.is_dir():
+            raise UserError(f"{option} {f}: is a directory (expected a file name, {form})")
+        parent = f.parent.resolve()
+        # a folder inside --out is created with it; any other folder must exist
+        if not (parent == out.resolve() or out.resolve() in parent.parents):
             if not parent.is_dir():
-                raise UserError(f"--rerun {r}: the folder {r.parent} does not exist")
-            check_writable_dir(parent, f"--rerun {r}")
+                raise UserError(f"{option} {f}: the folder {f.parent} does not exist")
+            check_writable_dir(parent, f"{option} {f}")
     if checkpoint is not None:
         c = Path(checkpoint)
-        if c.is_dir():
-            raise UserError(f"--checkpoint {c}: is a directory (expected a file name, FILE.npz)")
-        if not c.parent.resolve().is_dir():
-            raise UserError(f"--checkpoint {c}: the folder {c.parent} does not exist")
-        check_writable_dir(c.parent, f"--checkpoint {c}")
         if resume:
             if not c.is_file():
                 raise UserError(f"--checkpoint {c}: no checkpoint to resume from (--resume)")

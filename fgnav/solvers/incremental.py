@@ -388,6 +388,9 @@ def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_e
 
     from fgnav.io.atomic import atomic_writer
 
+    import os
+
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)  # e.g. inside --out
     buf = io.BytesIO()
     np.savez(buf, format=CHECKPOINT_FORMAT, fingerprint=fingerprint, k_next=k_next,
              online_x=online_x[:k_next], online_P=online_P[:k_next], latency=latency[:k_next],
