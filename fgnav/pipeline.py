@@ -123,16 +123,10 @@ def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
     """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
     validated before any solving: readable, finite states, epochs covering the pass."""
     from fgnav.io.oem import read_oem
+    from fgnav.io.outputs import check_readable_file
     from fgnav.time import seconds_since
 
-    path = Path(path)
-    if not path.is_file():
-        raise UserError(f"--truth {path}: no such file")
-    try:
-        with open(path, "rb"):
-            pass
-    except OSError as exc:
-        raise UserError(f"--truth {path}: cannot read: {exc.strerror or exc}") from None
+    check_readable_file(path, "--truth")
     oem = read_oem(path)
     t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
         "timedelta64[ns]")), p.epoch0), dtype=float)

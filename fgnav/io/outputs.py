@@ -29,7 +29,7 @@ from fgnav.errors import UserError
 
 __all__ = ["MANIFEST", "STAGING_PREFIX", "SMOOTH_OUTPUTS", "REPORT_OUTPUTS", "make_staging",
            "remove_stale_staging", "read_manifest", "commit_outputs", "check_writable_dir",
-           "check_output_paths"]
+           "check_readable_file", "check_output_paths"]
 
 MANIFEST = ".fgnav-outputs.json"
 STAGING_PREFIX = ".fgnav-staging-"
@@ -179,13 +179,17 @@ def check_output_paths(out_dir, *, rerun=None, checkpoint=None, resume: bool = F
             if not parent.is_dir():
                 raise UserError(f"{option} {f}: the folder {f.parent} does not exist")
             check_writable_dir(parent, f"{option} {f}")
-    if checkpoint is not None:
-        c = Path(checkpoint)
-        if resume:
-            if not c.is_file():
-                raise UserError(f"--checkpoint {c}: no checkpoint to resume from (--resume)")
-            try:
-                with open(c, "rb"):
-                    pass
-            except OSError as exc:
-                raise UserError(f"--checkpoint {c}: cannot read: {exc.strerror or exc}") from None
+    if checkpoint is not None and resume:
+        check_readable_file(checkpoint, "--checkpoint", "no checkpoint to resume from (--resume)")
+
+
+def check_readable_file(path, option: str, missing: str = "no such file") -> None:
+    """``UserError`` naming ``option`` and ``path`` unless ``path`` is a readable file."""
+    path = Path(path)
+    if not path.is_file():
+        raise UserError(f"{option} {path}: {missing}")
+    try:
+        with open(path, "rb"):
+            pass
+    except OSError as exc:
+        raise UserError(f"{option} {path}: cannot read: {exc.strerror or exc}") from None
