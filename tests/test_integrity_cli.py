@@ -185,6 +185,32 @@ def test_out_a_read_only_directory_is_refused(small_pass, tmp_path, capsys, no_s
     _refused(capsys, "--out", str(d))
 
 
+def test_a_directory_that_refuses_files_is_refused(small_pass, tmp_path, capsys, no_solving,
+                                                  monkeypatch):
+    """What a read-only directory does for a user who is not root (root writes anyway): the
+    probe file cannot be created."""
+    import tempfile
+
+    import fgnav.io.outputs
+
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    real = tempfile.mkstemp
+
+    def refuse(*a, dir=None, **k):
+        if dir is not None and os.path.abspath(dir) == str(ro):
+            raise PermissionError(13, "Permission denied")
+        return real(*a, dir=dir, **k)
+
+    monkeypatch.setattr(fgnav.io.outputs.tempfile, "mkstemp", refuse)
+    for extra, option in ((["--out", str(ro)], "--out"),
+                          (["--out", str(tmp_path / "o"), "--method", "isam2", "--checkpoint",
+                            str(ro / "c.npz")], "--checkpoint"),
+                          (["--out", str(tmp_path / "o"), "--rerun", str(ro / "p.rrd")], "--rerun")):
+        assert main(["smooth", str(small_pass / "measurements.csv"), "--quiet", *extra]) == 2
+        _refused(capsys, option, str(ro), "Permission denied")
+
+
 @pytest.mark.parametrize("extra,option", [
     (["--method", "isam2", "--checkpoint", "{tmp}/missing/c.npz"], "--checkpoint"),
     (["--method", "isam2", "--checkpoint", "{tmp}"], "--checkpoint"),
