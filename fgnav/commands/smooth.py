@@ -22,7 +22,7 @@ def add_solver_options(p):
     p.add_argument("--robust-k", type=float,
                    help="robust threshold in sigmas (default 1.345 huber, 2.3849 cauchy)")
     p.add_argument("--gate", type=float, metavar="P",
-                   help="EKF / iSAM2: reject a measurement whose innovation exceeds the chi-square "
+                   help="isam2, fixed-lag, ekf: reject a measurement whose innovation exceeds the chi-square "
                         "quantile P of its dimension (e.g. 0.9999)")
 
 
