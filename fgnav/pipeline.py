@@ -83,9 +83,17 @@ def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
             "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(sol.P_eci[:, :3, :3], axis1=1, axis2=2))))}
 
 
-def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions) -> dict:
+def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
+                t_ref: np.ndarray | None = None) -> dict:
+    """The Cramér–Rao bound of ``p`` along ``x_ref``; with ``t_ref`` (the epochs of
+    ``x_ref``, a superset of ``p.t_s``, e.g. a solution with gap-filling epochs) only the
+    states at the pass's own epochs are used."""
     from fgnav.analysis.crb import cramer_rao_bound
 
+    if len(x_ref) != p.n_epochs:
+        if t_ref is None:
+            raise ValueError(f"crb_metrics: {len(x_ref)} states for a pass of {p.n_epochs} epochs")
+        x_ref = x_ref[np.searchsorted(t_ref, p.t_s)]
     c = cramer_rao_bound(p, x_ref, options.motion_model())
     return {"crb_position_rms_m": c.position_rms_m, "crb_velocity_rms_mps": c.velocity_rms_mps,
             "crb_final_position_m": c.final_position_m, "crb_final_velocity_mps": c.final_velocity_mps}
@@ -105,6 +113,9 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     t0 = time.perf_counter()
     log = read_measurements(log_path)
     p = build_pass(log)
+    gap_factor = solve_kw.pop("gap_factor", 10.0)
+    if gap_factor is not None:
+        p = fill_gaps(p, gap_factor)  # the pass the solvers see: summary and residuals use it
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
@@ -144,7 +155,9 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "source": p.source}
-    s.update(crb_metrics(p, sol.x_eci, options))
+    s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
+    if p.inserted is not None and p.inserted.any():
+        s["inserted_epochs"] = int(p.inserted.sum())
     for k, v in sol.extras.items():
         if isinstance(v, (int, float, str, bool, list)):
             s.setdefault(k, v)
