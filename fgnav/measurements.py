@@ -9,6 +9,7 @@ attitude's (the "known attitude" route of SPEC measurement model 2).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -50,6 +51,12 @@ class Pass:
     source: str = ""
     warnings: list[str] = field(default_factory=list)
     inserted: np.ndarray | None = None           # (N,) bool: epoch added by fill_gaps
+    # Arcs (fgnav.solvers.arcs): epoch indices where a new, separately solved arc starts
+    # (a gap too long to bridge), each with its a-priori state (6,) and 1-sigma
+    # (position m, velocity m/s) predicted across the gap; notes on every long gap.
+    breaks: tuple[int, ...] = ()
+    arc_priors: list = field(default_factory=list)
+    gap_notes: list = field(default_factory=list)
 
     @property
     def n_epochs(self) -> int:
@@ -182,16 +189,17 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
     and report a covariance that grows into the gap and shrinks when measurements return.
 
     ``Pass.inserted`` marks the epochs added here; a pass already filled is returned as is.
+    The gaps before the epochs in ``p.breaks`` (arcs solved separately) are not filled;
+    ``breaks`` are renumbered to the new epochs.
     """
     if p.inserted is not None:
         return p
-    unchanged = Pass(epoch0=p.epoch0, t_s=p.t_s, families=p.families, source=p.source,
-                     warnings=p.warnings, inserted=np.zeros(p.n_epochs, bool))
+    unchanged = dataclasses.replace(p, inserted=np.zeros(p.n_epochs, bool))
     if p.n_epochs < 3:
         return unchanged
     dt = np.diff(p.t_s)
     step = float(np.median(dt))
-    gaps = np.flatnonzero(dt > gap_factor * step)
+    gaps = np.array([i for i in long_gaps(p, gap_factor) if i + 1 not in p.breaks], dtype=int)
     if step <= 0 or not len(gaps):
         return unchanged
     extra = []
@@ -206,10 +214,52 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
             for kind, f in p.families.items()}
     n_ins = len(t_new) - p.n_epochs
     longest = float(dt[gaps].max())
-    return Pass(epoch0=p.epoch0, t_s=t_new, families=fams, source=p.source, inserted=inserted,
-                warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
-                                       f"longer than {gap_factor * step:g} s (longest "
-                                       f"{_duration(longest)}; at most {max_per_gap} per gap)"])
+    return dataclasses.replace(
+        p, t_s=t_new, families=fams, inserted=inserted,
+        breaks=tuple(int(remap[b]) for b in p.breaks),
+        warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
+                               f"longer than {gap_factor * step:g} s (longest "
+                               f"{_duration(longest)}; at most {max_per_gap} per gap)"])
+
+
+def long_gaps(p: Pass, gap_factor: float) -> np.ndarray:
+    """Indices ``i`` of the steps ``t_s[i] -> t_s[i + 1]`` longer than ``gap_factor`` times
+    the median step (the gaps :func:`fill_gaps` fills)."""
+    if p.n_epochs < 3:
+        return np.zeros(0, dtype=int)
+    dt = np.diff(p.t_s)
+    step = float(np.median(dt))
+    return np.flatnonzero(dt > gap_factor * step) if step > 0 else np.zeros(0, dtype=int)
+
+
+def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[Pass, dict]:
+    """Epochs ``k0 <= k < k1`` of a pass as a pass of their own (same ``epoch0`` and times),
+    and for each family the indices of its rows in ``p`` (-1 for added rows).
+
+    ``prior = (x (6,), sigma_position_m, sigma_velocity_mps)`` adds ``prior_position`` /
+    ``prior_velocity`` rows at the first epoch (placed first in their families).
+    """
+    fams, rows_of = {}, {}
+    for kind, f in p.families.items():
+        rows = np.flatnonzero((f.k >= k0) & (f.k < k1))
+        if len(rows):
+            fams[kind] = f.subset(rows)
+            fams[kind].k = fams[kind].k - k0
+            rows_of[kind] = rows
+    if prior is not None:
+        x, s_r, s_v = prior
+        for kind, xyz, s in (("prior_position", x[:3], s_r), ("prior_velocity", x[3:], s_v)):
+            new = Family(k=np.array([0]), values={"xyz": np.asarray(xyz, float)[None]},
+                         sigma=np.array([float(s)]), line=np.array([0]))
+            old = fams.get(kind)
+            if old is not None:
+                new = Family(k=np.r_[new.k, old.k], values={"xyz": np.r_[new.values["xyz"], old.values["xyz"]]},
+                             sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
+            fams[kind] = new
+            rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
+    sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source,
+               inserted=None if p.inserted is None else p.inserted[k0:k1])
+    return sub, rows_of
 
 
 def _duration(s: float) -> str:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, build_pass, check_observable, fill_gaps
+from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.solution import Solution
 from fgnav.solvers.batch import SmootherOptions
 
@@ -35,7 +35,15 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     check_observable(p)
     if gap_factor is not None:
-        p = fill_gaps(p, gap_factor)
+        from fgnav.solvers.arcs import plan_gaps
+        p = plan_gaps(p, options, gap_factor)
+    if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
+        from fgnav.solvers.arcs import solve_arcs
+        if checkpoint or resume:
+            raise UserError("--checkpoint/--resume: this log has gaps too long to bridge and is "
+                            "solved as separate arcs, which checkpoints do not support")
+        return solve_arcs(p, lambda arc: solve(arc, method, options, lag_s=lag_s,
+                                               progress=progress, gap_factor=None), method)
     model = options.motion_model()
     check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
     if method == "batch":
@@ -94,6 +102,18 @@ def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
         if t_ref is None:
             raise ValueError(f"crb_metrics: {len(x_ref)} states for a pass of {p.n_epochs} epochs")
         x_ref = x_ref[np.searchsorted(t_ref, p.t_s)]
+    if p.breaks:  # separate arcs: the bound of each, pooled over all epochs
+        from fgnav.measurements import slice_pass
+        bounds = [0, *p.breaks, p.n_epochs]
+        cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
+                               x_ref[a:b], options.motion_model())
+              for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+        var_r = np.concatenate([np.trace(c.P_eci[:, :3, :3], axis1=1, axis2=2) for c in cs])
+        var_v = np.concatenate([np.trace(c.P_eci[:, 3:, 3:], axis1=1, axis2=2) for c in cs])
+        return {"crb_position_rms_m": float(np.sqrt(var_r.mean())),
+                "crb_velocity_rms_mps": float(np.sqrt(var_v.mean())),
+                "crb_final_position_m": cs[-1].final_position_m,
+                "crb_final_velocity_mps": cs[-1].final_velocity_mps}
     c = cramer_rao_bound(p, x_ref, options.motion_model())
     return {"crb_position_rms_m": c.position_rms_m, "crb_velocity_rms_mps": c.velocity_rms_mps,
             "crb_final_position_m": c.final_position_m, "crb_final_velocity_mps": c.final_velocity_mps}
@@ -115,7 +135,9 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     p = build_pass(log)
     gap_factor = solve_kw.pop("gap_factor", 10.0)
     if gap_factor is not None:
-        p = fill_gaps(p, gap_factor)  # the pass the solvers see: summary and residuals use it
+        from fgnav.solvers.arcs import plan_gaps
+        check_observable(p)
+        p = plan_gaps(p, options, gap_factor)  # the pass the solvers see: summary uses it
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
@@ -158,6 +180,9 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
     if p.inserted is not None and p.inserted.any():
         s["inserted_epochs"] = int(p.inserted.sum())
+    if p.gap_notes:
+        from fgnav.solvers.arcs import gap_summary
+        s["gaps"] = gap_summary(p)
     for k, v in sol.extras.items():
         if isinstance(v, (int, float, str, bool, list)):
             s.setdefault(k, v)
