@@ -200,3 +200,64 @@ def test_close_epochs_and_a_tiny_sigma_are_observable_for_batch():
         i2 = solve(p, "isam2")
         dev = np.abs(b.x_eci - i2.x_eci) / np.sqrt(np.diagonal(b.P_eci, axis1=1, axis2=2))
         assert dev.max() < 0.05
+
+
+def test_motion_model_over_a_day_long_step():
+    """One 1-day step (17,280 RK4 sub-steps of 5 s) equals 24 chained 1 h steps, its STM
+    equals the product of theirs and central differences of the propagation; the process
+    noise of a 20-day step is SPD and its square-root information inverts it."""
+    from factors.dynamics import MotionModel, process_noise, process_noise_sqrt_information, propagate
+
+    scn = load_scenario("gto-transfer")
+    x0 = np.array(scn.x0_eci)
+    model = MotionModel()
+    x_day, Phi_day = propagate(x0, DAY_S, model)
+    x, Phi = x0.copy(), np.eye(6)
+    for h in range(24):
+        x, Phi_h = propagate(x, 3600.0, model)
+        Phi = Phi_h @ Phi
+    np.testing.assert_allclose(x_day, x, rtol=1e-12, atol=1e-6)
+    np.testing.assert_allclose(Phi_day, Phi, rtol=1e-8, atol=1e-8 * np.abs(Phi_day).max())
+    steps = np.array([10.0, 10.0, 10.0, 0.01, 0.01, 0.01])  # m, m/s
+    fd = np.empty((6, 6))
+    for j in range(6):
+        d = np.zeros(6)
+        d[j] = steps[j]
+        fd[:, j] = (propagate(x0 + d, DAY_S, model, with_stm=False)[0]
+                    - propagate(x0 - d, DAY_S, model, with_stm=False)[0]) / (2 * steps[j])
+    np.testing.assert_allclose(Phi_day, fd, rtol=1e-4, atol=1e-5 * np.abs(Phi_day).max())
+    for dt in (3600.0, DAY_S, 20 * DAY_S):
+        Q = process_noise(dt, 1e-12)
+        W = process_noise_sqrt_information(dt, 1e-12)
+        assert np.all(np.linalg.eigvalsh(Q) > 0)
+        np.testing.assert_allclose(W @ Q @ W.T, np.eye(6), atol=1e-8)
+
+
+def test_chain_marginals_stay_exact_across_a_12_hour_step():
+    """The O(N) marginals and update of the QR-eliminated chain against a dense SVD solve
+    when one step is 12 h long (its process-noise covariance 1e8 times a 2-min step's)."""
+    from fgnav.solvers.batch import SmootherOptions, build_linear_graph, eliminate_chain
+    from fgnav.solvers.chain import back_substitute, chain_marginals
+
+    scn = load_scenario("gto-transfer").with_options(step_s=120.0, duration_h=13.0)
+    sim = simulate_pass(scn, 0)
+    p = build_pass(_cut(sim.log, 1800.0, 1800.0 + 12 * 3600.0))
+    assert np.diff(p.t_s).max() == 12 * 3600.0
+    opt = SmootherOptions(q_m2_s3=1e-9)
+    t_true = np.searchsorted(sim.t_s, p.t_s)
+    Xs = sim.x_true[t_true] + np.array([300.0, -200.0, 100.0, 0.1, 0.05, -0.02])
+    graph, *_ = build_linear_graph(p, Xs, opt.q_m2_s3, opt.motion_model(), float(j2000_seconds(p.epoch0)))
+    R, S, d = eliminate_chain(graph, p.n_epochs)
+    A, b = graph.jacobian()
+    U, sv, Vt = np.linalg.svd(A, full_matrices=False)
+    cov = (Vt.T / sv ** 2) @ Vt
+    dx_dense = (Vt.T @ ((U.T @ b) / sv)).reshape(-1, 6)
+    P = chain_marginals(R, S)
+    for k in range(p.n_epochs):
+        blk = cov[6 * k:6 * k + 6, 6 * k:6 * k + 6]
+        s = np.sqrt(np.diag(blk))
+        np.testing.assert_allclose(np.diag(P[k]), s ** 2, rtol=1e-6)
+        # correlations to 1e-6 (absolute elements of 1e-9 of the largest would test the
+        # dense reference's own rounding: the condition number of the system is 3e8)
+        np.testing.assert_allclose(P[k] / np.outer(s, s), blk / np.outer(s, s), atol=1e-6)
+    np.testing.assert_allclose(back_substitute(R, S, d), dx_dense, rtol=1e-6, atol=1e-6)
