@@ -15,7 +15,7 @@ the linearized prediction is only valid while that is small against the thinnest
 Beyond that the Gaussian prediction claims a precision across track that the curved
 distribution does not have (on gto-transfer, 1 h of directions at 0.01 deg then a 1-day
 gap: kappa = 220, and the filter's NEES inside the gap is 1.9e5), and Gauss-Newton across
-the gap can diverge (20 days: kappa ~ 8,000, the batch solve ran 52 s and ended
+the gap can diverge (20 days: kappa = 188, the batch solve ran 52 s and ended
 thousands of km off). Such a gap separates two arcs: each is solved on its own, the later
 one from an a-priori state predicted across the gap with an isotropic 1-sigma equal to the
 largest principal sigma of the prediction (position and velocity; conservative: it
