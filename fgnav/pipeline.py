@@ -183,6 +183,8 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     if p.gap_notes:
         from fgnav.solvers.arcs import gap_summary
         s["gaps"] = gap_summary(p)
+    if p.warnings:
+        s["warnings"] = list(p.warnings)
     for k, v in sol.extras.items():
         if isinstance(v, (int, float, str, bool, list)):
             s.setdefault(k, v)

@@ -14,7 +14,7 @@ the linearized prediction is only valid while that is small against the thinnest
 
 Beyond that the Gaussian prediction claims a precision across track that the curved
 distribution does not have (on gto-transfer, 1 h of directions at 0.01 deg then a 1-day
-gap: kappa = 220, and the filter's NEES inside the gap is 1.9e5), and Gauss-Newton across
+gap: kappa = 226, and the filter's NEES inside the gap is 1.9e5), and Gauss-Newton across
 the gap can diverge (20 days: kappa = 188, the batch solve ran 52 s and ended
 thousands of km off). Such a gap separates two arcs: each is solved on its own, the later
 one from an a-priori state predicted across the gap with an isotropic 1-sigma equal to the
@@ -32,7 +32,7 @@ import numpy as np
 
 from factors.dynamics import process_noise, propagate
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, fill_gaps, long_gaps, slice_pass
+from fgnav.measurements import Pass, _duration, fill_gaps, long_gaps, slice_pass
 from fgnav.solution import Solution
 from fgnav.time import j2000_seconds
 
@@ -103,10 +103,13 @@ def plan_gaps(p: Pass, options, gap_factor: float = 10.0) -> Pass:
     planned = dataclasses.replace(p, breaks=tuple(breaks), arc_priors=priors, gap_notes=notes)
     out = fill_gaps(planned, gap_factor)
     if breaks:
+        split = [g for g in notes if not g["bridged"]]
+        where = ", ".join(f"{_duration(g['length_s'])} from t = {g['t_start_s']:.0f} s "
+                          f"(kappa {g['kappa']:.3g})" for g in split[:3])
         out.warnings = out.warnings + [
-            f"{len(breaks)} gap(s) too long to bridge (the prediction across them leaves the "
-            f"linear regime, kappa > {KAPPA_MAX:g}): the log is solved as {len(breaks) + 1} "
-            f"separate arcs"]
+            f"{len(breaks)} gap(s) too long to bridge: {where}{' ...' if len(split) > 3 else ''}; "
+            f"the prediction across leaves the linear regime (kappa > {KAPPA_MAX:g}), so the log "
+            f"is solved as {len(breaks) + 1} separate arcs, each from its own data"]
     return out
 
 
