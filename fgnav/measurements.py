@@ -219,7 +219,7 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
         breaks=tuple(int(remap[b]) for b in p.breaks),
         warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
                                f"longer than {gap_factor * step:g} s (longest "
-                               f"{_duration(longest)}; at most {max_per_gap} per gap)"])
+                               f"{format_duration(longest)}; at most {max_per_gap} per gap)"])
 
 
 def long_gaps(p: Pass, gap_factor: float) -> np.ndarray:
@@ -262,7 +262,7 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
     return sub, rows_of
 
 
-def _duration(s: float) -> str:
+def format_duration(s: float) -> str:
     """A length of time for messages: seconds, minutes, hours or days."""
     for unit, size in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
         if s >= 2 * size:

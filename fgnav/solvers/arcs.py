@@ -32,7 +32,7 @@ import numpy as np
 
 from factors.dynamics import process_noise, propagate
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, _duration, fill_gaps, long_gaps, slice_pass
+from fgnav.measurements import Pass, format_duration, fill_gaps, long_gaps, slice_pass
 from fgnav.solution import Solution
 from fgnav.time import j2000_seconds
 
@@ -104,7 +104,7 @@ def plan_gaps(p: Pass, options, gap_factor: float = 10.0) -> Pass:
     out = fill_gaps(planned, gap_factor)
     if breaks:
         split = [g for g in notes if not g["bridged"]]
-        where = ", ".join(f"{_duration(g['length_s'])} from t = {g['t_start_s']:.0f} s "
+        where = ", ".join(f"{format_duration(g['length_s'])} from t = {g['t_start_s']:.0f} s "
                           f"(kappa {g['kappa']:.3g})" for g in split[:3])
         out.warnings = out.warnings + [
             f"{len(breaks)} gap(s) too long to bridge: {where}{' ...' if len(split) > 3 else ''}; "
