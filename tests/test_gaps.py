@@ -45,6 +45,12 @@ def gap_case(gap_s, seed=0, step_s=30.0):
 def two_sessions(days, seed=0, step_s=60.0, session_h=4.0):
     """Two sessions of ``session_h`` hours, the second ``days`` days after the first; the
     second has no prior rows. Returns (pass, truth function)."""
+    log, truth = two_session_log(days, seed, step_s, session_h)
+    return build_pass(log), truth
+
+
+def two_session_log(days, seed=0, step_s=60.0, session_h=4.0):
+    """The log of :func:`two_sessions` and its truth function."""
     scn = load_scenario("gto-transfer").with_options(step_s=step_s, duration_h=session_h)
     s1 = simulate_pass(scn, seed)
     t0 = float(j2000_seconds(s1.epoch0))
@@ -65,7 +71,7 @@ def two_sessions(days, seed=0, step_s=60.0, session_h=4.0):
         out[a] = integrate_truth(s1.x_true[0], t[a], t0_j2000_s=t0)
         out[~a] = integrate_truth(x_b, t[~a] - offset, t0_j2000_s=t0 + offset)
         return out
-    return build_pass(log), truth
+    return log, truth
 
 
 def sigma_r(P):
@@ -261,3 +267,58 @@ def test_chain_marginals_stay_exact_across_a_12_hour_step():
         # dense reference's own rounding: the condition number of the system is 3e8)
         np.testing.assert_allclose(P[k] / np.outer(s, s), blk / np.outer(s, s), atol=1e-6)
     np.testing.assert_allclose(back_substitute(R, S, d), dx_dense, rtol=1e-6, atol=1e-6)
+
+
+def _write_case(tmp_path, p_log, truth, t_truth):
+    from fgnav.io.log_csv import write_log
+    from fgnav.io.oem import write_oem
+
+    write_log(tmp_path / "gap.csv", p_log)
+    write_oem(tmp_path / "truth.oem", p_log.epoch0, t_truth, truth(t_truth))
+    return tmp_path / "gap.csv", tmp_path / "truth.oem"
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_fgnav_smooth_on_a_log_with_a_20_minute_gap(tmp_path, method):
+    """The reported crash: `fgnav smooth` on a pass with 20 minutes of rows removed exited
+    1 with a numpy broadcast error in the summary (the bound was evaluated on the log's
+    epochs along the solution's, which has the gap's states too)."""
+    import json
+
+    from fgnav.cli import main
+
+    scn = load_scenario("gto-transfer").with_options(step_s=30.0, duration_h=1.0)
+    sim = simulate_pass(scn, 0)
+    t0 = float(j2000_seconds(sim.epoch0))
+    log, tr = _write_case(tmp_path, _cut(sim.log, 1200.0, 2400.0),
+                          lambda t: integrate_truth(sim.x_true[0], t, t0_j2000_s=t0), sim.t_s)
+    out = tmp_path / "out"
+    assert main(["smooth", str(log), "--out", str(out), "--method", method, "--truth", str(tr),
+                 "--quiet"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["epochs"] == 121 and s["inserted_epochs"] == 39
+    assert s["gaps"][0]["bridged"] and s["gaps"][0]["length_s"] == 1200.0
+    assert 0.2 < s["nees_mean"] < 18.0
+    assert np.isfinite(s["crb_position_rms_m"])
+
+
+@pytest.mark.slow
+def test_fgnav_smooth_on_two_sessions_20_days_apart_at_10_s(tmp_path):
+    """The reported hang: two 4 h sessions at 10 s (2,882 epochs) 20 days apart through
+    `fgnav smooth`, every method: exit 0, two arcs, a state at each measurement epoch and
+    none inside the gap (filling it at the median step would have been 172,000 states)."""
+    import json
+
+    from fgnav.cli import main
+
+    log, truth = two_session_log(20.0, step_s=10.0)
+    t = np.unique(log.t_s)
+    path, tr = _write_case(tmp_path, log, truth, t)
+    for method in METHODS:
+        out = tmp_path / method
+        assert main(["smooth", str(path), "--out", str(out), "--method", method, "--truth", str(tr),
+                     "--quiet"]) == 0
+        s = json.loads((out / "summary.json").read_text())
+        assert s["epochs"] == len(t) == 2 * 1441 and s["arcs"] == 2
+        assert "inserted_epochs" not in s and not s["gaps"][0]["bridged"]
+        assert 0.2 < s["nees_mean"] < 18.0, (method, s["nees_mean"])
