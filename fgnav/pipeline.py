@@ -25,7 +25,9 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     """Run one estimator over a pass (after the observability checks).
 
     Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
-    (:func:`fgnav.measurements.fill_gaps`); ``gap_factor=None`` keeps the log's epochs only.
+    (:func:`fgnav.measurements.fill_gaps`), or, when too long to bridge, separate the log
+    into arcs solved one by one (:mod:`fgnav.solvers.arcs`); ``gap_factor=None`` keeps the
+    pass as given (already planned, or no gap handling).
     """
     from fgnav.analysis.crb import check_observability
     from fgnav.solvers.batch import initial_guess, smooth_batch
@@ -103,18 +105,10 @@ def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
             raise ValueError(f"crb_metrics: {len(x_ref)} states for a pass of {p.n_epochs} epochs")
         x_ref = x_ref[np.searchsorted(t_ref, p.t_s)]
     if p.breaks:  # separate arcs: the bound of each, pooled over all epochs
-        from fgnav.measurements import slice_pass
-        bounds = [0, *p.breaks, p.n_epochs]
-        cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
-                               x_ref[a:b], options.motion_model())
-              for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
-        var_r = np.concatenate([np.trace(c.P_eci[:, :3, :3], axis1=1, axis2=2) for c in cs])
-        var_v = np.concatenate([np.trace(c.P_eci[:, 3:, 3:], axis1=1, axis2=2) for c in cs])
-        return {"crb_position_rms_m": float(np.sqrt(var_r.mean())),
-                "crb_velocity_rms_mps": float(np.sqrt(var_v.mean())),
-                "crb_final_position_m": cs[-1].final_position_m,
-                "crb_final_velocity_mps": cs[-1].final_velocity_mps}
-    c = cramer_rao_bound(p, x_ref, options.motion_model())
+        from fgnav.solvers.arcs import arcs_bound
+        c = arcs_bound(p, x_ref, options.motion_model())
+    else:
+        c = cramer_rao_bound(p, x_ref, options.motion_model())
     return {"crb_position_rms_m": c.position_rms_m, "crb_velocity_rms_mps": c.velocity_rms_mps,
             "crb_final_position_m": c.final_position_m, "crb_final_velocity_mps": c.final_velocity_mps}
 

@@ -160,6 +160,25 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
                     online_P_eci=cat("online_P_eci"), latency_s=cat("latency_s"), extras=extras)
 
 
+def arcs_bound(p: Pass, x_ref: np.ndarray, model):
+    """The Cramér–Rao bound of a pass split into arcs: each arc's own (its a-priori state
+    included), pooled over all epochs (a :class:`fgnav.analysis.crb.CrbResult`)."""
+    from fgnav.analysis.crb import CrbResult, cramer_rao_bound
+
+    bounds = [0, *p.breaks, p.n_epochs]
+    cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
+                           x_ref[a:b], model)
+          for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+    P = np.concatenate([c.P_eci for c in cs])
+    var_r = np.trace(P[:, :3, :3], axis1=1, axis2=2)
+    var_v = np.trace(P[:, 3:, 3:], axis1=1, axis2=2)
+    return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
+                     velocity_rms_mps=float(np.sqrt(var_v.mean())),
+                     final_position_m=cs[-1].final_position_m,
+                     final_velocity_mps=cs[-1].final_velocity_mps,
+                     J0_measurements=cs[0].J0_measurements, J0_geometry=cs[0].J0_geometry)
+
+
 def gap_summary(p: Pass) -> list[dict]:
     """summary.json entries for the long gaps (times in s from the pass epoch, km)."""
     return [{"t_start_s": g["t_start_s"], "length_s": g["length_s"], "bridged": bool(g["bridged"]),
