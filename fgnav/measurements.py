@@ -9,6 +9,7 @@ attitude's (the "known attitude" route of SPEC measurement model 2).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,6 +50,13 @@ class Pass:
     families: dict[str, Family] = field(default_factory=dict)
     source: str = ""
     warnings: list[str] = field(default_factory=list)
+    inserted: np.ndarray | None = None           # (N,) bool: epoch added by fill_gaps
+    # Arcs (fgnav.solvers.arcs): epoch indices where a new, separately solved arc starts
+    # (a gap too long to bridge), each with its a-priori state (6,) and 1-sigma
+    # (position m, velocity m/s) predicted across the gap; notes on every long gap.
+    breaks: tuple[int, ...] = ()
+    arc_priors: list = field(default_factory=list)
+    gap_notes: list = field(default_factory=list)
 
     @property
     def n_epochs(self) -> int:
@@ -160,29 +168,106 @@ def check_observable(p: Pass) -> None:
                         f"measurements: the orbit is not observable from this log")
 
 
-def fill_gaps(p: Pass, gap_factor: float = 10.0) -> Pass:
+MAX_INSERTED_PER_GAP = 200
+"""At most this many measurement-free state epochs are inserted into one gap (see
+:func:`fill_gaps`): enough to draw the trajectory and its covariance through the gap, and
+the solvers' cost stays bounded whatever the gap's length (20 days at 1 s sampling would
+otherwise be 1.7 million states)."""
+
+
+def fill_gaps(p: Pass, gap_factor: float = 10.0,
+              max_per_gap: int = MAX_INSERTED_PER_GAP) -> Pass:
     """Insert measurement-free epochs across long gaps so the solution covers them.
 
-    A gap is a step longer than ``gap_factor`` times the median step; it is filled at the
-    median step. The smoothers then propagate through the gap (motion factors only) and
-    report a covariance that grows into the gap and shrinks when measurements return.
+    A gap is a step longer than ``gap_factor`` times the median step. It receives
+    ``n = min(ceil(gap / median) - 1, max_per_gap)`` epochs evenly spaced across it: at the
+    median step while that needs at most ``max_per_gap`` epochs (a 1 h gap at 60 s gets the
+    59 epochs a gap-free log would have), at the wider spacing ``gap / (max_per_gap + 1)``
+    beyond (a 20-day gap: 200 epochs 2.4 h apart). The motion factor sub-steps any step at
+    ``MotionModel.max_step_s``, so the spacing changes only where the solution is reported,
+    not the dynamics. The smoothers then propagate through the gap (motion factors only)
+    and report a covariance that grows into the gap and shrinks when measurements return.
+
+    ``Pass.inserted`` marks the epochs added here; a pass already filled is returned as is.
+    The gaps before the epochs in ``p.breaks`` (arcs solved separately) are not filled;
+    ``breaks`` are renumbered to the new epochs.
     """
-    if p.n_epochs < 3:
+    if p.inserted is not None:
         return p
+    unchanged = dataclasses.replace(p, inserted=np.zeros(p.n_epochs, bool))
+    if p.n_epochs < 3:
+        return unchanged
     dt = np.diff(p.t_s)
     step = float(np.median(dt))
-    if step <= 0 or not np.any(dt > gap_factor * step):
-        return p
-    extra = [np.arange(p.t_s[i] + step, p.t_s[i + 1] - 0.5 * step, step)
-             for i in np.flatnonzero(dt > gap_factor * step)]
+    gaps = np.array([i for i in long_gaps(p, gap_factor) if i + 1 not in p.breaks], dtype=int)
+    if step <= 0 or not len(gaps):
+        return unchanged
+    extra = []
+    for i in gaps:
+        n = int(min(np.ceil(dt[i] / step - 1e-9) - 1, max_per_gap))
+        extra.append(p.t_s[i] + dt[i] * np.arange(1, n + 1) / (n + 1))
     t_new = np.unique(np.concatenate([p.t_s, *extra]))
     remap = np.searchsorted(t_new, p.t_s)
+    inserted = np.ones(len(t_new), bool)
+    inserted[remap] = False
     fams = {kind: Family(k=remap[f.k], values=f.values, sigma=f.sigma, line=f.line)
             for kind, f in p.families.items()}
     n_ins = len(t_new) - p.n_epochs
-    return Pass(epoch0=p.epoch0, t_s=t_new, families=fams, source=p.source,
-                warnings=p.warnings + [f"{n_ins} state epochs inserted across "
-                                       f"{len(extra)} gap(s) longer than {gap_factor * step:g} s"])
+    longest = float(dt[gaps].max())
+    return dataclasses.replace(
+        p, t_s=t_new, families=fams, inserted=inserted,
+        breaks=tuple(int(remap[b]) for b in p.breaks),
+        warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
+                               f"longer than {gap_factor * step:g} s (longest "
+                               f"{format_duration(longest)}; at most {max_per_gap} per gap)"])
+
+
+def long_gaps(p: Pass, gap_factor: float) -> np.ndarray:
+    """Indices ``i`` of the steps ``t_s[i] -> t_s[i + 1]`` longer than ``gap_factor`` times
+    the median step (the gaps :func:`fill_gaps` fills)."""
+    if p.n_epochs < 3:
+        return np.zeros(0, dtype=int)
+    dt = np.diff(p.t_s)
+    step = float(np.median(dt))
+    return np.flatnonzero(dt > gap_factor * step) if step > 0 else np.zeros(0, dtype=int)
+
+
+def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[Pass, dict]:
+    """Epochs ``k0 <= k < k1`` of a pass as a pass of their own (same ``epoch0`` and times),
+    and for each family the indices of its rows in ``p`` (-1 for added rows).
+
+    ``prior = (x (6,), sigma_position_m, sigma_velocity_mps)`` adds ``prior_position`` /
+    ``prior_velocity`` rows at the first epoch (placed first in their families).
+    """
+    fams, rows_of = {}, {}
+    for kind, f in p.families.items():
+        rows = np.flatnonzero((f.k >= k0) & (f.k < k1))
+        if len(rows):
+            fams[kind] = f.subset(rows)
+            fams[kind].k = fams[kind].k - k0
+            rows_of[kind] = rows
+    if prior is not None:
+        x, s_r, s_v = prior
+        for kind, xyz, s in (("prior_position", x[:3], s_r), ("prior_velocity", x[3:], s_v)):
+            new = Family(k=np.array([0]), values={"xyz": np.asarray(xyz, float)[None]},
+                         sigma=np.array([float(s)]), line=np.array([0]))
+            old = fams.get(kind)
+            if old is not None:
+                new = Family(k=np.r_[new.k, old.k], values={"xyz": np.r_[new.values["xyz"], old.values["xyz"]]},
+                             sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
+            fams[kind] = new
+            rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
+    sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source,
+               inserted=None if p.inserted is None else p.inserted[k0:k1])
+    return sub, rows_of
+
+
+def format_duration(s: float) -> str:
+    """A length of time for messages: seconds, minutes, hours or days."""
+    for unit, size in (("d", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if s >= 2 * size:
+            return f"{s / size:.1f} {unit}"
+    return f"{s:.0f} s"
 
 
 def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:

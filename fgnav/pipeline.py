@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, build_pass, check_observable, fill_gaps
+from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.solution import Solution
 from fgnav.solvers.batch import SmootherOptions
 
@@ -25,7 +25,9 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     """Run one estimator over a pass (after the observability checks).
 
     Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
-    (:func:`fgnav.measurements.fill_gaps`); ``gap_factor=None`` keeps the log's epochs only.
+    (:func:`fgnav.measurements.fill_gaps`), or, when too long to bridge, separate the log
+    into arcs solved one by one (:mod:`fgnav.solvers.arcs`); ``gap_factor=None`` keeps the
+    pass as given (already planned, or no gap handling).
     """
     from fgnav.analysis.crb import check_observability
     from fgnav.solvers.batch import initial_guess, smooth_batch
@@ -37,7 +39,15 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_observable(p)
     if gap_factor is not None:
-        p = fill_gaps(p, gap_factor)
+        from fgnav.solvers.arcs import plan_gaps
+        p = plan_gaps(p, options, gap_factor)
+    if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
+        from fgnav.solvers.arcs import solve_arcs
+        if checkpoint or resume:
+            raise UserError("--checkpoint/--resume: this log has gaps too long to bridge and is "
+                            "solved as separate arcs, which checkpoints do not support")
+        return solve_arcs(p, lambda arc: solve(arc, method, options, lag_s=lag_s,
+                                               progress=progress, gap_factor=None), method)
     model = options.motion_model()
     check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
     if method == "batch":
@@ -85,10 +95,22 @@ def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
             "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(sol.P_eci[:, :3, :3], axis1=1, axis2=2))))}
 
 
-def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions) -> dict:
+def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
+                t_ref: np.ndarray | None = None) -> dict:
+    """The Cramér–Rao bound of ``p`` along ``x_ref``; with ``t_ref`` (the epochs of
+    ``x_ref``, a superset of ``p.t_s``, e.g. a solution with gap-filling epochs) only the
+    states at the pass's own epochs are used."""
     from fgnav.analysis.crb import cramer_rao_bound
 
-    c = cramer_rao_bound(p, x_ref, options.motion_model())
+    if len(x_ref) != p.n_epochs:
+        if t_ref is None:
+            raise ValueError(f"crb_metrics: {len(x_ref)} states for a pass of {p.n_epochs} epochs")
+        x_ref = x_ref[np.searchsorted(t_ref, p.t_s)]
+    if p.breaks:  # separate arcs: the bound of each, pooled over all epochs
+        from fgnav.solvers.arcs import arcs_bound
+        c = arcs_bound(p, x_ref, options.motion_model())
+    else:
+        c = cramer_rao_bound(p, x_ref, options.motion_model())
     return {"crb_position_rms_m": c.position_rms_m, "crb_velocity_rms_mps": c.velocity_rms_mps,
             "crb_final_position_m": c.final_position_m, "crb_final_velocity_mps": c.final_velocity_mps}
 
@@ -108,6 +130,11 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     log = read_measurements(log_path)
     p = build_pass(log)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
+    gap_factor = solve_kw.pop("gap_factor", 10.0)
+    if gap_factor is not None:
+        from fgnav.solvers.arcs import plan_gaps
+        check_observable(p)
+        p = plan_gaps(p, options, gap_factor)  # the pass the solvers see: summary uses it
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
@@ -164,7 +191,14 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "source": p.source}
-    s.update(crb_metrics(p, sol.x_eci, options))
+    s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
+    if p.inserted is not None and p.inserted.any():
+        s["inserted_epochs"] = int(p.inserted.sum())
+    if p.gap_notes:
+        from fgnav.solvers.arcs import gap_summary
+        s["gaps"] = gap_summary(p)
+    if p.warnings:
+        s["warnings"] = list(p.warnings)
     for k, v in sol.extras.items():
         if _is_plain(v):
             s.setdefault(k, v)

@@ -45,6 +45,7 @@ class CrbResult:
     final_position_m: float
     final_velocity_mps: float
     J0_measurements: np.ndarray   # (6,6) information of the first state from measurements only
+    J0_geometry: np.ndarray | None = None  # (6,6) the same with every row scaled to unit norm
 
 
 def _scaled_inverse(J: np.ndarray) -> np.ndarray:
@@ -66,6 +67,8 @@ def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionMode
     J0 = G.T @ G
     Gm = G[~np.isin(rows.row_kind, PRIOR_KINDS)]
     J0_meas = Gm.T @ Gm
+    norm = np.linalg.norm(Gm, axis=1)
+    Gu = Gm[norm > 0] / norm[norm > 0, None]
     C0 = _scaled_inverse(J0)
     P = np.einsum("kij,jl,kml->kim", Phik, C0, Phik)
     var_r = np.trace(P[:, :3, :3], axis1=1, axis2=2)
@@ -73,15 +76,21 @@ def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionMode
     return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
                      velocity_rms_mps=float(np.sqrt(var_v.mean())),
                      final_position_m=float(np.sqrt(var_r[-1])),
-                     final_velocity_mps=float(np.sqrt(var_v[-1])), J0_measurements=J0_meas)
+                     final_velocity_mps=float(np.sqrt(var_v[-1])), J0_measurements=J0_meas,
+                     J0_geometry=Gu.T @ Gu)
 
 
 def check_observability(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel(),
                         max_condition: float = 1e12) -> float:
     """Raise NotObservableError when the measurements alone leave a direction of the first
-    state unobserved; return the (scaled) condition number of their information."""
+    state unobserved; return the (scaled) condition number of their information.
+
+    The test is on the geometry of the rows, each scaled to unit norm: whether the rows span
+    the six directions does not depend on their weights, and weights that differ by 1e12
+    (one measurement with sigma 1e-12) would otherwise make a well-observed orbit look
+    singular."""
     crb = cramer_rao_bound(p, X_ref, model)
-    J = crb.J0_measurements
+    J = crb.J0_geometry
     s = 1.0 / np.sqrt(np.maximum(np.diag(J), 1e-300))
     w, V = np.linalg.eigh(J * s[:, None] * s[None, :])
     cond = float(w[-1] / max(w[0], 1e-300)) if w[-1] > 0 else np.inf

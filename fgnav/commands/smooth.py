@@ -168,6 +168,11 @@ def run(args) -> int:
     finally:
         bar.close()
     write_outputs(args.out, res, p)
+    if not args.quiet:
+        import sys
+        for note in p.warnings:
+            if "gap" in note:
+                print(f"fgnav: note: {note}", file=sys.stderr)
     if args.rerun:
         from fgnav.viz.rerun_log import log_solution
         log_solution(args.rerun, res.solution, truth_x_eci=res.x_true,

@@ -83,14 +83,16 @@ class Linearization:
     chi2_motion: float
     residuals: dict
     weights: dict
+    col_norm: np.ndarray | None = None  # (N,6) column norms of the whitened system
 
 
 def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
                        robust=None, rejected=None):
     """The pass linearized at ``Xs``: one pre-whitened JacobianFactor per epoch.
 
-    Returns the GaussianFactorGraph, the chi-square of the measurement and motion rows, and
-    the measurement rows (:class:`fgnav.graph.Rows`: residuals and robust weights per kind).
+    Returns the GaussianFactorGraph, the chi-square of the measurement and motion rows, the
+    measurement rows (:class:`fgnav.graph.Rows`: residuals and robust weights per kind) and
+    the norm of every column of the whitened system (N, 6) (for :func:`_check_rank`).
     """
     N = p.n_epochs
     rows = linearize_all(p, Xs, robust, rejected)
@@ -129,7 +131,12 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
     for f in factors:
         if f is not None:
             graph.push_back(f)
-    return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), rows
+    col2 = np.zeros((N, 6))
+    np.add.at(col2, k_rows, A_rows * A_rows)
+    if N > 1:
+        col2[:-1] += np.sum(A0_mot * A0_mot, axis=1)
+        col2[1:] += np.sum(W * W, axis=1)
+    return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), rows, np.sqrt(col2)
 
 
 def eliminate_chain(graph, N: int, source: str = ""):
@@ -157,19 +164,23 @@ def eliminate_chain(graph, N: int, source: str = ""):
 def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
                             t0_j2000_s: float, robust=None, rejected=None) -> Linearization:
     """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
-    graph, chi2_meas, chi2_motion, rows = build_linear_graph(p, Xs, q, model, t0_j2000_s, robust,
-                                                              rejected)
+    graph, chi2_meas, chi2_motion, rows, col_norm = build_linear_graph(p, Xs, q, model, t0_j2000_s,
+                                                                        robust, rejected)
     R, S, d = eliminate_chain(graph, p.n_epochs, p.source)
-    return Linearization(R, S, d, chi2_meas, chi2_motion, rows.residuals, rows.weights)
+    return Linearization(R, S, d, chi2_meas, chi2_motion, rows.residuals, rows.weights, col_norm)
 
 
-def _check_rank(p: Pass, lin: Linearization) -> None:
-    # A zero pivot relative to the same state's other pivots: a scale over the whole pass
-    # would call a state weak next to two epochs 1 ms apart (their motion factor's pivots
-    # reach 1e11 and the last state's position pivot is 1e-3, 1/m).
+def _check_rank(p: Pass, lin: Linearization, rel_tol: float = 1e-13) -> None:
+    """Refuse a rank-deficient linearization: a QR pivot below ``rel_tol`` times the norm of
+    its own column of the whitened system (the column is then a combination of the columns
+    eliminated before it, to rounding). Relative to each column rather than to the largest
+    pivot, because the rows' scales legitimately differ by many orders of magnitude (two
+    epochs 1 ms apart: motion rows ~1e11; a prior of sigma 1e-12 m: rows 1e12) while a
+    well-observed state's smallest pivot is ~1e-3 (Golub & Van Loan, *Matrix Computations*,
+    2013, sec. 5.4.1: rank from QR with the pivot judged against its column)."""
     diag = np.abs(np.diagonal(lin.R, axis1=1, axis2=2))
-    scale = diag.max(axis=1, keepdims=True)
-    bad = np.argwhere(diag < 1e-13 * scale)
+    scale = lin.col_norm if lin.col_norm is not None else np.full_like(diag, diag.max())
+    bad = np.argwhere(~(diag >= rel_tol * scale))
     if len(bad):
         k, i = bad[0]
         comp = ["x", "y", "z", "vx", "vy", "vz"][i]

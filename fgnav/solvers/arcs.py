@@ -1,0 +1,187 @@
+"""Long gaps: bridge them with one chain of states, or solve the log as separate arcs.
+
+A gap is bridged (motion factors across it, measurement-free states inside it from
+:func:`fgnav.measurements.fill_gaps`) while the state predicted across it from the data
+before it is still described by a Gaussian in Cartesian coordinates. The filter's
+covariance at the last epoch before the gap is propagated across it with the state
+transition matrix, ``P1 = Phi P Phi^T + Q``; its position block has principal 1-sigma
+``sigma_max`` (along track, where the uncertainty of the orbital period accumulates) and
+``sigma_min``. The true spread lies on the orbit, a curve of radius ``|r|``: a chord of
+half-length ``sigma_max`` leaves the curve by ``sigma_max^2 / (2 |r|)`` (the sagitta), and
+the linearized prediction is only valid while that is small against the thinnest sigma,
+
+    kappa = sigma_max^2 / (2 |r| sigma_min) <= KAPPA_MAX = 1.
+
+Beyond that the Gaussian prediction claims a precision across track that the curved
+distribution does not have (on gto-transfer, 1 h of directions at 0.01 deg then a 1-day
+gap: kappa = 226, and the filter's NEES inside the gap is 1.9e5), and Gauss-Newton across
+the gap can diverge (20 days: kappa = 188, the batch solve ran 52 s and ended
+thousands of km off). Such a gap separates two arcs: each is solved on its own, the later
+one from an a-priori state predicted across the gap with an isotropic 1-sigma equal to the
+largest principal sigma of the prediction (position and velocity; conservative: it
+contains the full prediction covariance), so the later arc is determined by its own data.
+No states are inserted inside a gap that is not bridged; the summary lists it under
+``gaps`` with its prediction figures.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from factors.dynamics import process_noise, propagate
+from fgnav.errors import UserError
+from fgnav.measurements import Pass, format_duration, fill_gaps, long_gaps, slice_pass
+from fgnav.solution import Solution
+from fgnav.time import j2000_seconds
+
+KAPPA_MAX = 1.0
+"""Largest curvature ratio ``sigma_max^2 / (2 |r| sigma_min)`` of a bridged gap."""
+
+
+def _filter(p: Pass, options):
+    """Filtered states and covariances of a pass (the numba EKF where it applies)."""
+    from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+
+    plain = dataclasses.replace(options, gate_probability=None, robust=None)
+    if set(p.families) <= set(SUPPORTED_KINDS):
+        try:
+            return run_ekf_numba(p, plain)
+        except ValueError:
+            pass
+    from fgnav.solvers.ekf import run_ekf
+    return run_ekf(p, plain)
+
+
+def predict_across(p: Pass, k: int, x: np.ndarray, P: np.ndarray, options) -> dict:
+    """The prediction from epoch ``k`` (state ``x``, covariance ``P``) across the step to
+    ``k + 1``: predicted state and covariance and the figures of the bridging test."""
+    dt = float(p.t_s[k + 1] - p.t_s[k])
+    t0 = float(j2000_seconds(p.epoch0)) + float(p.t_s[k])
+    x1, Phi = propagate(x, dt, options.motion_model(), t0)
+    P1 = Phi @ P @ Phi.T + process_noise(dt, options.q_m2_s3)
+    lam = np.sqrt(np.maximum(np.linalg.eigvalsh(0.5 * (P1[:3, :3] + P1[:3, :3].T)), 0.0))
+    r = float(np.linalg.norm(x1[:3]))
+    kappa = float(lam[-1] ** 2 / (2.0 * r * max(lam[0], 1e-9)))
+    return {"t_start_s": float(p.t_s[k]), "t_end_s": float(p.t_s[k + 1]), "length_s": dt,
+            "predicted_sigma_max_m": float(lam[-1]), "predicted_sigma_min_m": float(lam[0]),
+            "radius_m": r, "kappa": kappa, "bridged": kappa <= KAPPA_MAX,
+            "x_pred": x1, "P_pred": P1}
+
+
+def plan_gaps(p: Pass, options, gap_factor: float = 10.0) -> Pass:
+    """Decide for every long gap whether it is bridged (see the module docstring) and fill
+    the bridged ones; returns the pass the solvers see (``breaks``, ``arc_priors``,
+    ``gap_notes`` set). A pass already planned is returned as is."""
+    if p.inserted is not None:
+        return p
+    gaps = long_gaps(p, gap_factor)
+    if not len(gaps):
+        return fill_gaps(p, gap_factor)
+    breaks, priors, notes = [], [], []
+    start, prior = 0, None
+    while True:
+        sub, _ = slice_pass(p, start, p.n_epochs, prior)
+        sol = _filter(sub, options)
+        split = None
+        for i in gaps[gaps >= start]:
+            g = predict_across(p, int(i), sol.x_eci[i - start], sol.P_eci[i - start], options)
+            x1, P1 = g.pop("x_pred"), g.pop("P_pred")
+            notes.append(g)
+            if not g["bridged"]:
+                split = int(i) + 1
+                s_r = float(np.sqrt(np.linalg.eigvalsh(P1[:3, :3])[-1]))
+                s_v = float(np.sqrt(np.linalg.eigvalsh(P1[3:, 3:])[-1]))
+                prior = (x1, s_r, s_v)
+                break
+        if split is None:
+            break
+        breaks.append(split)
+        priors.append(prior)
+        start = split
+    planned = dataclasses.replace(p, breaks=tuple(breaks), arc_priors=priors, gap_notes=notes)
+    out = fill_gaps(planned, gap_factor)
+    if breaks:
+        split = [g for g in notes if not g["bridged"]]
+        where = ", ".join(f"{format_duration(g['length_s'])} from t = {g['t_start_s']:.0f} s "
+                          f"(kappa {g['kappa']:.3g})" for g in split[:3])
+        out.warnings = out.warnings + [
+            f"{len(breaks)} gap(s) too long to bridge: {where}{' ...' if len(split) > 3 else ''}; "
+            f"the prediction across leaves the linear regime (kappa > {KAPPA_MAX:g}), so the log "
+            f"is solved as {len(breaks) + 1} separate arcs, each from its own data"]
+    return out
+
+
+def solve_arcs(p: Pass, solve_one, method: str) -> Solution:
+    """Solve each arc of a planned pass with ``solve_one(arc_pass)`` and join the results
+    (states, covariances and residuals in the order of ``p``)."""
+    bounds = [0, *p.breaks, p.n_epochs]
+    sols, rows = [], []
+    for j, (k0, k1) in enumerate(zip(bounds[:-1], bounds[1:])):
+        sub, rows_of = slice_pass(p, k0, k1, p.arc_priors[j - 1] if j else None)
+        try:
+            sols.append(solve_one(sub))
+        except UserError as exc:
+            raise type(exc)(f"arc {j + 1} of {len(bounds) - 1} ({p.t_s[k0]:.0f} to "
+                            f"{p.t_s[k1 - 1]:.0f} s, after a gap too long to bridge): {exc}") from exc
+        rows.append(rows_of)
+    return join_solutions(p, sols, rows, method)
+
+
+def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str) -> Solution:
+    """One :class:`Solution` from consecutive arcs; residuals of rows added by
+    :func:`fgnav.measurements.slice_pass` (the arcs' a-priori states) are left out."""
+    def cat(name):
+        parts = [getattr(s, name) for s in sols]
+        return None if any(v is None for v in parts) else np.concatenate(parts)
+
+    residuals = {}
+    for kind, fam in p.families.items():
+        for s, r in zip(sols, rows):
+            if kind in s.residuals and kind in r:
+                res = s.residuals[kind]
+                if kind not in residuals:
+                    residuals[kind] = np.full((len(fam), res.shape[1]), np.nan)
+                keep = r[kind] >= 0
+                residuals[kind][r[kind][keep]] = res[keep]
+    extras = dict(sols[0].extras)
+    for key in ("chi2_measurements", "chi2_motion"):
+        if all(key in s.extras for s in sols):
+            extras[key] = float(sum(s.extras[key] for s in sols))
+    if all("converged" in s.extras for s in sols):
+        extras["converged"] = bool(all(s.extras["converged"] for s in sols))
+    extras["arcs"] = len(sols)
+    return Solution(method=method, epoch0=p.epoch0, t_s=np.concatenate([s.t_s for s in sols]),
+                    x_eci=cat("x_eci"), P_eci=cat("P_eci"),
+                    iterations=int(sum(s.iterations for s in sols)),
+                    chi2=float(sum(s.chi2 for s in sols)), wall_s=float(sum(s.wall_s for s in sols)),
+                    residuals=residuals, online_x_eci=cat("online_x_eci"),
+                    online_P_eci=cat("online_P_eci"), latency_s=cat("latency_s"), extras=extras)
+
+
+def arcs_bound(p: Pass, x_ref: np.ndarray, model):
+    """The Cramér–Rao bound of a pass split into arcs: each arc's own (its a-priori state
+    included), pooled over all epochs (a :class:`fgnav.analysis.crb.CrbResult`)."""
+    from fgnav.analysis.crb import CrbResult, cramer_rao_bound
+
+    bounds = [0, *p.breaks, p.n_epochs]
+    cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
+                           x_ref[a:b], model)
+          for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
+    P = np.concatenate([c.P_eci for c in cs])
+    var_r = np.trace(P[:, :3, :3], axis1=1, axis2=2)
+    var_v = np.trace(P[:, 3:, 3:], axis1=1, axis2=2)
+    return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
+                     velocity_rms_mps=float(np.sqrt(var_v.mean())),
+                     final_position_m=cs[-1].final_position_m,
+                     final_velocity_mps=cs[-1].final_velocity_mps,
+                     J0_measurements=cs[0].J0_measurements, J0_geometry=cs[0].J0_geometry)
+
+
+def gap_summary(p: Pass) -> list[dict]:
+    """summary.json entries for the long gaps (times in s from the pass epoch, km)."""
+    return [{"t_start_s": g["t_start_s"], "length_s": g["length_s"], "bridged": bool(g["bridged"]),
+             "kappa": round(g["kappa"], 4),
+             "predicted_sigma_max_km": round(g["predicted_sigma_max_m"] / 1e3, 3)}
+            for g in p.gap_notes]
