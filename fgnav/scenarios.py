@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -336,12 +335,12 @@ def _sensor(src: _Source, i: int, s) -> SensorSpec:
                         label=f"{label}.kind")
     kind = _value(src, "sensor", i, "kind", s["kind"], SENSOR_KEYS["kind"], f"{label}.kind")
     known = ("kind", "period_s") + SENSOR_KIND_KEYS[kind]
-    _check_keys(src, "sensor", i, s, known, f"{label}.", f"a '{kind}' sensor")
+    _check_keys(src, "sensor", i, s, known, f"{label}.", f"sensor kind '{kind}'")
     kw = {k: _value(src, "sensor", i, k, s[k], SENSOR_KEYS[k], f"{label}.{k}") for k in s}
     for k in _SENSOR_REQUIRED:
         if k in SENSOR_KIND_KEYS[kind] and k not in kw:
-            raise src.error("sensor", i, None, f"a key '{k}' ({_expected(SENSOR_KEYS[k])}) for a "
-                            f"'{kind}' sensor", label=f"{label}.{k}")
+            raise src.error("sensor", i, None, f"a key '{k}' ({_expected(SENSOR_KEYS[k])}) for "
+                            f"sensor kind '{kind}'", label=f"{label}.{k}")
     return SensorSpec(**kw)
 
 
@@ -355,15 +354,10 @@ def load_scenario(name_or_path: str) -> Scenario:
             raise UserError(f"unknown scenario '{name_or_path}'; built-in: {', '.join(builtin_names())}")
     if not path.is_file():
         raise UserError(f"{path}: no such scenario file")
-    from fgnav.io.text import read_utf8_text
+    from fgnav.io.text import parse_toml, read_utf8_text
 
     text = read_utf8_text(path, "a scenario TOML file")
-    try:
-        d = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        line = getattr(exc, "lineno", None)
-        msg = getattr(exc, "msg", None) or str(exc)
-        raise InputFormatError(path, line, None, f"valid TOML ({msg})") from None
+    d = parse_toml(path, text)
     return scenario_from_dict(d, path, text)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fgnav.errors import InputFormatError, UserError
 
-__all__ = ["read_utf8_text", "decode_utf8"]
+__all__ = ["read_utf8_text", "decode_utf8", "load_toml", "parse_toml"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -43,3 +43,27 @@ def read_utf8_text(path, what: str = "a text file") -> str:
     except OSError as exc:
         raise UserError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
     return decode_utf8(path, data)
+
+
+def load_toml(path, what: str = "a TOML file") -> dict:
+    """Read and parse a TOML file (UTF-8, BOM ignored); see :func:`parse_toml`."""
+    return parse_toml(path, read_utf8_text(path, what))
+
+
+def parse_toml(path, text: str) -> dict:
+    """Parse the TOML ``text`` of ``path``; a syntax error is an
+    :class:`~fgnav.errors.InputFormatError` naming the line and column."""
+    import re
+    import tomllib
+
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        msg = str(exc)
+        m = re.search(r"\(at line (\d+), column (\d+)\)", msg)
+        line = getattr(exc, "lineno", None) or (int(m.group(1)) if m else None)
+        if m:
+            msg = msg[:m.start()].rstrip() + f" at column {m.group(2)}"
+        elif "end of document" in msg:
+            line = line or text.count("\n") + 1
+        raise InputFormatError(path, line, None, f"valid TOML ({msg})") from None
