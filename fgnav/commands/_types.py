@@ -51,5 +51,10 @@ def integer(lo: int | None = None, hi: int | None = None, *, what: str = "an int
     return convert
 
 
-positive = number(0.0, lo_open=True)
+def pos(unit: str = ""):
+    """A finite number > 0 (in ``unit``)."""
+    return number(0.0, lo_open=True, unit=unit)
+
+
+positive = pos()
 seed = integer(0, 2**63 - 1, what="a seed, an integer", range_text="in 0..2**63-1")

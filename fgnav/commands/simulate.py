@@ -14,14 +14,14 @@ def register(sub):
     p.add_argument("scenario", help="built-in name or path to a scenario .toml")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
-    p.add_argument("--step-s", type=T.number(0.0, lo_open=True, unit="s"),
+    p.add_argument("--step-s", type=T.pos("s"),
                    help="measurement period (s, > 0), overrides the scenario")
-    p.add_argument("--duration-h", type=T.number(0.0, lo_open=True, unit="h"),
+    p.add_argument("--duration-h", type=T.pos("h"),
                    help="pass length (h, > 0), overrides the scenario")
     p.add_argument("--max-epochs", type=T.integer(1), default=MAX_EPOCHS, metavar="N",
                    help=f"refuse a pass with more than N sensor epochs, summed over the sensors "
                         f"(default {MAX_EPOCHS:,}; ~13 s and 25 MB of output per 100,000)")
-    p.add_argument("--max-duration-h", type=T.number(0.0, lo_open=True, unit="h"),
+    p.add_argument("--max-duration-h", type=T.pos("h"),
                    default=MAX_DURATION_H, metavar="H",
                    help=f"refuse a pass longer than H hours (default {MAX_DURATION_H:g} h = 31 "
                         "days; the truth integration takes ~8 s per simulated day in LEO)")
@@ -30,7 +30,7 @@ def register(sub):
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
                         "seed 000 sensor, Earth-pointing plan) into DIR/frames/ with the index "
                         "DIR/frames.csv (input of `fgnav extract`)")
-    p.add_argument("--image-period-s", type=T.number(0.0, lo_open=True, unit="s"),
+    p.add_argument("--image-period-s", type=T.pos("s"),
                    help="image period (s, > 0; default the measurement period)")
     p.set_defaults(func=run)
 
