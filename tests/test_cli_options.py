@@ -11,7 +11,6 @@ from fgnav.cli import main
 CASES = [
     (["extract", "F", "--out", "o.csv"], "--edge-floor-px", ["-1", "nan"]),
     (["extract", "F", "--out", "o.csv"], "--seed", ["-1", "x"]),
-    (["stars", "i.png"], "--fov-deg", ["0", "180", "nan", "-3"]),
     (["stars", "i.png", "--fov-deg", "10"], "--fov-tolerance", ["1", "-0.1", "inf"]),
     (["stars", "i.png", "--fov-deg", "10"], "--k-sigma", ["0", "nan"]),
     (["limb", "i.png", "--pixel-um", "5"], "--focal-mm", ["0", "-18", "inf"]),
@@ -58,7 +57,7 @@ def test_formation_track_beyond_its_epoch_limit_is_refused(tmp_path, capsys):
     assert "limit of 1,000" in err and "--max-epochs" in err, err
 
 
-def test_stars_bad_epoch_is_exit_2(tmp_path, capsys):
+def test_stars_bad_fov_and_epoch_are_exit_2(tmp_path, capsys):
     import numpy as np
     import cv2
 
@@ -66,3 +65,6 @@ def test_stars_bad_epoch_is_exit_2(tmp_path, capsys):
     cv2.imwrite(str(img), np.zeros((32, 32), np.uint16))
     assert main(["stars", str(img), "--fov-deg", "10", "--epoch", "2016-12-31T23:59:61Z"]) == 2
     assert "--epoch" in capsys.readouterr().err
+    for fov in ("0", "180", "nan", "-3", "inf"):
+        assert main(["stars", str(img), f"--fov-deg={fov}"]) == 2
+        assert "--fov-deg" in capsys.readouterr().err
