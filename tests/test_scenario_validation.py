@@ -281,3 +281,81 @@ def test_subprocess_no_traceback(tmp_path):
                  ["simulate", "gto-transfer", "--out", str(tmp_path / "o"), "--step-s", "nan"]):
         r = subprocess.run([sys.executable, "-m", "fgnav", *args], capture_output=True, text=True)
         assert r.returncode == 2 and "Traceback" not in r.stderr and "error" in r.stderr, r.stderr
+
+
+# ------------------------------------------------------------------ hypothesis: mutated values
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+def _key_lines(text):
+    """(line index, label) of every 'key = value' line of ``text``."""
+    out, table, n_sensor = [], None, 0
+    for i, ln in enumerate(text.splitlines()):
+        s = ln.strip()
+        if s.startswith("[["):
+            n_sensor += 1
+            table = f"sensor[{n_sensor}]"
+        elif s.startswith("["):
+            table = s.strip("[]")
+        elif "=" in s and not s.startswith("#"):
+            key = s.split("=", 1)[0].strip()
+            out.append((i, key if table is None else f"{table}.{key}"))
+    return out
+
+
+_SCALARS = st.one_of(
+    st.integers(-10**12, 10**12).map(str),
+    st.floats(allow_nan=False, allow_infinity=False).map(repr),
+    st.sampled_from(["nan", "inf", "-inf", "+nan", "0", "-0.0", "1e308", "1e-320", "true",
+                     "false", '""', '"random"', '"earth_direction"', "2025-03-01T00:00:00Z",
+                     '"2016-12-31T23:59:60Z"', "{}", "{ a = 1 }", "[]"]),
+    st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs", "Cc")),
+            max_size=12).map(lambda t: '"' + t.replace("\\", "\\\\").replace('"', '\\"') + '"'),
+)
+_VALUES = st.one_of(_SCALARS, st.lists(_SCALARS, max_size=4).map(lambda v: "[" + ", ".join(v) + "]"))
+_LINES = _key_lines(BASE) + _key_lines(ELEMENTS)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(base=st.sampled_from(["cart", "elem"]), which=st.integers(0, 10**6), value=_VALUES,
+       action=st.sampled_from(["replace", "replace", "replace", "delete", "rename"]))
+def test_mutated_scenario_is_valid_or_names_the_key(base, which, value, action, tmp_path_factory):
+    """Each mutation of one key (new value, deleted, renamed) either loads a scenario whose
+    numbers are all usable, or is an InputFormatError naming that key (or, for TOML syntax,
+    the line)."""
+    from fgnav.scenarios import load_scenario
+
+    text = BASE if base == "cart" else ELEMENTS
+    keys = _key_lines(text)
+    i, label = keys[which % len(keys)]
+    lines = text.splitlines()
+    key = lines[i].split("=", 1)[0].strip()
+    if action == "replace":
+        lines[i] = f"{key} = {value}"
+    elif action == "delete":
+        del lines[i]
+    else:
+        lines[i] = lines[i].replace(key, key + "_x", 1)
+    path = tmp_path_factory.mktemp("mut") / "m.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    try:
+        scn = load_scenario(str(path))
+    except InputFormatError as exc:
+        msg = str(exc)
+        if "valid TOML" in msg:
+            assert exc.line is not None
+            return
+        renamed = label + "_x"
+        assert f"'{label}'" in msg or f"'{renamed}'" in msg or (
+            label.startswith("orbit.") and "'orbit." in msg) or (
+            label.endswith(".kind") and "sensor[" in msg), (label, msg)
+        return
+    nums = [scn.duration_h, scn.step_s, scn.prior_position_sigma_m, scn.prior_velocity_sigma_mps,
+            *scn.x0_eci]
+    assert all(isinstance(v, float) and math.isfinite(v) for v in nums)
+    assert scn.duration_h > 0 and scn.step_s > 0 and scn.prior_position_sigma_m > 0
+    for s in scn.sensors:
+        assert s.period_s is None or (math.isfinite(s.period_s) and s.period_s > 0)
+        assert (s.sigma_deg or 0) >= 0 and s.kind in ("earth_direction", "limb_radius")
+        assert s.sigma_deg is not None and 0 < s.sigma_deg <= 45
