@@ -53,7 +53,7 @@ def register(subparsers) -> None:
                    help="horizon estimator (default: christian-robinson)")
     p.add_argument("--r-limb-km", type=T.pos("km"), default=6375.0,
                    help="limb sphere radius (km; default 6375, the seed's UV limb)")
-    p.add_argument("--psf-px", type=T.pos("px"), default=None, metavar="SIGMA",
+    p.add_argument("--psf-px", type=float, default=None,  # checked in run metavar="SIGMA",
                    help="optics PSF 1-sigma (px): correct the christian-robinson edge-curvature "
                         "bias (see above; default: unknown, no correction)")
     p.add_argument("--seed", type=T.seed, default=0, help="RANSAC random seed (default 0)")
@@ -100,8 +100,8 @@ def run(args) -> int:
 
     if not (args.focal_mm > 0 and args.pixel_um > 0 and args.r_limb_km > 0):
         raise UserError("--focal-mm, --pixel-um and --r-limb-km must be > 0")
-    if args.psf_px is not None and not args.psf_px >= 0:
-        raise UserError(f"--psf-px must be >= 0 (px), got {args.psf_px}")
+    if args.psf_px is not None and not 0 <= args.psf_px < float("inf"):
+        raise UserError(f"--psf-px must be finite and >= 0 (px), got {args.psf_px}")
     img = _load_image(args.image)
     cam = PinholeCamera(focal_mm=args.focal_mm, pixel_um=args.pixel_um, width_px=img.shape[1],
                         height_px=img.shape[0], cx_px=args.cx_px, cy_px=args.cy_px)
