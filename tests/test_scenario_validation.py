@@ -359,3 +359,12 @@ def test_mutated_scenario_is_valid_or_names_the_key(base, which, value, action, 
         assert s.period_s is None or (math.isfinite(s.period_s) and s.period_s > 0)
         assert (s.sigma_deg or 0) >= 0 and s.kind in ("earth_direction", "limb_radius")
         assert s.sigma_deg is not None and 0 < s.sigma_deg <= 45
+
+
+def test_unusable_out_is_refused_before_simulating(tmp_path, capsys):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    for out in (f, f / "sub"):
+        assert main(["simulate", "gto-transfer", "--out", str(out), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {out}" in err and "Traceback" not in err, err

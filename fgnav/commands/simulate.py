@@ -36,6 +36,7 @@ def register(sub):
 
 
 def run(args) -> int:
+    import tempfile
     from pathlib import Path
 
     from fgnav.errors import UserError
@@ -49,17 +50,21 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
-    try:
+    try:  # before the simulation: an unusable --out must not cost the whole run
         out.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=out).close()
     except OSError as exc:
-        raise UserError(f"--out {out}: cannot create the directory: {exc.strerror or exc}") from None
+        raise UserError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
     sim = simulate_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
                         max_duration_h=args.max_duration_h)
-    write_log(out / "measurements.csv", sim.log)
-    write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-              object_name=scn.name.upper(),
-              comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
-                        "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+    try:
+        write_log(out / "measurements.csv", sim.log)
+        write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
+                  object_name=scn.name.upper(),
+                  comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
+                            "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
               f"{out / 'measurements.csv'}, {out / 'truth.oem'}")
