@@ -73,53 +73,28 @@ def test_tdm_epochs_in_the_leap_second(tmp_path):
     from fgnav.io.tdm import read_tdm
 
     p = tmp_path / "a.tdm"
-    p.write_text("""CCSDS_TDM_VERS = 2.0
-CREATION_DATE = 2017-01-02T00:00:00
-ORIGINATOR = TEST
-META_START
-TIME_SYSTEM = UTC
-PARTICIPANT_1 = SAT
-ANGLE_TYPE = RADEC
-REFERENCE_FRAME = EME2000
-META_STOP
-DATA_START
-ANGLE_1 = 2016-12-31T23:59:59.5 10.0
-ANGLE_2 = 2016-12-31T23:59:59.5 20.0
-ANGLE_1 = 2016-12-31T23:59:60.5 11.0
-ANGLE_2 = 2016-12-31T23:59:60.5 21.0
-ANGLE_1 = 2017-001T00:00:00.5 12.0
-ANGLE_2 = 2017-001T00:00:00.5 22.0
-DATA_STOP
-""")
+    from test_cli_check import TDM
+
+    p.write_text(TDM.replace(
+        "ANGLE_1 = 2024-03-01T00:00:00 10.0\nANGLE_2 = 2024-03-01T00:00:00 20.0\n",
+        "ANGLE_1 = 2016-12-31T23:59:59.5 10.0\nANGLE_2 = 2016-12-31T23:59:59.5 20.0\n"
+        "ANGLE_1 = 2016-12-31T23:59:60.5 11.0\nANGLE_2 = 2016-12-31T23:59:60.5 21.0\n"
+        "ANGLE_1 = 2017-001T00:00:00.5 12.0\nANGLE_2 = 2017-001T00:00:00.5 22.0\n"))
     log = read_tdm(p, sigma_rad=1e-4)
     np.testing.assert_array_equal(log.t_s, [0.0, 1.0, 2.0])
     assert format_utc(log.epoch0) == "2016-12-31T23:59:59.500000Z"
 
 
-LEAP_SCENARIO = """\
-name = "gto-leap"
-description = "seed 002 transfer orbit across the 2016-12-31 leap second"
-epoch = "{epoch}"
-duration_h = 1.0
-step_s = 10.0
+def _leap_scenario(epoch: str) -> str:
+    """The built-in gto-transfer scenario (seed 002 orbit, direction only), 1 h from ``epoch``."""
+    from fgnav.paths import data_dir
 
-[orbit]
-r_eci_m = [6509244.371304875, 0.0, 3713244.835519765]
-v_eci_mps = [-3737.397235776740, 0.0, 8790.602460568101]
-
-[truth]
-j2 = true
-third_body = false
-
-[prior]
-position_sigma_m = 10000.0
-velocity_sigma_mps = 2.0
-mode = "random"
-
-[[sensor]]
-kind = "earth_direction"
-sigma_deg = 0.01
-"""
+    text = (data_dir() / "scenarios" / "gto-transfer.toml").read_text()
+    for old, new in (('epoch = "2025-03-01T00:00:00Z"', f'epoch = "{epoch}"'),
+                     ("duration_h = 4.0", "duration_h = 1.0")):
+        assert old in text
+        text = text.replace(old, new)
+    return text
 
 
 def test_a_pass_across_the_leap_second_is_smoothed_like_any_other(tmp_path):
@@ -131,7 +106,7 @@ def test_a_pass_across_the_leap_second_is_smoothed_like_any_other(tmp_path):
     res = {}
     for tag, epoch in (("leap", "2016-12-31T23:30:00Z"), ("plain", "2025-03-01T00:00:00Z")):
         scn = tmp_path / f"{tag}.toml"
-        scn.write_text(LEAP_SCENARIO.format(epoch=epoch))
+        scn.write_text(_leap_scenario(epoch))
         d = tmp_path / tag
         assert main(["simulate", str(scn), "--out", str(d / "pass"), "--seed", "7", "--quiet"]) == 0
         assert main(["smooth", str(d / "pass" / "measurements.csv"), "--method", "batch",
