@@ -124,14 +124,18 @@ def parse_utc(s: str) -> np.datetime64:
     return np.datetime64(ns + (off - _SCALE_OFFSET_S) * _NS, "ns")
 
 
-def _label(ns: int) -> tuple[int, bool]:
-    """Internal ns -> (naive UTC label ns, inside a leap second). In a leap second the label
-    is that of 23:59:59.f, to be printed as 23:59:60.f."""
-    k = bisect.bisect_right(_START_NS, ns) - 1
-    off = _OFFSET_S[k] if k >= 0 else _PRE_1972_S
-    if k + 1 < len(_START_NS) and k + 1 >= 1 and ns >= _START_NS[k + 1] - _NS:
-        return ns - (off - _SCALE_OFFSET_S) * _NS - _NS, True
-    return ns - (off - _SCALE_OFFSET_S) * _NS, False
+_START_ARR = np.array(_START_NS, dtype=np.int64)
+_SHIFT_ARR = np.array([_PRE_1972_S] + _OFFSET_S, dtype=np.int64) - _SCALE_OFFSET_S  # by era
+
+
+def _labels(ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Internal ns (int64 array) -> (naive UTC label ns, inside a leap second). In a leap
+    second the label is that of 23:59:59.f, to be printed as 23:59:60.f."""
+    k = np.searchsorted(_START_ARR, ns, side="right")          # era index + 1
+    label = ns - _SHIFT_ARR[k] * _NS
+    nxt = np.minimum(k, len(_START_ARR) - 1)
+    leap = (k >= 1) & (k < len(_START_ARR)) & (ns >= _START_ARR[nxt] - _NS)
+    return np.where(leap, label - _NS, label), leap
 
 
 def format_utc(t64, unit: str = "us") -> str | list[str]:
@@ -143,16 +147,22 @@ def format_utc(t64, unit: str = "us") -> str | list[str]:
     if unit not in ("us", "ns"):
         raise ValueError(f"unit must be 'us' or 'ns', found {unit!r}")
     a = np.asarray(t64).astype("datetime64[ns]")
-    if a.ndim:
-        return [format_utc(x, unit) for x in a.ravel()]
-    ns = int(a.astype(np.int64))
+    if a.ndim == 0:  # scalar fast path (write_log, OEM lines): bisect on Python ints
+        ns = int(a.astype(np.int64))
+        if unit == "us":
+            ns = (ns + 500) // 1000 * 1000
+        k = bisect.bisect_right(_START_NS, ns)
+        lab = ns - int(_SHIFT_ARR[k]) * _NS
+        if 1 <= k < len(_START_NS) and ns >= _START_NS[k] - _NS:
+            t = np.datetime_as_string(np.datetime64(lab - _NS, "ns"), unit=unit)
+            return t[:17] + "60" + t[19:] + "Z"
+        return np.datetime_as_string(np.datetime64(lab, "ns"), unit=unit) + "Z"
+    ns = a.ravel().astype(np.int64)
     if unit == "us":
         ns = (ns + 500) // 1000 * 1000  # round half up to the microsecond
-    lab, leap = _label(ns)
-    text = np.datetime_as_string(np.datetime64(lab, "ns"), unit=unit)
-    if leap:
-        text = text[:17] + "60" + text[19:]
-    return text + "Z"
+    lab, leap = _labels(ns)
+    text = np.datetime_as_string(lab.astype("datetime64[ns]"), unit=unit)
+    return [t[:17] + "60" + t[19:] + "Z" if lp else t + "Z" for t, lp in zip(text.tolist(), leap)]
 
 
 def seconds_since(t64_array, epoch0) -> np.ndarray:

@@ -114,3 +114,28 @@ def test_years_outside_datetime64_range_are_a_range_error():
     for s in ("2300-01-01T00:00:00Z", "1600-01-01T00:00:00Z"):
         with pytest.raises(UtcRangeError, match="1678..2261"):
             parse_utc(s)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from fgnav.time import LEAP_SECONDS  # noqa: E402
+
+_NEAR_LEAPS = [parse_utc(f"{d}T00:00:00Z").astype(np.int64) for d, _ in LEAP_SECONDS]
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.one_of(
+    st.integers(int(parse_utc("1960-01-01T00:00:00Z").astype(np.int64)) // 1000,
+                int(parse_utc("2100-01-01T00:00:00Z").astype(np.int64)) // 1000),
+    st.builds(lambda base, d: int(base) // 1000 + d, st.sampled_from(_NEAR_LEAPS),
+              st.integers(-3_000_000, 3_000_000))))
+def test_format_parse_round_trip_at_every_microsecond(us):
+    """Any instant (1 µs grid), near a leap second or not: format -> parse is the identity,
+    and the scalar and array formatters agree."""
+    t = np.datetime64(us * 1000, "ns")
+    s = format_utc(t)
+    assert parse_utc(s) == t
+    t1 = t + np.timedelta64(1, "s")
+    assert format_utc(np.array([t, t1])) == [s, format_utc(t1)]
+    assert format_utc(t, "ns") == s[:-1] + "000Z"
