@@ -418,6 +418,12 @@ def check_size(scn: Scenario, max_epochs: int = MAX_EPOCHS,
             f"{max_duration_h:g} h of one simulated pass; shorten it (--duration-h) or raise the "
             f"limit with --max-duration-h H (the truth integration takes ~8 s per simulated day "
             f"in LEO with every force)")
+    from fgnav.time import parse_utc, seconds_since
+
+    if scn.duration_h * 3600.0 > seconds_since(parse_utc("2261-12-31T23:59:59Z"),
+                                               parse_utc(scn.epoch)):  # datetime64[ns] range
+        raise UserError(f"scenario {scn.name}: epoch {scn.epoch} + duration_h {scn.duration_h:g} h "
+                        "ends after the year 2261 (the range of the time scale); start earlier")
     n = sensor_epoch_count(scn)
     if n > max_epochs:
         raise UserError(

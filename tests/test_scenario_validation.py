@@ -368,3 +368,11 @@ def test_unusable_out_is_refused_before_simulating(tmp_path, capsys):
         assert main(["simulate", "gto-transfer", "--out", str(out), "--quiet"]) == 2
         err = capsys.readouterr().err
         assert f"--out {out}" in err and "Traceback" not in err, err
+
+
+def test_a_pass_ending_after_2261_is_refused(tmp_path, capsys):
+    path = tmp_path / "late.toml"
+    path.write_text(sub("2025-03-01T00:00:00Z", "2261-12-31T23:00:00Z"))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--duration-h", "2"]) == 2
+    assert "2261" in capsys.readouterr().err
+    assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0
