@@ -28,7 +28,8 @@ Written (``write_oem``, atomically)::
     COVARIANCE_STOP
 
 Epochs are CCSDS ASCII time code A, ``YYYY-MM-DDThh:mm:ss.ffffff`` (microseconds, or
-nanoseconds when needed), UTC. Positions are written with 9 decimals in km (1 µm),
+nanoseconds when needed), UTC; a leap second is ``23:59:60.f`` and the seconds between
+epochs are elapsed SI seconds (:mod:`fgnav.time`). Positions are written with 9 decimals in km (1 µm),
 velocities with 12 decimals in km/s, covariance entries with 17 significant digits; the
 covariance written is the symmetric part (P + P^T)/2, and an epoch whose covariance is not
 finite gets no block.
