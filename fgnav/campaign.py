@@ -38,7 +38,6 @@ import os
 import re
 import socket
 import time
-import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -112,10 +111,9 @@ def load_study(name_or_path) -> Study:
             raise UserError(f"unknown study '{name_or_path}'; built-in: {', '.join(builtin_studies())}")
     if not path.exists():
         raise UserError(f"{path}: no such study file")
-    try:
-        d = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise InputFormatError(path, getattr(exc, "lineno", None), None, f"valid TOML ({exc})") from None
+    from fgnav.io.text import load_toml
+
+    d = load_toml(path, "a study TOML file")  # UTF-8 (BOM ignored), syntax errors with line
     for key in ("name", "task", "report"):
         if key not in d:
             raise InputFormatError(path, None, key, "this key (see data/studies/seed002-noise.toml)")

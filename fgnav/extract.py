@@ -174,9 +174,11 @@ def read_frames_index(path) -> list[FrameEntry]:
     path = find_frames_index(path)
     base = path.parent
     entries: list[FrameEntry] = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        lines = [(i + 1, ln) for i, ln in enumerate(fh.read().splitlines())
-                 if ln.strip() and not ln.lstrip().startswith("#")]
+    from fgnav.io.text import read_utf8_text
+
+    text = read_utf8_text(path, "a frames.csv index")  # BOM ignored; not UTF-8: line and byte
+    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
+             if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise InputFormatError(path, 1, None, "a header line " + ",".join(REQUIRED_COLUMNS[:4]) + ",...",
                                "an empty file")

@@ -1,12 +1,22 @@
 """Built-in and user scenarios: TOML files read into frozen dataclasses (data, not code).
 
 A scenario names the orbit (a Cartesian state or classical elements), the truth force model,
-the a-priori error, and the sensors; see ``data/scenarios/*.toml``.
+the a-priori error, and the sensors; see ``data/scenarios/*.toml``. Every key is checked
+on load (:func:`load_scenario`): its type, unit and range are those of :data:`TOP_KEYS`,
+:data:`ORBIT_KEYS`, :data:`TRUTH_KEYS`, :data:`PRIOR_KEYS` and :data:`SENSOR_KEYS`; an
+unknown key, a key that does not apply to a sensor kind, a wrong type, a value out of
+range, NaN or infinity is an :class:`~fgnav.errors.InputFormatError` naming the file, the
+line, the key (``sensor[2].sigma_deg``) and what was expected.
+
+Size limits (:func:`check_size`): a simulated pass has at most :data:`MAX_EPOCHS` sensor
+epochs (summed over the sensors) and lasts at most :data:`MAX_DURATION_H` hours, unless the
+caller raises the limits (``fgnav simulate --max-epochs N --max-duration-h H``).
 """
 
 from __future__ import annotations
 
-import tomllib
+import datetime as _dt
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -17,6 +27,14 @@ from fgnav.paths import data_dir
 
 SENSOR_KINDS = ("earth_direction", "limb_radius", "altitude", "refraction",
                 "earth_direction_body", "sun_direction_body", "moon_direction_body")
+
+MAX_EPOCHS = 1_000_000
+"""Default limit on the sensor epochs of a simulated pass (summed over the sensors): 1e6
+epochs take minutes and ~250 MB of files (about 13 s and 25 MB per 100,000 here)."""
+
+MAX_DURATION_H = 744.0
+"""Default limit on a simulated pass's length, h (31 days: the truth integrator's cost grows
+with the number of orbits, ~8 s per simulated day in LEO with every force)."""
 
 
 @dataclass(frozen=True)
@@ -60,72 +78,356 @@ class Scenario:
     source: str = ""
 
     def with_options(self, **kw) -> "Scenario":
+        """A copy with the given fields replaced (``None`` keeps a field); ``step_s`` and
+        ``duration_h`` must be finite and > 0 (a :class:`UserError` names the option)."""
+        for key in ("step_s", "duration_h"):
+            v = kw.get(key)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise UserError(f"{key} (--{key.replace('_', '-')}): expected a finite number "
+                                f"> 0, found {v!r}")
         return replace(self, **{k: v for k, v in kw.items() if v is not None})
+
+
+# ------------------------------------------------------------------------------ schema
+# key -> (type, unit, low, high, low inclusive, high inclusive); type "number", "bool",
+# "str", "vec3" (3 finite numbers), "numbers" (a non-empty array of finite numbers)
+_INF = math.inf
+TOP_KEYS = {
+    "name": ("str", "", None, None, True, True),
+    "description": ("str", "", None, None, True, True),
+    "epoch": ("epoch", "", None, None, True, True),
+    "duration_h": ("number", "h", 0.0, _INF, False, False),
+    "step_s": ("number", "s", 0.0, _INF, False, False),
+}
+TOP_TABLES = ("orbit", "truth", "prior", "sensor")
+ORBIT_KEYS = {
+    "r_eci_m": ("vec3", "m", None, None, True, True),
+    "v_eci_mps": ("vec3", "m/s", None, None, True, True),
+    "a_m": ("number", "m", 0.0, _INF, False, False),
+    "e": ("number", "", 0.0, 1.0, True, False),
+    "i_deg": ("number", "deg", 0.0, 180.0, True, True),
+    "raan_deg": ("number", "deg", -_INF, _INF, False, False),
+    "argp_deg": ("number", "deg", -_INF, _INF, False, False),
+    "true_anomaly_deg": ("number", "deg", -_INF, _INF, False, False),
+    "mean_anomaly_deg": ("number", "deg", -_INF, _INF, False, False),
+}
+_CARTESIAN = ("r_eci_m", "v_eci_mps")
+_ELEMENTS = ("a_m", "e", "i_deg", "raan_deg", "argp_deg")
+TRUTH_KEYS = {k: ("bool", "", None, None, True, True) for k in ("j2", "third_body", "drag", "srp")}
+PRIOR_KEYS = {
+    "position_sigma_m": ("number", "m", 0.0, 1e9, False, True),
+    "velocity_sigma_mps": ("number", "m/s", 0.0, 1e5, False, True),
+    "mode": ("choice", "", ("random", "fixed"), None, True, True),
+}
+SENSOR_KEYS = {
+    "kind": ("choice", "", SENSOR_KINDS, None, True, True),
+    "period_s": ("number", "s", 0.0, _INF, False, False),
+    "sigma_deg": ("number", "deg", 0.0, 45.0, False, True),
+    "sigma_m": ("number", "m", 0.0, 1e6, False, True),
+    "r_limb_km": ("number", "km", 6000.0, 7000.0, True, True),
+    "gamma_halfwidth_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
+    "sigma_model_m": ("number", "m", 0.0, 1e5, True, True),
+    "star_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, False, True),
+    "fov_deg": ("number", "deg", 0.0, 90.0, False, True),
+    "vmag_max": ("number", "mag", -2.0, 10.0, True, True),
+    "azimuths_deg": ("numbers", "deg", None, None, True, True),
+    "boresight_tangent_km": ("number", "km", 0.0, 100.0, True, True),
+    "min_sun_elongation_deg": ("number", "deg", 0.0, 180.0, True, True),
+}
+_DIRECTION = ("sigma_deg",)
+SENSOR_KIND_KEYS = {
+    "earth_direction": _DIRECTION,
+    "limb_radius": _DIRECTION + ("r_limb_km",),
+    "altitude": ("sigma_m",),
+    "refraction": ("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
+                   "vmag_max", "azimuths_deg", "boresight_tangent_km"),
+    "earth_direction_body": _DIRECTION,
+    "sun_direction_body": _DIRECTION,
+    "moon_direction_body": _DIRECTION + ("min_sun_elongation_deg",),
+}
+"""Keys each sensor kind takes besides ``kind`` and ``period_s``; ``sigma_deg`` and
+``sigma_m`` are required where listed."""
+_SENSOR_REQUIRED = ("sigma_deg", "sigma_m")
 
 
 def builtin_names() -> list[str]:
     return sorted(p.stem for p in (data_dir() / "scenarios").glob("*.toml"))
 
 
-def _orbit_state(path, orbit: dict) -> tuple:
-    if "r_eci_m" in orbit:
-        return tuple(float(v) for v in list(orbit["r_eci_m"]) + list(orbit["v_eci_mps"]))
-    from fgnav.constants import DEG, MU_EARTH_M3_S2
+class _Source:
+    """The TOML text, to point errors at the line that defines a key (best effort)."""
+
+    def __init__(self, path, text: str):
+        self.path = path
+        self.lines = text.splitlines()
+
+    def line_of(self, table: str | None, key: str | None, index: int = 0) -> int | None:
+        """1-based line of ``key`` in ``[table]`` (or the ``index``-th ``[[table]]``); of the
+        table header when ``key`` is None; None if not found (e.g. an inline table)."""
+        current, count, header_line = None, -1, None
+        for n, raw in enumerate(self.lines, 1):
+            s = raw.strip()
+            if s.startswith("["):
+                name = s.strip("[]").split("]")[0].strip().strip('"')
+                if s.startswith("[[") and name == table:
+                    count += 1
+                current = name
+                if current == table and (count == index or not s.startswith("[[")):
+                    header_line = n
+                    if key is None:
+                        return n
+                continue
+            if key is None or "=" not in s:
+                continue
+            k = s.split("=", 1)[0].strip().strip('"')
+            in_table = (current is None and table is None) or (
+                current == table and (table != "sensor" or count == index))
+            if in_table and k == key:
+                return n
+        return header_line if key is None else None
+
+    def error(self, table, index, key, expected, found=None, *, label=None) -> InputFormatError:
+        return InputFormatError(self.path, self.line_of(table, key, index), label or key,
+                                expected, found)
+
+
+def _expected(spec) -> str:
+    typ, unit, lo, hi, lo_in, hi_in = spec
+    u = f" {unit}" if unit else ""
+    if typ == "number":
+        if lo is not None and math.isinf(lo) and math.isinf(hi):
+            return f"a finite number ({unit or 'no unit'})"
+        parts = []
+        if lo is not None and not math.isinf(lo):
+            parts.append(f"{'>=' if lo_in else '>'} {lo:g}{u}")
+        if hi is not None and not math.isinf(hi):
+            parts.append(f"{'<=' if hi_in else '<'} {hi:g}{u}")
+        return "a finite number " + " and ".join(parts) + (f" ({unit})" if unit and not parts else "")
+    if typ == "bool":
+        return "true or false (a TOML boolean, unquoted)"
+    if typ == "str":
+        return "a quoted string"
+    if typ == "epoch":
+        return "an ISO-8601 UTC epoch string 'YYYY-MM-DDTHH:MM:SS[.f]Z'"
+    if typ == "choice":
+        return "one of " + ", ".join(repr(c) for c in lo)
+    if typ == "vec3":
+        return f"an array of 3 finite numbers ({unit})"
+    return f"a non-empty array of finite numbers ({unit})"
+
+
+def _value(src: _Source, table, index, key, value, spec, label):
+    """Check ``value`` against ``spec``; return it converted (float, tuple, str, bool)."""
+    typ, _unit, lo, hi, lo_in, hi_in = spec
+
+    def bad():
+        return src.error(table, index, key, _expected(spec), value, label=label)
+
+    if typ == "number":
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise bad()
+        x = float(value)
+        if not math.isfinite(x):
+            raise bad()
+        if lo is not None and not math.isinf(lo) and (x < lo or (x == lo and not lo_in)):
+            raise bad()
+        if hi is not None and not math.isinf(hi) and (x > hi or (x == hi and not hi_in)):
+            raise bad()
+        return x
+    if typ == "bool":
+        if not isinstance(value, bool):
+            raise bad()
+        return value
+    if typ == "str":
+        if not isinstance(value, str):
+            raise bad()
+        return value
+    if typ == "epoch":
+        if isinstance(value, _dt.datetime) and value.utcoffset() in (None, _dt.timedelta(0)):
+            value = value.replace(tzinfo=None).isoformat() + "Z"
+        if not isinstance(value, str):
+            raise bad()
+        from fgnav.time import parse_utc
+
+        try:
+            parse_utc(value)
+        except ValueError as exc:
+            raise src.error(table, index, key, f"{_expected(spec)} ({exc})", value,
+                            label=label) from None
+        return value
+    if typ == "choice":
+        if not isinstance(value, str) or value not in lo:
+            raise bad()
+        return value
+    if not isinstance(value, list) or not value or (typ == "vec3" and len(value) != 3):
+        raise bad()
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
+            raise bad()
+    return tuple(float(v) for v in value)
+
+
+def _table(src: _Source, d, name, index=None):
+    t = d.get(name, {})
+    label = name if index is None else f"{name}[{index + 1}]"
+    if not isinstance(t, dict):
+        raise src.error(None, 0, name, f"a table [{name}]" if index is None else
+                        f"an array of tables [[{name}]]", t, label=label)
+    return t
+
+
+def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
+    for k in d:
+        if k not in known:
+            raise src.error(table, index, k, f"a key of {what} (known: {', '.join(known)})",
+                            k, label=f"{label_prefix}{k}")
+
+
+def _orbit_state(src: _Source, orbit: dict) -> tuple:
+    from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
     from fgnav.orbit import elements_to_state, mean_to_true_anomaly
 
-    try:
-        e = float(orbit["e"])
-        if "true_anomaly_deg" in orbit:
-            nu = orbit["true_anomaly_deg"] * DEG
-        else:
-            nu = mean_to_true_anomaly(orbit["mean_anomaly_deg"] * DEG, e)
-        x = elements_to_state(float(orbit["a_m"]), e, orbit["i_deg"] * DEG, orbit["raan_deg"] * DEG,
-                              orbit["argp_deg"] * DEG, nu, MU_EARTH_M3_S2)
-    except KeyError as exc:
-        raise InputFormatError(path, None, f"orbit.{exc.args[0]}",
-                               "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg "
-                               "and true_anomaly_deg or mean_anomaly_deg") from None
-    return tuple(float(v) for v in np.asarray(x).ravel())
+    _check_keys(src, "orbit", 0, orbit, tuple(ORBIT_KEYS), "orbit.", "[orbit]")
+    v = {k: _value(src, "orbit", 0, k, orbit[k], ORBIT_KEYS[k], f"orbit.{k}") for k in orbit}
+    forms = "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg and " \
+            "true_anomaly_deg or mean_anomaly_deg"
+    cart = [k for k in _CARTESIAN if k in v]
+    elem = [k for k in ORBIT_KEYS if k in v and k not in _CARTESIAN]
+    if cart and elem:
+        raise src.error("orbit", 0, elem[0], f"{forms}, not both forms", elem[0],
+                        label=f"orbit.{elem[0]}")
+    if cart:
+        missing = [k for k in _CARTESIAN if k not in v]
+        if missing:
+            raise src.error("orbit", 0, None, forms, label=f"orbit.{missing[0]}")
+        r = np.array(v["r_eci_m"])
+        if not np.linalg.norm(r) > R_EARTH_M:
+            raise src.error("orbit", 0, "r_eci_m", f"a position above the Earth's surface "
+                            f"(|r| > {R_EARTH_M:.0f} m)", f"|r| = {np.linalg.norm(r):.6g} m",
+                            label="orbit.r_eci_m")
+        return tuple(float(x) for x in v["r_eci_m"] + v["v_eci_mps"])
+    missing = [k for k in _ELEMENTS if k not in v]
+    n_anom = ("true_anomaly_deg" in v) + ("mean_anomaly_deg" in v)
+    if missing or n_anom != 1:
+        key = missing[0] if missing else "true_anomaly_deg"
+        raise src.error("orbit", 0, None, forms + ("" if n_anom < 2 else
+                        " (one anomaly, not both)"), label=f"orbit.{key}")
+    e = v["e"]
+    if not v["a_m"] * (1.0 - e) > R_EARTH_M:
+        raise src.error("orbit", 0, "a_m", f"a perigee above the Earth's surface (a_m (1 - e) > "
+                        f"{R_EARTH_M:.0f} m)", f"a_m (1 - e) = {v['a_m'] * (1.0 - e):.6g} m",
+                        label="orbit.a_m")
+    if "true_anomaly_deg" in v:
+        nu = v["true_anomaly_deg"] * DEG
+    else:
+        nu = mean_to_true_anomaly(v["mean_anomaly_deg"] * DEG, e)
+    x = elements_to_state(v["a_m"], e, v["i_deg"] * DEG, v["raan_deg"] * DEG,
+                          v["argp_deg"] * DEG, float(nu), MU_EARTH_M3_S2)
+    return tuple(float(t) for t in np.asarray(x).ravel())
+
+
+def _sensor(src: _Source, i: int, s) -> SensorSpec:
+    label = f"sensor[{i + 1}]"
+    if not isinstance(s, dict):
+        raise src.error(None, 0, "sensor", "an array of tables [[sensor]]", s, label="sensor")
+    if "kind" not in s:
+        raise src.error("sensor", i, None, "a key 'kind' (one of " + ", ".join(SENSOR_KINDS) + ")",
+                        label=f"{label}.kind")
+    kind = _value(src, "sensor", i, "kind", s["kind"], SENSOR_KEYS["kind"], f"{label}.kind")
+    known = ("kind", "period_s") + SENSOR_KIND_KEYS[kind]
+    _check_keys(src, "sensor", i, s, known, f"{label}.", f"sensor kind '{kind}'")
+    kw = {k: _value(src, "sensor", i, k, s[k], SENSOR_KEYS[k], f"{label}.{k}") for k in s}
+    for k in _SENSOR_REQUIRED:
+        if k in SENSOR_KIND_KEYS[kind] and k not in kw:
+            raise src.error("sensor", i, None, f"a key '{k}' ({_expected(SENSOR_KEYS[k])}) for "
+                            f"sensor kind '{kind}'", label=f"{label}.{k}")
+    return SensorSpec(**kw)
 
 
 def load_scenario(name_or_path: str) -> Scenario:
-    """A built-in scenario by name (``gto-transfer``) or a TOML file by path."""
+    """A built-in scenario by name (``gto-transfer``) or a TOML file by path; every key is
+    validated (module docstring)."""
     path = Path(name_or_path)
     if not path.suffix:
         path = data_dir() / "scenarios" / f"{name_or_path}.toml"
         if not path.exists():
             raise UserError(f"unknown scenario '{name_or_path}'; built-in: {', '.join(builtin_names())}")
-    if not path.exists():
+    if not path.is_file():
         raise UserError(f"{path}: no such scenario file")
-    try:
-        d = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise InputFormatError(path, getattr(exc, "lineno", None), None, f"valid TOML ({exc})") from None
-    try:
-        sensors = []
-        for s in d.get("sensor", []):
-            if s.get("kind") not in SENSOR_KINDS:
-                raise InputFormatError(path, None, "sensor.kind", f"one of {SENSOR_KINDS}", s.get("kind"))
-            sensors.append(SensorSpec(**s))
-        prior = d.get("prior", {})
-        truth = d.get("truth", {})
-        scn = Scenario(
-            name=d.get("name", path.stem), description=d.get("description", ""),
-            epoch=d["epoch"], duration_h=float(d["duration_h"]), step_s=float(d["step_s"]),
-            x0_eci=_orbit_state(path, d["orbit"]), truth_j2=bool(truth.get("j2", True)),
-            truth_third_body=bool(truth.get("third_body", False)),
-            truth_drag=bool(truth.get("drag", False)), truth_srp=bool(truth.get("srp", False)),
-            prior_position_sigma_m=float(prior.get("position_sigma_m", 10000.0)),
-            prior_velocity_sigma_mps=float(prior.get("velocity_sigma_mps", 2.0)),
-            prior_mode=prior.get("mode", "random"), sensors=tuple(sensors), source=str(path))
-    except KeyError as exc:
-        raise InputFormatError(path, None, exc.args[0], "this key (see data/scenarios/gto-transfer.toml)") from None
-    except TypeError as exc:
-        raise InputFormatError(path, None, "sensor", f"known sensor keys ({exc})") from None
-    if scn.prior_mode not in ("random", "fixed"):
-        raise InputFormatError(path, None, "prior.mode", "'random' or 'fixed'", scn.prior_mode)
-    if scn.duration_h <= 0 or scn.step_s <= 0:
-        raise InputFormatError(path, None, "duration_h/step_s", "positive numbers")
-    if not scn.sensors:
-        raise InputFormatError(path, None, "sensor", "at least one [[sensor]] table")
-    return scn
+    from fgnav.io.text import parse_toml, read_utf8_text
+
+    text = read_utf8_text(path, "a scenario TOML file")
+    d = parse_toml(path, text)
+    return scenario_from_dict(d, path, text)
+
+
+def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
+    """Validate a parsed scenario TOML ``d`` (read from ``path``, source ``text`` for line
+    numbers) and build the :class:`Scenario`."""
+    src = _Source(path, text)
+    if not d:
+        raise InputFormatError(path, 1, None, "a scenario (keys " + ", ".join(TOP_KEYS)
+                               + ", tables [orbit], [[sensor]], optional [truth], [prior])",
+                               "an empty file")
+    _check_keys(src, None, 0, d, tuple(TOP_KEYS) + TOP_TABLES, "", "the scenario")
+    for k in ("epoch", "duration_h", "step_s", "orbit", "sensor"):
+        if k not in d:
+            what = {"orbit": "a table [orbit]", "sensor": "at least one [[sensor]] table"}.get(
+                k, f"a key '{k}' ({_expected(TOP_KEYS.get(k, ('str',) + (None,) * 5))})")
+            raise InputFormatError(path, None, k, what)
+    top = {k: _value(src, None, 0, k, d[k], TOP_KEYS[k], k) for k in TOP_KEYS if k in d}
+    orbit = _table(src, d, "orbit")
+    truth = _table(src, d, "truth")
+    prior = _table(src, d, "prior")
+    _check_keys(src, "truth", 0, truth, tuple(TRUTH_KEYS), "truth.", "[truth]")
+    _check_keys(src, "prior", 0, prior, tuple(PRIOR_KEYS), "prior.", "[prior]")
+    tv = {k: _value(src, "truth", 0, k, truth[k], TRUTH_KEYS[k], f"truth.{k}") for k in truth}
+    pv = {k: _value(src, "prior", 0, k, prior[k], PRIOR_KEYS[k], f"prior.{k}") for k in prior}
+    sensors = d["sensor"]
+    if not isinstance(sensors, list) or not sensors:
+        raise src.error(None, 0, "sensor", "at least one [[sensor]] table (an array of tables)",
+                        sensors if not isinstance(sensors, list) else None, label="sensor")
+    specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
+    return Scenario(
+        name=top.get("name", Path(path).stem), description=top.get("description", ""),
+        epoch=top["epoch"], duration_h=top["duration_h"], step_s=top["step_s"],
+        x0_eci=_orbit_state(src, orbit), truth_j2=tv.get("j2", True),
+        truth_third_body=tv.get("third_body", False), truth_drag=tv.get("drag", False),
+        truth_srp=tv.get("srp", False),
+        prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
+        prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
+        prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path))
+
+
+def sensor_epoch_count(scn: Scenario) -> int:
+    """Sensor epochs of a simulated pass, summed over the sensors (``pass_sim.sensor_epochs``)."""
+    n = 0
+    for s in scn.sensors:
+        period = scn.step_s if s.period_s is None else s.period_s
+        n += int(min(math.floor(scn.duration_h * 3600.0 / period + 1e-9), 10**15)) + 1
+    return n
+
+
+def check_size(scn: Scenario, max_epochs: int = MAX_EPOCHS,
+               max_duration_h: float = MAX_DURATION_H) -> None:
+    """Refuse a pass beyond the limits (module docstring) before any work, saying how to get
+    more: raise :class:`UserError`."""
+    if scn.duration_h > max_duration_h:
+        raise UserError(
+            f"scenario {scn.name}: duration_h = {scn.duration_h:g} h exceeds the limit of "
+            f"{max_duration_h:g} h of one simulated pass; shorten it (--duration-h) or raise the "
+            f"limit with --max-duration-h H (the truth integration takes ~8 s per simulated day "
+            f"in LEO with every force)")
+    from fgnav.time import parse_utc, seconds_since
+
+    if scn.duration_h * 3600.0 > seconds_since(parse_utc("2261-12-31T23:59:59Z"),
+                                               parse_utc(scn.epoch)):  # datetime64[ns] range
+        raise UserError(f"scenario {scn.name}: epoch {scn.epoch} + duration_h {scn.duration_h:g} h "
+                        "ends after the year 2261 (the range of the time scale); start earlier")
+    n = sensor_epoch_count(scn)
+    if n > max_epochs:
+        raise UserError(
+            f"scenario {scn.name}: {n:,} sensor epochs (duration_h x 3600 / step_s or period_s, "
+            f"summed over {len(scn.sensors)} sensor(s)) exceed the limit of {max_epochs:,}; "
+            f"lengthen --step-s, shorten --duration-h, or raise the limit with --max-epochs N "
+            f"(about 13 s and 25 MB of output per 100,000 epochs)")

@@ -17,7 +17,8 @@ def test_parse_utc_forms():
 
 
 @pytest.mark.parametrize("bad", ["", "2024-03-01", "2024-13-01T00:00:00Z", "2023-02-29T00:00:00Z",
-                                 "2024-03-01T24:00:00Z", "2016-12-31T23:59:60Z",
+                                 "2024-03-01T24:00:00Z", "2017-12-31T23:59:60Z",
+                                 "2016-12-30T23:59:60Z", "2016-12-31T23:58:60Z", "2016-12-31T23:59:61Z",
                                  "2024-03-01T00:00:00+01:00", "yesterday", "2024-03-01T00:00:00.1234567891Z"])
 def test_parse_utc_rejects_with_the_text(bad):
     with pytest.raises(ValueError) as exc:
@@ -46,12 +47,95 @@ def test_seconds_since_and_add_seconds_are_inverse():
 
 
 def test_j2000_seconds():
-    # J2000.0 = 2000-01-01T12:00:00 TT = 11:58:55.816 UTC with TT - UTC = 64.184 s in 2000;
-    # with the documented fixed TT - UTC = 69.184 s it is 11:58:50.816 UTC.
-    assert j2000_seconds(parse_utc("2000-01-01T11:58:50.816Z")) == pytest.approx(0.0, abs=1e-9)
-    assert j2000_seconds(parse_utc("2000-01-02T11:58:50.816Z")) == pytest.approx(86400.0, abs=1e-9)
+    # J2000.0 = 2000-01-01T12:00:00 TT = 11:58:55.816 UTC (TAI - UTC = 32 s in 2000, TT - TAI
+    # = 32.184 s): exact now that the leap-second table gives TAI - UTC at every date.
+    assert j2000_seconds(parse_utc("2000-01-01T11:58:55.816Z")) == pytest.approx(0.0, abs=1e-9)
+    assert j2000_seconds(parse_utc("2000-01-02T11:58:55.816Z")) == pytest.approx(86400.0, abs=1e-9)
     t = np.array([parse_utc("2024-01-01T00:00:00Z"), parse_utc("2024-01-01T00:01:00Z")])
     j = j2000_seconds(t)
     assert j.shape == (2,) and j[1] - j[0] == pytest.approx(60.0, abs=1e-9)
-    # 2024-01-01T00:00:00 UTC: 8766 days - 12 h after J2000 noon, plus 69.184 s
+    # 2024-01-01T00:00:00 UTC: 8766 days - 12 h after J2000 noon, plus TT - UTC = 69.184 s
     assert j[0] == pytest.approx(8766 * 86400.0 - 43200.0 + 69.184, abs=1e-6)
+    # and 2024-01-01 minus 2000-01-01T11:58:55.816 UTC is 8766 d - 11:58:55.816 + 5 leap seconds
+    # (2005, 2008, 2012, 2015, 2016 ends)
+    assert j[0] == pytest.approx(8766 * 86400.0 - (11 * 3600 + 58 * 60 + 55.816) + 5.0, abs=1e-6)
+
+
+# ------------------------------------------------------------------ leap seconds
+def test_leap_second_is_its_own_instant_and_round_trips():
+    for s in ("2016-12-31T23:59:60.000000Z", "2016-12-31T23:59:60.500000Z",
+              "2015-06-30T23:59:60.999999Z", "1972-06-30T23:59:60.250000Z"):
+        assert format_utc(parse_utc(s)) == s
+    t59, t60, t00 = (parse_utc(s) for s in ("2016-12-31T23:59:59Z", "2016-12-31T23:59:60Z",
+                                            "2017-01-01T00:00:00Z"))
+    assert seconds_since(t60, t59) == 1.0 and seconds_since(t00, t60) == 1.0
+    assert format_utc(parse_utc("2016-12-31T23:59:60.123456789Z"), "ns") == \
+        "2016-12-31T23:59:60.123456789Z"
+    # rounding to the microsecond carries into the leap second, and out of it
+    assert format_utc(parse_utc("2016-12-31T23:59:59.9999996Z")) == "2016-12-31T23:59:60.000000Z"
+    assert format_utc(parse_utc("2016-12-31T23:59:60.9999996Z")) == "2017-01-01T00:00:00.000000Z"
+
+
+@pytest.mark.parametrize("a, b, elapsed_s", [
+    ("2016-12-31T23:59:59Z", "2017-01-01T00:00:01Z", 3.0),     # across the last leap second
+    ("2016-12-31T23:59:60.5Z", "2017-01-01T00:00:00Z", 0.5),
+    ("2015-06-30T12:00:00Z", "2015-07-01T12:00:00Z", 86401.0),
+    ("2016-06-30T12:00:00Z", "2016-07-01T12:00:00Z", 86400.0),  # no leap second that day
+    ("1999-01-01T00:00:00Z", "2017-01-01T00:00:00Z",            # 6575 days + 5 leap seconds
+     6575 * 86400.0 + 5.0),
+    ("1971-01-01T00:00:00Z", "2017-01-01T00:00:00Z", 16802 * 86400.0 + 27.0),
+])
+def test_elapsed_seconds_count_leap_seconds(a, b, elapsed_s):
+    assert seconds_since(parse_utc(b), parse_utc(a)) == elapsed_s
+
+
+def test_add_seconds_walks_through_the_leap_second():
+    e0 = parse_utc("2016-12-31T23:59:58.5Z")
+    assert format_utc(add_seconds(e0, np.arange(4.0))) == [
+        "2016-12-31T23:59:58.500000Z", "2016-12-31T23:59:59.500000Z",
+        "2016-12-31T23:59:60.500000Z", "2017-01-01T00:00:00.500000Z"]
+
+
+def test_every_table_entry_is_one_second_and_no_other_day_has_second_60():
+    from fgnav.time import LEAP_SECONDS
+
+    for (date, off), (_, prev) in zip(LEAP_SECONDS[1:], LEAP_SECONDS[:-1]):
+        assert off - prev == 1
+        day_before = str(np.datetime64(date, "D") - np.timedelta64(1, "D"))
+        t = parse_utc(f"{day_before}T23:59:60Z")
+        assert format_utc(t) == f"{day_before}T23:59:60.000000Z"
+        assert seconds_since(parse_utc(f"{date}T00:00:00Z"), parse_utc(f"{day_before}T23:59:59Z")) == 2.0
+    assert len(LEAP_SECONDS) == 28 and LEAP_SECONDS[-1] == ("2017-01-01", 37)
+
+
+def test_years_outside_datetime64_range_are_a_range_error():
+    from fgnav.time import UtcRangeError
+
+    for s in ("2300-01-01T00:00:00Z", "1600-01-01T00:00:00Z"):
+        with pytest.raises(UtcRangeError, match="1678..2261"):
+            parse_utc(s)
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from fgnav.time import LEAP_SECONDS  # noqa: E402
+
+_NEAR_LEAPS = [parse_utc(f"{d}T00:00:00Z").astype(np.int64) for d, _ in LEAP_SECONDS]
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.one_of(
+    st.integers(int(parse_utc("1960-01-01T00:00:00Z").astype(np.int64)) // 1000,
+                int(parse_utc("2100-01-01T00:00:00Z").astype(np.int64)) // 1000),
+    st.builds(lambda base, d: int(base) // 1000 + d, st.sampled_from(_NEAR_LEAPS),
+              st.integers(-3_000_000, 3_000_000))))
+def test_format_parse_round_trip_at_every_microsecond(us):
+    """Any instant (1 µs grid), near a leap second or not: format -> parse is the identity,
+    and the scalar and array formatters agree."""
+    t = np.datetime64(us * 1000, "ns")
+    s = format_utc(t)
+    assert parse_utc(s) == t
+    t1 = t + np.timedelta64(1, "s")
+    assert format_utc(np.array([t, t1])) == [s, format_utc(t1)]
+    assert format_utc(t, "ns") == s[:-1] + "000Z"

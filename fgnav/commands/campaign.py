@@ -1,5 +1,7 @@
 """``fgnav campaign``: run a study (grid of scenarios x seeds x methods) locally or on Dask."""
 
+from fgnav.commands import _types as T
+
 
 def register(sub):
     p = sub.add_parser(
@@ -11,7 +13,7 @@ def register(sub):
                     "table.md) and plot (plot.png) are written to OUT.")
     p.add_argument("study", nargs="?", help="built-in study name (e.g. seed002-noise) or a study .toml")
     p.add_argument("--out", help="(required) output directory (runs.csv, table.csv/.md, plot.png)")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=T.integer(1), default=None,
                    help="local worker processes (default: CPU count; 1 = run in this process)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="Dask scheduler address (e.g. tcp://10.0.0.1:8786): run there instead")

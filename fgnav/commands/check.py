@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import sys
 
+from fgnav.commands import _types as T
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -19,7 +21,8 @@ def register(subparsers) -> None:
                    "(KVN, starting with CCSDS_TDM_VERS)")
     p.add_argument("--drop-bad-rows", action="store_true",
                    help="drop invalid CSV rows (counted per reason) instead of failing")
-    p.add_argument("--sigma-deg", type=float, default=None, metavar="DEG",
+    p.add_argument("--sigma-deg", type=T.number(0.0, 45.0, lo_open=True, unit="deg"),
+                   default=None, metavar="DEG",
                    help="TDM only: 1-sigma angle noise, deg (default: the file's "
                         "'COMMENT sigma_deg=...')")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")

@@ -1,5 +1,7 @@
 """``fgnav demo``: simulate the seed-002 orbit-transfer pass, estimate it, print the table."""
 
+from fgnav.commands import _types as T
+
 
 def register(sub):
     from fgnav.commands.smooth import add_solver_options
@@ -9,9 +11,9 @@ def register(sub):
                                    "geocentric direction 0.01 deg, 4 h), estimate it with the batch "
                                    "smoother, iSAM2 and the EKF, and print accuracy against truth.")
     p.add_argument("--scenario", default="gto-transfer", help="built-in name or scenario .toml")
-    p.add_argument("--step-s", type=float, default=10.0, help="measurement period (s, default 10)")
-    p.add_argument("--duration-h", type=float, help="pass length (h; default: the scenario's)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    p.add_argument("--step-s", type=T.pos("s"), default=10.0, help="measurement period (s, default 10)")
+    p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's)")
+    p.add_argument("--seed", type=T.seed, default=0, help="noise seed (default 0)")
     p.add_argument("--methods", default="batch,isam2,ekf",
                    help="comma-separated: batch, isam2, fixed-lag, ekf (default batch,isam2,ekf)")
     p.add_argument("--out", help="also write each method's outputs to OUT/<method>/")

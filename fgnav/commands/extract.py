@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fgnav.commands import _types as T
+
 HELP = """\
 Run the image front end over a pass: FRAMES is a frames.csv index (or the directory holding
 it, or its frames/ image directory), as written by `fgnav simulate SCENARIO --out DIR
@@ -33,12 +35,12 @@ def register(subparsers) -> None:
                         "body: earth_direction_body + attitude rows")
     p.add_argument("--priors", metavar="LOG", help="measurement log whose prior rows are copied "
                                                    "(default: measurements.csv beside frames.csv)")
-    p.add_argument("--edge-floor-px", type=float, default=0.0,
+    p.add_argument("--edge-floor-px", type=T.number(0.0, unit="px"), default=0.0,
                    help="limb-edge systematic floor added to the direction and rho sigmas "
                         "(px; default 0)")
     p.add_argument("--no-curvature-correction", action="store_true",
                    help="do not correct the limb edge-curvature bias (needs psf_sigma_px in frames.csv)")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC random seed (default 0)")
+    p.add_argument("--seed", type=T.seed, default=0, help="RANSAC random seed (default 0)")
     p.add_argument("--attitude-out", metavar="FILE.csv",
                    help="also write the star-derived attitude per epoch (quaternion w,x,y,z of "
                         "R_eci_from_body and its covariance; columns in fgnav/io/attitude_csv.py)")

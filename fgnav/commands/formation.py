@@ -11,6 +11,10 @@ from __future__ import annotations
 
 import json
 
+from fgnav.commands import _types as T
+
+MAX_TRACK_EPOCHS = 1000
+
 
 def register(subparsers):
     p = subparsers.add_parser("formation", help="formation relative navigation from "
@@ -20,10 +24,10 @@ def register(subparsers):
 
     c = sub.add_parser("conditioning", help="Cartesian vs spherical conditioning study")
     c.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    c.add_argument("--runs", type=int, default=5000,
+    c.add_argument("--runs", type=int, default=5000,  # checked in run
                    help="Monte Carlo runs for the 1-sigma coverage of R (default 5000)")
-    c.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    c.add_argument("--sigma-cm", type=float, default=1.0,
+    c.add_argument("--seed", type=T.seed, default=0, help="random seed (default 0)")
+    c.add_argument("--sigma-cm", type=T.pos("cm"), default=1.0,
                    help="pseudorange noise, 1 sigma, cm (default 1 cm, seed 003)")
     c.set_defaults(func=run_conditioning)
 
@@ -37,13 +41,18 @@ def register(subparsers):
     t.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
     t.add_argument("--carrier", action="store_true",
                    help="add carrier phase (10 um) with float ambiguities")
-    t.add_argument("--duration-s", type=float, default=600.0, help="track length, s (default 600)")
-    t.add_argument("--step-s", type=float, default=10.0, help="epoch spacing, s (default 10)")
-    t.add_argument("--radius-m", type=float, default=1000.0,
+    t.add_argument("--duration-s", type=T.pos("s"), default=600.0, help="track length, s (default 600)")
+    t.add_argument("--step-s", type=T.pos("s"), default=10.0, help="epoch spacing, s (default 10)")
+    t.add_argument("--radius-m", type=T.pos("m"), default=1000.0,
                    help="relative orbit radius = separation, m (default 1000)")
-    t.add_argument("--alt-km", type=float, default=500.0, help="chief altitude, km (default 500)")
-    t.add_argument("--sigma-cm", type=float, default=1.0, help="pseudorange noise, cm (default 1)")
-    t.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    t.add_argument("--alt-km", type=T.number(100.0, 100000.0, unit="km"), default=500.0,
+                   help="chief altitude, km (default 500)")
+    t.add_argument("--sigma-cm", type=T.pos("cm"), default=1.0, help="pseudorange noise, cm (default 1)")
+    t.add_argument("--seed", type=T.seed, default=0, help="random seed (default 0)")
+    t.add_argument("--max-epochs", type=T.integer(2), default=MAX_TRACK_EPOCHS, metavar="N",
+                   help=f"refuse a track of more than N epochs (duration / step + 1; default "
+                        f"{MAX_TRACK_EPOCHS}: the smoother's cost grows faster than the epochs, "
+                        "~20 s for 200 here)")
     t.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     t.set_defaults(func=run_track)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
@@ -81,6 +90,11 @@ def run_track(args) -> int:
 
     if not args.sigma_cm > 0:
         raise UserError(f"--sigma-cm must be positive, got {args.sigma_cm}")
+    n = int(min(args.duration_s / args.step_s, 1e15)) + 1
+    if n > args.max_epochs:
+        raise UserError(f"--duration-s {args.duration_s:g} / --step-s {args.step_s:g}: {n:,} epochs "
+                        f"exceed the limit of {args.max_epochs:,}; lengthen --step-s, shorten "
+                        "--duration-s, or raise the limit with --max-epochs N")
     sc = FormationScenario(alt_km=args.alt_km, radius_m=args.radius_m, duration_s=args.duration_s,
                            step_s=args.step_s, sigma_code_m=args.sigma_cm / 100.0,
                            carrier=args.carrier)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fgnav.commands import _types as T
+
 HELP = """\
 Extract the Earth's limb from IMAGE (a single-channel 8/16-bit PNG/TIFF or a .npy array:
 bright disk on a dark sky), reject outliers (RANSAC on the horizon cone) and estimate the
@@ -41,18 +43,20 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("limb", help="horizon fix (Earth direction, angular radius) from a limb image",
                               description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("image", metavar="IMAGE", help="limb image (.png/.tif/.npy, single channel)")
-    p.add_argument("--focal-mm", type=float, required=True, help="focal length (mm)")
-    p.add_argument("--pixel-um", type=float, required=True, help="pixel pitch (µm)")
-    p.add_argument("--cx-px", type=float, default=None, help="principal point u (px; default image centre)")
-    p.add_argument("--cy-px", type=float, default=None, help="principal point v (px; default image centre)")
+    p.add_argument("--focal-mm", type=T.pos("mm"), required=True, help="focal length (mm)")
+    p.add_argument("--pixel-um", type=T.pos("µm"), required=True, help="pixel pitch (µm)")
+    p.add_argument("--cx-px", type=T.number(unit="px"), default=None,
+                   help="principal point u (px; default image centre)")
+    p.add_argument("--cy-px", type=T.number(unit="px"), default=None,
+                   help="principal point v (px; default image centre)")
     p.add_argument("--method", choices=("ellipse", "christian-robinson"), default="christian-robinson",
                    help="horizon estimator (default: christian-robinson)")
-    p.add_argument("--r-limb-km", type=float, default=6375.0,
+    p.add_argument("--r-limb-km", type=T.pos("km"), default=6375.0,
                    help="limb sphere radius (km; default 6375, the seed's UV limb)")
-    p.add_argument("--psf-px", type=float, default=None, metavar="SIGMA",
+    p.add_argument("--psf-px", type=float, default=None,  # checked in run metavar="SIGMA",
                    help="optics PSF 1-sigma (px): correct the christian-robinson edge-curvature "
                         "bias (see above; default: unknown, no correction)")
-    p.add_argument("--seed", type=int, default=0, help="RANSAC random seed (default 0)")
+    p.add_argument("--seed", type=T.seed, default=0, help="RANSAC random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
 
@@ -96,8 +100,8 @@ def run(args) -> int:
 
     if not (args.focal_mm > 0 and args.pixel_um > 0 and args.r_limb_km > 0):
         raise UserError("--focal-mm, --pixel-um and --r-limb-km must be > 0")
-    if args.psf_px is not None and not args.psf_px >= 0:
-        raise UserError(f"--psf-px must be >= 0 (px), got {args.psf_px}")
+    if args.psf_px is not None and not 0 <= args.psf_px < float("inf"):
+        raise UserError(f"--psf-px must be finite and >= 0 (px), got {args.psf_px}")
     img = _load_image(args.image)
     cam = PinholeCamera(focal_mm=args.focal_mm, pixel_um=args.pixel_um, width_px=img.shape[1],
                         height_px=img.shape[0], cx_px=args.cx_px, cy_px=args.cy_px)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from fgnav.commands import _types as T
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -19,7 +21,7 @@ def register(subparsers) -> None:
                    help="where to write the report (default: RESULT_DIR)")
     p.add_argument("--truth", metavar="TRUTH.oem", default=None,
                    help="truth OEM (default: summary.json's truth_path, if any)")
-    p.add_argument("--sigma", type=float, default=3.0, metavar="K",
+    p.add_argument("--sigma", type=T.positive, default=3.0, metavar="K",
                    help="envelope width in standard deviations (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object with the files written")
     p.set_defaults(func=run)

@@ -1,5 +1,7 @@
 """``fgnav schemes``: the seed-004 refraction budget and the seed-001 Sun/Earth/Moon table."""
 
+from fgnav.commands import _types as T
+
 
 def register(sub):
     p = sub.add_parser("schemes", help="starlight-refraction / Sun-Earth-Moon scheme tables",
@@ -8,9 +10,9 @@ def register(sub):
                                    "direct three-star fix, EKF, smoother) or 'sun-earth-moon' "
                                    "(seed 001, leo-sun-earth-moon: direct fix, EKF, smoother).")
     p.add_argument("scheme", choices=["refraction", "sun-earth-moon"])
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    p.add_argument("--duration-h", type=float, help="pass length (h; default: the scenario's)")
-    p.add_argument("--process-noise", type=float, metavar="Q",
+    p.add_argument("--seed", type=T.seed, default=0, help="noise seed (default 0)")
+    p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's)")
+    p.add_argument("--process-noise", type=T.number(0.0, unit="m^2/s^3"), metavar="Q",
                    help="white-acceleration PSD of the motion prior (m^2/s^3; default 1e-12 for "
                         "refraction, 1e-9 for sun-earth-moon)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")

@@ -1,5 +1,10 @@
 """``fgnav simulate SCENARIO --out DIR``: truth OEM + measurement log of a scenario."""
 
+from fgnav.commands import _types as T
+
+MAX_EPOCHS = 1_000_000       # = fgnav.scenarios.MAX_EPOCHS (not imported: keeps --help fast)
+MAX_DURATION_H = 744.0       # = fgnav.scenarios.MAX_DURATION_H
+
 
 def register(sub):
     p = sub.add_parser("simulate", help="simulate a scenario: DIR/measurements.csv + DIR/truth.oem",
@@ -8,36 +13,58 @@ def register(sub):
                                    "measurements with seeded noise.")
     p.add_argument("scenario", help="built-in name or path to a scenario .toml")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    p.add_argument("--step-s", type=float, help="measurement period (s), overrides the scenario")
-    p.add_argument("--duration-h", type=float, help="pass length (h), overrides the scenario")
+    p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
+    p.add_argument("--step-s", type=T.pos("s"),
+                   help="measurement period (s, > 0), overrides the scenario")
+    p.add_argument("--duration-h", type=T.pos("h"),
+                   help="pass length (h, > 0), overrides the scenario")
+    p.add_argument("--max-epochs", type=T.integer(1), default=MAX_EPOCHS, metavar="N",
+                   help=f"refuse a pass with more than N sensor epochs, summed over the sensors "
+                        f"(default {MAX_EPOCHS:,}; ~13 s and 25 MB of output per 100,000)")
+    p.add_argument("--max-duration-h", type=T.pos("h"),
+                   default=MAX_DURATION_H, metavar="H",
+                   help=f"refuse a pass longer than H hours (default {MAX_DURATION_H:g} h = 31 "
+                        "days; the truth integration takes ~8 s per simulated day in LEO)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
                         "seed 000 sensor, Earth-pointing plan) into DIR/frames/ with the index "
                         "DIR/frames.csv (input of `fgnav extract`)")
-    p.add_argument("--image-period-s", type=float,
-                   help="image period (s; default the measurement period)")
+    p.add_argument("--image-period-s", type=T.pos("s"),
+                   help="image period (s, > 0; default the measurement period)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
+    import tempfile
     from pathlib import Path
 
+    from fgnav.errors import UserError
     from fgnav.io.log_csv import write_log
     from fgnav.io.oem import write_oem
-    from fgnav.scenarios import load_scenario
+    from fgnav.scenarios import check_size, load_scenario
     from fgnav.simulate.pass_sim import simulate_pass
 
     scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
-    sim = simulate_pass(scn, seed=args.seed)
+    check_size(scn, args.max_epochs, args.max_duration_h)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_log(out / "measurements.csv", sim.log)
-    write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-              object_name=scn.name.upper(),
-              comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
-                        "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    try:  # before the simulation: an unusable --out must not cost the whole run
+        out.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=out).close()
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
+    sim = simulate_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
+                        max_duration_h=args.max_duration_h)
+    try:
+        write_log(out / "measurements.csv", sim.log)
+        write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
+                  object_name=scn.name.upper(),
+                  comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
+                            "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
               f"{out / 'measurements.csv'}, {out / 'truth.oem'}")

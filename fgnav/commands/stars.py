@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import argparse
 
+from fgnav.commands import _types as T
+
 ROLL_HELP = ("roll_deg: position angle of the image 'up' direction (towards decreasing pixel "
              "row v, camera -y) measured from celestial north through east, degrees in "
              "(-180, 180]; 0 = up is north, +90 = up is east.")
@@ -24,14 +26,14 @@ def register(subparsers) -> None:
                     "q_eci_from_camera [w, x, y, z]. " + ROLL_HELP,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     p.add_argument("image", metavar="IMAGE", help="image file OpenCV reads (16-bit grey TIFF preferred; 8-bit loses faint stars)")
-    p.add_argument("--fov-deg", type=float, required=True,
+    p.add_argument("--fov-deg", type=float, required=True,  # checked in run: (0, 120) deg
                    help="approximate full horizontal field of view (deg)")
-    p.add_argument("--fov-tolerance", type=float, default=0.1,
+    p.add_argument("--fov-tolerance", type=T.number(0.0, 1.0, hi_open=True), default=0.1,
                    help="relative uncertainty of --fov-deg (fraction, 0.1 = +-10%%)")
     p.add_argument("--epoch", default=None,
                    help="observation time, ISO-8601 UTC (e.g. 2019-07-29T20:47:26Z), for star "
                         "proper motion; default J2000.0")
-    p.add_argument("--k-sigma", type=float, default=5.0,
+    p.add_argument("--k-sigma", type=T.positive, default=5.0,
                    help="detection threshold (multiples of the filtered background noise)")
     p.add_argument("--fit-k1", action="store_true", help="also fit radial distortion k1 (normalized coordinates)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")

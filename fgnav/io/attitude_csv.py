@@ -43,36 +43,60 @@ def write_attitude_csv(path, epochs, R_eci_from_body, P_rad2, comments=()) -> No
 
 
 def read_attitude_csv(path):
-    """Read the CSV back: (epochs datetime64[ns] (N,), R (N,3,3), P (N,3,3))."""
+    """Read the CSV back: (epochs datetime64[ns] (N,), R (N,3,3), P (N,3,3)).
+
+    UTF-8 (a byte-order mark is ignored); every error is an
+    :class:`~fgnav.errors.InputFormatError` naming the line and the column.
+    """
+    import math
+
     import gtsam
 
+    from fgnav.io.text import read_utf8_text
+
+    text = read_utf8_text(path, "an attitude CSV file")  # not UTF-8: the line and the byte
     epochs, Rs, Ps = [], [], []
     header = None
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            fields = line.split(",")
-            if header is None:
-                if tuple(fields) != COLUMNS:
-                    raise InputFormatError(path, lineno, None, "header " + ",".join(COLUMNS), line)
-                header = fields
-                continue
-            if len(fields) != len(COLUMNS):
-                raise InputFormatError(path, lineno, None, f"{len(COLUMNS)} fields", line)
+    for lineno, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = [f.strip() for f in line.split(",")]
+        if header is None:
+            if tuple(fields) != COLUMNS:
+                raise InputFormatError(path, lineno, None, "header " + ",".join(COLUMNS), line)
+            header = fields
+            continue
+        if len(fields) != len(COLUMNS):
+            raise InputFormatError(path, lineno, None, f"{len(COLUMNS)} fields", f"{len(fields)}")
+        try:
+            t = parse_utc(fields[0])
+        except ValueError as exc:
+            raise InputFormatError(path, lineno, "epoch", f"an ISO-8601 UTC epoch ({exc})",
+                                   fields[0]) from None
+        v = np.empty(len(COLUMNS) - 1)
+        for j, (name, f) in enumerate(zip(COLUMNS[1:], fields[1:])):
             try:
-                t = parse_utc(fields[0])
-                v = np.array([float(x) for x in fields[1:]])
-            except ValueError as exc:
-                raise InputFormatError(path, lineno, None, f"an epoch and numbers ({exc})", line) from None
-            q = v[:4] / np.linalg.norm(v[:4])
-            s, c = v[4:7], v[7:]
-            P = np.diag(s ** 2)
-            P[0, 1] = P[1, 0] = c[0]
-            P[0, 2] = P[2, 0] = c[1]
-            P[1, 2] = P[2, 1] = c[2]
-            epochs.append(t)
-            Rs.append(gtsam.Rot3.Quaternion(*q).matrix())
-            Ps.append(P)
+                v[j] = float(f)
+            except ValueError:
+                v[j] = math.nan
+            if not math.isfinite(v[j]) or (name.startswith("sigma") and v[j] < 0):
+                raise InputFormatError(path, lineno, name, "a finite number" +
+                                       (" >= 0" if name.startswith("sigma") else ""), f)
+        qn = float(np.linalg.norm(v[:4]))
+        if abs(qn - 1.0) > 1e-4:  # renormalized below
+            raise InputFormatError(path, lineno, "qw", "a unit quaternion (w, x, y, z)",
+                                   f"norm {qn:.9g}")
+        q = v[:4] / qn
+        s, c = v[4:7], v[7:]
+        P = np.diag(s ** 2)
+        P[0, 1] = P[1, 0] = c[0]
+        P[0, 2] = P[2, 0] = c[1]
+        P[1, 2] = P[2, 1] = c[2]
+        epochs.append(t)
+        Rs.append(gtsam.Rot3.Quaternion(*q).matrix())
+        Ps.append(P)
+    if header is None or not epochs:
+        raise InputFormatError(path, None, None, "the header " + ",".join(COLUMNS) +
+                               " and at least one row", "no rows")
     return np.array(epochs, dtype="datetime64[ns]"), np.array(Rs), np.array(Ps)

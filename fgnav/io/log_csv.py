@@ -13,7 +13,8 @@ The six base columns are required, in this order; the optional extra columns ``g
 once. Every row has exactly as many comma-separated fields as the header; whitespace around
 a field is ignored; an empty field is "no value" (read as NaN). ``epoch`` is ISO-8601 UTC
 ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; years
-1678..2261, the range of ``datetime64[ns]``). Numbers
+1678..2261, the range of ``datetime64[ns]``; second ``60`` at the end of a day with a leap
+second, mapped to elapsed SI seconds by :mod:`fgnav.time`). Numbers
 are decimal (``1``, ``-2.5``, ``6.4e6``).
 
 Kinds (all frames EME2000 = ECI unless "body"; all sigmas 1σ)
@@ -288,18 +289,17 @@ def _parse_number(text: str, column: str) -> float:
 
 
 def _parse_epoch(text: str) -> np.datetime64:
-    from fgnav.time import parse_utc
+    from fgnav.time import UtcRangeError, parse_utc
 
     if not _EPOCH_RE.match(text):
         raise _RowError("bad_epoch", "epoch", _EPOCH_EXPECTED, text)
     try:
-        t = parse_utc(text)
+        return parse_utc(text)  # leap seconds (23:59:60) included, see fgnav.time
+    except UtcRangeError:  # datetime64[ns] would wrap silently outside 1678..2261
+        raise _RowError("bad_epoch", "epoch", "a year within 1678..2261", text) from None
     except (ValueError, OverflowError):
         raise _RowError("bad_epoch", "epoch", _EPOCH_EXPECTED + " (a valid date and time)",
                         text) from None
-    if str(t)[:4] != text[:4]:  # datetime64[ns] wraps silently outside 1678..2261
-        raise _RowError("bad_epoch", "epoch", "a year within 1678..2261", text)
-    return t
 
 
 def _check_header(path, lineno: int, text: str) -> list[str]:
@@ -589,10 +589,7 @@ def _fmt(v: float) -> str:
 def _fmt_epoch(ns: int) -> str:
     from fgnav.time import format_utc
 
-    t = np.datetime64(int(ns), "ns")
-    if ns % 1000 == 0:
-        return format_utc(t)
-    return np.datetime_as_string(t, unit="ns") + "Z"
+    return format_utc(np.datetime64(int(ns), "ns"), "us" if ns % 1000 == 0 else "ns")
 
 
 def write_log(path, log: MeasurementLog, *, comments=()) -> None:

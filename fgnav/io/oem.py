@@ -28,7 +28,8 @@ Written (``write_oem``, atomically)::
     COVARIANCE_STOP
 
 Epochs are CCSDS ASCII time code A, ``YYYY-MM-DDThh:mm:ss.ffffff`` (microseconds, or
-nanoseconds when needed), UTC. Positions are written with 9 decimals in km (1 µm),
+nanoseconds when needed), UTC; a leap second is ``23:59:60.f`` and the seconds between
+epochs are elapsed SI seconds (:mod:`fgnav.time`). Positions are written with 9 decimals in km (1 µm),
 velocities with 12 decimals in km/s, covariance entries with 17 significant digits; the
 covariance written is the symmetric part (P + P^T)/2, and an epoch whose covariance is not
 finite gets no block.
@@ -94,7 +95,7 @@ def parse_ccsds_epoch(text: str) -> np.datetime64:
 
     Fractions beyond nanoseconds are truncated. Raises ``ValueError`` if malformed.
     """
-    from fgnav.time import parse_utc
+    from fgnav.time import UtcRangeError, parse_utc
 
     m = _EPOCH_RE.match(text.strip())
     if m is None:
@@ -113,13 +114,10 @@ def parse_ccsds_epoch(text: str) -> np.datetime64:
     else:
         day_text = f"{year}-{month}-{day}"
     frac_text = f".{frac[:9]}" if frac else ""
-    try:
-        t = parse_utc(f"{day_text}T{hh}:{mm}:{ss}{frac_text}Z")
-    except OverflowError:
-        raise ValueError(f"epoch out of range: {text!r}") from None
-    if str(t)[:4] != year:  # datetime64[ns] wraps silently outside 1678..2261
-        raise ValueError(f"epoch out of range (years 1678..2261): {text!r}")
-    return t
+    try:  # leap seconds (23:59:60) included, see fgnav.time
+        return parse_utc(f"{day_text}T{hh}:{mm}:{ss}{frac_text}Z")
+    except (UtcRangeError, OverflowError):  # datetime64[ns] wraps outside 1678..2261
+        raise ValueError(f"epoch out of range (years 1678..2261): {text!r}") from None
 
 
 def format_ccsds_epoch(t64) -> str:
@@ -127,10 +125,7 @@ def format_ccsds_epoch(t64) -> str:
     from fgnav.time import format_utc
 
     t = np.datetime64(t64, "ns")
-    ns = int(t.astype(np.int64))
-    if ns % 1000 == 0:
-        return format_utc(t)[:-1]
-    return np.datetime_as_string(t, unit="ns")
+    return format_utc(t, "us" if int(t.astype(np.int64)) % 1000 == 0 else "ns")[:-1]
 
 
 def _read_lines(path) -> list[tuple[int, str]]:

@@ -21,7 +21,8 @@ from factors.geometry import tangent_basis
 from fgnav.constants import DEG
 from fgnav.io.log_csv import MeasurementLog, log_from_arrays
 from fgnav.orbit import integrate_truth
-from fgnav.scenarios import Scenario
+from fgnav.errors import UserError
+from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.time import j2000_seconds, parse_utc
 
 
@@ -51,8 +52,16 @@ def sensor_epochs(scn: Scenario, period_s: float | None) -> np.ndarray:
     return np.arange(n + 1) * period
 
 
-def simulate_pass(scn: Scenario, seed: int = 0) -> SimulatedPass:
-    """Truth and a measurement log for ``scn``; the same seed gives the same numbers."""
+def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
+                  max_duration_h: float = MAX_DURATION_H) -> SimulatedPass:
+    """Truth and a measurement log for ``scn``; the same seed gives the same numbers.
+
+    ``seed`` is an integer >= 0. A pass beyond ``max_epochs`` sensor epochs or
+    ``max_duration_h`` hours is refused (:func:`fgnav.scenarios.check_size`).
+    """
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise UserError(f"seed: expected an integer >= 0, found {seed!r}")
+    check_size(scn, max_epochs, max_duration_h)
     rng = np.random.default_rng(seed)
     epoch0 = parse_utc(scn.epoch)
     t_by_sensor = [sensor_epochs(scn, s.period_s) for s in scn.sensors]

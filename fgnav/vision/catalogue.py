@@ -45,7 +45,9 @@ def unit_to_radec(u) -> tuple[np.ndarray, np.ndarray]:
 
 def decimal_year(t) -> float:
     """A ``numpy.datetime64`` / ISO string (UTC) -> Julian-year epoch (J2000.0 = 2000.0)."""
-    t64 = np.datetime64(str(t).rstrip("Z"), "ns")
+    from fgnav.time import parse_utc
+
+    t64 = parse_utc(t) if isinstance(t, str) else np.datetime64(t, "ns")  # 23:59:60 too
     days = (t64 - np.datetime64("2000-01-01T12:00:00", "ns")) / np.timedelta64(1, "D")
     return 2000.0 + float(days) / 365.25
 

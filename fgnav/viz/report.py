@@ -374,7 +374,9 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
 
     method = data.summary.get("method", "?")
     title = title or f"fgnav report — {method}"
-    e0 = np.datetime_as_string(data.epoch0, unit="ms") + "Z"
+    from fgnav.time import format_utc
+
+    e0 = format_utc(data.epoch0)[:-4] + "Z"  # ms; leap seconds print as 23:59:60
     span_h = (data.t_s[-1] - data.t_s[0]) * _H if len(data.t_s) else 0.0
     captions = {
         "errors_rtn": f"Position and velocity error (estimate − truth) in RTN with ±{k_sigma:g}σ",

@@ -490,9 +490,11 @@ def _safe(name: str) -> str:
 
 
 def _about_text(solution, has_truth, k, mag) -> str:
+    from fgnav.time import format_utc
+
     return "\n".join([
         f"# fgnav — {solution.method}",
-        f"- epoch0 (t_s = 0): {np.datetime_as_string(np.datetime64(solution.epoch0, 'ns'), unit='ms')}Z",
+        f"- epoch0 (t_s = 0): {format_utc(solution.epoch0)[:-4]}Z",  # ms, leap-second aware
         f"- epochs: {len(solution.t_s)}, iterations: {solution.iterations}, chi2: {solution.chi2:.6g}",
         "- 3-D view: ECI, **km**; Earth = WGS-84 ellipsoid (not rotated with the Earth).",
         f"- covariance ellipsoids: position **{k:g}σ x {mag:g}** (magnified {mag:g} times).",
