@@ -21,37 +21,59 @@ METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
 def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
           lag_s: float = 300.0, progress=None, gap_factor: float | None = 10.0,
-          checkpoint: str | None = None, checkpoint_every: int = 100, resume: bool = False) -> Solution:
+          checkpoint: str | None = None, checkpoint_every: int = 100, resume: bool = False,
+          ignore_prior: bool = False) -> Solution:
     """Run one estimator over a pass (after the observability checks).
 
     Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
     (:func:`fgnav.measurements.fill_gaps`); ``gap_factor=None`` keeps the log's epochs only.
+    Without prior rows, or with ``ignore_prior``, the solvers start from the orbit the
+    measurements give (:func:`fgnav.initial_orbit.start_point`, which also tests a log's
+    prior against that orbit); ``Solution.extras["initial_orbit"]`` records the start.
     """
     from fgnav.analysis.crb import check_observability
-    from fgnav.solvers.batch import initial_guess, smooth_batch
+    from fgnav.initial_orbit import has_prior, start_point
+    from fgnav.solvers.batch import smooth_batch
     from fgnav.time import j2000_seconds
 
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
-    check_observable(p)
+    from_data = ignore_prior or not has_prior(p)
+    check_observable(p, require_prior=not from_data)
     if gap_factor is not None:
         p = fill_gaps(p, gap_factor)
     model = options.motion_model()
-    check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
+    start = start_point(p, method, model, float(j2000_seconds(p.epoch0)), ignore_prior=ignore_prior)
+    try:
+        check_observability(start.p, start.x_guess, model)
+    except UserError as exc:
+        if not from_data:
+            raise
+        raise type(exc)(f"{exc} Without a prior the orbit comes from the measurements alone: "
+                        f"or add 'prior_position' and 'prior_velocity' rows.") from exc
+    p = start.p
     if method == "batch":
-        return smooth_batch(p, options, progress=progress)
+        if from_data:
+            # The initial orbit is already fitted to the data through the full dynamics:
+            # Gauss-Newton at the requested process noise at once (continuation if that fails).
+            from dataclasses import replace
+            sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
+                               x_init=start.x_init, progress=progress)
+            if sol.extras.get("converged"):
+                return start.finish(sol)
+        return start.finish(smooth_batch(p, options, x_init=start.x_init, progress=progress))
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
         from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
         if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
-            return run_ekf_numba(p, options, progress=progress)
+            return start.finish(run_ekf_numba(p, options, progress=progress))
         from fgnav.solvers.ekf import run_ekf
-        return run_ekf(p, options, progress=progress)
+        return start.finish(run_ekf(p, options, progress=progress))
     from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
-    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                              progress=progress, checkpoint=checkpoint,
-                              checkpoint_every=checkpoint_every, resume=resume)
+    return start.finish(smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
+                                           progress=progress, checkpoint=checkpoint,
+                                           checkpoint_every=checkpoint_every, resume=resume))
 
 
 def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -100,12 +122,20 @@ class SmoothResult:
 
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
-                progress=None, **solve_kw) -> tuple[SmoothResult, Pass]:
-    """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given)."""
+                progress=None, ignore_prior: bool = False, **solve_kw) -> tuple[SmoothResult, Pass]:
+    """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
+
+    ``ignore_prior``: start from the measurements' own orbit, leaving the log's prior rows
+    out of the solution and of the Cramer-Rao bound (:func:`solve`).
+    """
     t0 = time.perf_counter()
     log = read_measurements(log_path)
     p = build_pass(log)
-    sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
+    sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
+                **solve_kw)
+    if ignore_prior:
+        from fgnav.initial_orbit import strip_prior
+        p = strip_prior(p)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
     x_true = None
@@ -145,6 +175,8 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "source": p.source}
     s.update(crb_metrics(p, sol.x_eci, options))
+    if "initial_orbit" in sol.extras:
+        s["initial_orbit"] = sol.extras["initial_orbit"]
     for k, v in sol.extras.items():
         if isinstance(v, (int, float, str, bool, list)):
             s.setdefault(k, v)
