@@ -188,7 +188,7 @@ def _plane(r_hat):
     if s[1] < 1e-3 * s[0]:
         # an arc too short for the SVD: the plane of the turning directions
         if np.linalg.norm(turn) == 0:
-            raise UserError("the directions do not move: no orbit plane")
+            raise UserError("the directions do not move: no orbit plane from them")
         h = turn / np.linalg.norm(turn)
     if h @ turn < 0:
         h = -h
@@ -197,6 +197,24 @@ def _plane(r_hat):
     q_hat = np.cross(h, p_hat)
     theta = np.unwrap(np.arctan2(r_hat @ q_hat, r_hat @ p_hat))
     return h, p_hat, q_hat, theta
+
+
+def _session(t, r_hat, max_turn_rad=2.0):
+    """The slice of the longest run of directions whose angle can be followed in time: a
+    gap splits the log when the angle it may hide (the faster of the angular rates on its
+    two sides times its length) exceeds ``max_turn_rad`` (unwrapping needs < pi)."""
+    if len(t) < 3:
+        return slice(0, len(t))
+    dt = np.diff(t)
+    ang = np.arccos(np.clip(np.einsum("ij,ij->i", r_hat[:-1], r_hat[1:]), -1.0, 1.0))
+    rate = ang / np.where(dt > 0, dt, np.inf)
+    # the angular rate beside each step: the larger of its neighbours' (a gap is not its own
+    # witness); an isolated first/last step uses its one neighbour
+    near = np.maximum(np.concatenate([[0.0], rate[:-1]]), np.concatenate([rate[1:], [0.0]]))
+    cut = np.flatnonzero(np.maximum(near, rate) * dt > max_turn_rad)
+    bounds = np.concatenate([[0], cut + 1, [len(t)]])
+    i = int(np.argmax(np.diff(bounds)))
+    return slice(int(bounds[i]), int(bounds[i + 1]))
 
 
 def _angle_fit(t, theta, mu):
@@ -302,7 +320,7 @@ def _gibbs(r1, r2, r3, t1, t2, t3, mu):
     return v2, "herrick-gibbs"
 
 
-def _gibbs_start(p: Pass, u_by_k: dict, k_ref: int, mu: float):
+def _gibbs_start(p: Pass, u_by_k: dict, mu: float):
     """A state at ``k_ref`` from three range-derived positions spread over the arc, the
     ranges smoothed by a running median of 11 rows; None when there are too few."""
     ks, R = _range_positions(p, u_by_k)
@@ -425,6 +443,16 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbi
     ok, why = iod_support(p)
     if not ok:
         raise UserError(f"{p.source}: {why}")
+    try:
+        return _initial_orbit(p, model, t0_j2000_s)
+    except UserError:
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        raise UserError(f"{p.source}: the initial orbit fit failed ({exc}); add "
+                        f"'prior_position' and 'prior_velocity' rows") from exc
+
+
+def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbit:
     mu = model.mu
     fam = p.families["earth_direction"]
     order = np.argsort(fam.k, kind="stable")
@@ -434,11 +462,16 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbi
     # one direction per epoch for the geometry (the first, if several)
     first = np.concatenate([[True], np.diff(k_dir) > 0])
     k_dir, r_hat = k_dir[first], r_hat[first]
-    u_by_k = dict(zip(k_dir.tolist(), (-r_hat).tolist()))
-    u_by_k = {k: np.asarray(v) for k, v in u_by_k.items()}
+    seg = _session(p.t_s[k_dir], r_hat)
+    k_dir, r_hat = k_dir[seg], r_hat[seg]
+    if len(k_dir) < MIN_DIRECTION_EPOCHS:
+        raise UserError(f"{p.source}: too few direction epochs in one session for an initial "
+                        f"orbit; add 'prior_position' and 'prior_velocity' rows")
+    u_by_k = {k: -r for k, r in zip(k_dir.tolist(), r_hat)}
     t_dir = p.t_s[k_dir]
-    # the epochs of the refinement: an even subsample of those with fit rows
+    # the epochs of the refinement: an even subsample of those with fit rows in the session
     k_fit = np.unique(np.concatenate([p.families[k].k for k in _FIT_KINDS if k in p.families]))
+    k_fit = k_fit[(k_fit >= k_dir[0]) & (k_fit <= k_dir[-1])]
     k_sub = k_fit[np.unique(np.linspace(0, len(k_fit) - 1, min(len(k_fit), MAX_EPOCHS)).round().astype(int))]
     # the reference epoch: the subsample epoch nearest the middle of the arc
     k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - 0.5 * (t_dir[0] + t_dir[-1])))])
@@ -452,7 +485,7 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbi
     h_hat, p_hat, q_hat, theta = _plane(r_hat)
     for _, (n, e, om, M0) in _angle_fit(t_dir - t_ref, theta, mu)[:3]:
         starts.append(("angles-kepler", _state_from_elements(n, e, om, M0, p_hat, q_hat, h_hat, mu)))
-    g = _gibbs_start(p, u_by_k, k_ref, mu)
+    g = _gibbs_start(p, u_by_k, mu)
     if g is not None:
         x_g, k_g, how = g
         if k_g != k_ref:
@@ -544,6 +577,7 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
 # ------------------------------------------------------------------------- the smoothers' start
 
 START_INFLATION = 100.0  # covariance factor of the initial orbit when it starts a filter
+MAX_TEST_RMS = 1.5       # the prior is tested only against a fit at the noise level
 
 
 def has_prior(p: Pass) -> bool:
@@ -628,10 +662,15 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
             return Start(p, x_guess, None, info)
         try:
             iod = initial_orbit(strip_prior(p), model, t0_j2000_s)
-        except UserError as exc:
+        except UserError as exc:  # every failure of the fit is one (initial_orbit)
             info["consistency"] = f"not tested: {exc}"
             return Start(p, x_guess, None, info)
         info.update(_summary(iod, p))
+        if iod.rms_whitened > MAX_TEST_RMS:
+            info["consistency"] = (f"not tested: the initial orbit fits the data to whitened rms "
+                                   f"{iod.rms_whitened:.2f} (> {MAX_TEST_RMS:g}): forces missing "
+                                   f"from the motion model, or outliers")
+            return Start(p, x_guess, None, info)
         info.update(prior_consistency(p, iod, model, t0_j2000_s))
         if not info["prior_contradicts_data"]:
             return Start(p, x_guess, None, info)
