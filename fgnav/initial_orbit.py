@@ -569,7 +569,7 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     gate = float(chi2.ppf(probability, 6))
     return {"prior_mahalanobis": math.sqrt(max(m2, 0.0)), "prior_mahalanobis2": m2,
             "prior_dof": 6, "prior_gate_chi2": gate, "prior_gate_probability": probability,
-            "prior_contradicts_data": bool(m2 > gate),
+            "prior_consistent": bool(m2 <= gate),
             "prior_position_offset_m": float(np.linalg.norm(d[:3])),
             "prior_velocity_offset_mps": float(np.linalg.norm(d[3:]))}
 
@@ -672,7 +672,7 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
                                    f"from the motion model, or outliers")
             return Start(p, x_guess, None, info)
         info.update(prior_consistency(p, iod, model, t0_j2000_s))
-        if not info["prior_contradicts_data"]:
+        if info["prior_consistent"]:
             return Start(p, x_guess, None, info)
         x_iod = trajectory(iod, p, model, t0_j2000_s)
         if method == "batch":
