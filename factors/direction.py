@@ -1,17 +1,54 @@
 """Direction measurements: geocentric unit vector, body directions to a target, stars.
 
-SPEC "Measurement models" 1 and 2. All residuals live on the 2-D tangent plane of the unit
-sphere at the measured direction: ``e = B(u_meas) @ u_pred`` with
-``B = tangent_basis(u_meas)`` (2x3, rows orthonormal and orthogonal to ``u_meas``). ``e`` is
-zero when prediction and measurement agree and, for small errors, its components are the
-angular error in radians along ``b1`` and ``b2``: the per-axis sigma is the angular noise.
-(Three components of a unit-vector difference would be rank-deficient.) ``B`` depends on
-the measurement only: every residual takes an optional precomputed ``B`` (N, 2, 3), which
-the single-epoch GTSAM adapters compute once per factor.
+SPEC "Measurement models" 1 and 2. Every direction residual is the logarithm map of the
+unit sphere at the measured direction, written in the tangent basis
+``B = tangent_basis(u_meas)`` (2x3, rows ``b1, b2`` orthonormal and orthogonal to
+``u_meas``; ``(b1, b2, u_meas)`` right-handed):
 
-Jacobian chain (each link tested): ``d(r/|r|)/dr = (I - u u^T)/|r|``; for a right
-perturbation ``R <- R Exp(w)`` of ``R_eci_from_body``,
-``d(R^T v)/dw = skew(R^T v)`` (since ``Exp(-w) R^T v ~ R^T v - w x R^T v``).
+    t = B u_pred  (tangent part, 2),   n = u_meas . u_pred  (normal part),
+    s = |t| = sin(theta),   theta = atan2(s, n) in [0, pi],
+    e = Log_{u_meas}(u_pred) = theta t/s = f t,   f = theta/s,
+
+the unit tangent direction from ``u_meas`` towards ``u_pred`` times the great-circle angle
+between them: the inverse of the sphere's exponential map ``Exp_u(v) = u cos|v| + v/|v|
+sin|v|`` (Absil, Mahony & Sepulchre 2008, "Optimization Algorithms on Matrix Manifolds",
+geodesics of the sphere, ch. 5), the ``S^2`` "boxminus" of Hertzberg, Wagner, Frese &
+Schroeder 2013, "Integrating generic sensor fusion algorithms with sound state
+representations through encapsulation of manifolds" (Information Fusion 14), with the angle
+by ``atan2`` of the sine and cosine parts as in the ``S^3`` / ``SO(3)`` Log of Sola, Deray &
+Atchuthan 2018, "A micro Lie theory for state estimation in robotics".
+So ``|e| = theta`` exactly at any angle: the per-axis sigma is the angular noise in radians,
+and ``-u_meas`` is the farthest point (``|e| = pi``), unlike the tangent-plane projection
+``B u_pred`` (``|e| = sin theta``), which is zero for ``u_pred = -u_meas`` too. For small
+errors ``e = t (1 + s^2/6 + ...)``: the two agree to second order. (Three components of a
+unit-vector difference would be rank-deficient.) ``B`` depends on the measurement only:
+every residual takes an optional precomputed ``B`` (N, 2, 3), which the single-epoch GTSAM
+adapters compute once per factor; ``u_meas`` is taken as ``b1 x b2``.
+
+Jacobian of the log map with respect to the predicted direction (derivation, unit
+``u_pred``): with ``dt = B du``, ``dn = u_meas^T du``, ``ds = t^T dt / s`` and
+``d theta = n ds - s dn`` (derivative of ``atan2(s, n)`` where ``s^2 + n^2 = 1``),
+``de = f dt + t df``, ``df = (d theta - f ds)/s``, hence
+
+    J_u = de/du_pred = f B - g t t^T B - t u_meas^T,   g = (f - n)/s^2.
+
+``J_u u_pred = t (f - g s^2 - n) = 0``: the residual depends on the direction of ``u_pred``
+only (the kernel normalizes ``u_pred`` first, so for a length ``rho`` the Jacobian is
+``J_u/rho``). For ``s < 1e-6`` and ``n > 0`` the series ``f = 1 + s^2/6``,
+``g = 2/3 + s^2/5`` (from ``theta/sin theta = 1 + theta^2/6 + 7 theta^4/360``) replace the
+quotients (error < 1e-24). Near the antipode (``s < 1e-6``, ``n < 0``: the cut locus, where
+the log map is not differentiable) the residual keeps ``e = theta t/s`` (``t/s = (1, 0)``,
+i.e. along ``b1``, when ``s = 0`` exactly), magnitude ``~pi``, and the Jacobian keeps only
+the derivative of the angle, ``(t/s)(n t^T B/s - s u_meas^T)``, dropping the tangential part
+``f (I - t t^T/s^2) B`` that grows like ``pi/s``: finite, never NaN.
+
+Jacobian chain into the states (each link tested): ``d(r/|r|)/dr = (I - u u^T)/|r|``; for a
+right perturbation ``R <- R Exp(w)`` of ``R_eci_from_body``, ``d(R^T v)/dw = skew(R^T v)``
+(since ``Exp(-w) R^T v ~ R^T v - w x R^T v``).
+
+One definition: the numba kernel :func:`sphere_log_kernel` computes ``(e, J_u)`` for one
+measurement; the vectorized numpy residuals and the per-factor kernel
+:func:`earth_direction_kernel` (GTSAM adapter and the numba EKF) all call it.
 """
 
 from __future__ import annotations
@@ -29,14 +66,104 @@ from factors.geometry import skew, tangent_basis, unit_and_jacobian
 __all__ = [
     "earth_direction_residual", "body_direction_residual", "star_direction_residual",
     "make_earth_direction_factor", "make_body_direction_factor", "make_star_direction_factor",
+    "sphere_log", "sphere_log_kernel", "SERIES_BELOW",
 ]
+
+SERIES_BELOW = 1e-6
+"""``s = |B u_pred|`` below which the series (``n > 0``) or cut-locus (``n < 0``) branch runs."""
+
+
+@njit(cache=True)
+def sphere_log_kernel(B, p0, p1, p2, want_J, e, J):
+    """Log map of the unit sphere at ``u_meas = b1 x b2`` of the direction of ``(p0, p1, p2)``.
+
+    B (2, 3): ``tangent_basis(u_meas)``; ``p = (p0, p1, p2)`` the predicted direction (any
+    non-zero length ``rho``: it is normalized first, so ``e`` depends on its direction only and
+    ``J = J_unit/rho``). Writes ``e`` (2,), rad, and, if want_J, ``J = de/dp`` (2, 3), rad per
+    unit of p (module docstring).
+    """
+    m0 = B[0, 1] * B[1, 2] - B[0, 2] * B[1, 1]
+    m1 = B[0, 2] * B[1, 0] - B[0, 0] * B[1, 2]
+    m2 = B[0, 0] * B[1, 1] - B[0, 1] * B[1, 0]
+    t0 = B[0, 0] * p0 + B[0, 1] * p1 + B[0, 2] * p2
+    t1 = B[1, 0] * p0 + B[1, 1] * p1 + B[1, 2] * p2
+    n = m0 * p0 + m1 * p1 + m2 * p2
+    rho = math.sqrt(t0 * t0 + t1 * t1 + n * n)
+    t0, t1, n = t0 / rho, t1 / rho, n / rho
+    s2 = t0 * t0 + t1 * t1
+    s = math.sqrt(s2)
+    theta = math.atan2(s, n)
+    cut = False
+    if s >= SERIES_BELOW:
+        f = theta / s
+        g = (f - n) / s2
+    elif n > 0.0:
+        f = 1.0 + s2 / 6.0
+        g = 2.0 / 3.0 + s2 / 5.0
+    else:                       # cut locus: e = theta * (unit tangent, b1 when s = 0)
+        cut = True
+        if s > 0.0:
+            t0, t1 = t0 / s, t1 / s
+        else:
+            t0, t1 = 1.0, 0.0
+        f = theta
+        g = 0.0
+    e[0] = f * t0
+    e[1] = f * t1
+    if not want_J:
+        return
+    if cut:
+        # angle part only: t^ (n t^T B - s u_meas^T) with t^ = (t0, t1) unit
+        for j in range(3):
+            tb = t0 * B[0, j] + t1 * B[1, j]
+            mj = m0 if j == 0 else (m1 if j == 1 else m2)
+            d = (n * tb - s * mj) / rho
+            J[0, j] = t0 * d
+            J[1, j] = t1 * d
+        return
+    for j in range(3):
+        tb = t0 * B[0, j] + t1 * B[1, j]
+        mj = m0 if j == 0 else (m1 if j == 1 else m2)
+        J[0, j] = (f * B[0, j] - g * t0 * tb - t0 * mj) / rho
+        J[1, j] = (f * B[1, j] - g * t1 * tb - t1 * mj) / rho
+
+
+@njit(cache=True)
+def _sphere_log_rows(B, P, E, J):
+    for k in range(P.shape[0]):
+        sphere_log_kernel(B[k], P[k, 0], P[k, 1], P[k, 2], True, E[k], J[k])
+
+
+def sphere_log(u_meas, u_pred, B=None):
+    """Vectorized log map of the unit sphere (module docstring): ``e = Log_{u_meas}(u_pred)``.
+
+    Parameters
+    ----------
+    u_meas : (..., 3) measured unit directions (unused when ``B`` is given).
+    u_pred : (..., 3) predicted unit directions.
+    B : (..., 2, 3), optional: ``tangent_basis(u_meas)``, if already computed.
+
+    Returns
+    -------
+    e : (..., 2) rad, ``|e|`` = angle between the two directions, in [0, pi].
+    J : (..., 2, 3) d e / d u_pred, rad per unit.
+    """
+    B = tangent_basis(u_meas) if B is None else np.asarray(B, dtype=float)
+    u_pred = np.asarray(u_pred, dtype=float)
+    lead = np.broadcast_shapes(B.shape[:-2], u_pred.shape[:-1])
+    Bf = np.ascontiguousarray(np.broadcast_to(B, lead + (2, 3))).reshape(-1, 2, 3)
+    Pf = np.ascontiguousarray(np.broadcast_to(u_pred, lead + (3,))).reshape(-1, 3)
+    E = np.empty((len(Pf), 2))
+    J = np.empty((len(Pf), 2, 3))
+    _sphere_log_rows(Bf, Pf, E, J)
+    return E.reshape(lead + (2,)), J.reshape(lead + (2, 3))
 
 
 def earth_direction_residual(r_eci_m, u_meas_eci, B=None):
     """Geocentric direction (spacecraft -> Earth centre) measured in ECI.
 
-    ``u_pred = -r/|r|`` (SPEC 1), ``e = B(u_meas) u_pred``,
-    ``H_r = -B(u_meas) (I - u u^T)/|r|`` with ``u = r/|r|``.
+    ``u_pred = -r/|r|`` (SPEC 1), ``e = Log_{u_meas}(u_pred)`` (:func:`sphere_log`),
+    ``H_r = -J_u (I - u u^T)/|r|`` with ``u = r/|r|``.
 
     Parameters
     ----------
@@ -46,23 +173,21 @@ def earth_direction_residual(r_eci_m, u_meas_eci, B=None):
 
     Returns
     -------
-    e : (N, 2) tangent-plane error, rad (small-angle).
+    e : (N, 2) log-map error, rad (``|e|`` = angle between measured and predicted).
     H_r : (N, 2, 3) d e / d r_eci_m, rad/m.
     """
-    u, J = unit_and_jacobian(r_eci_m)
-    B = tangent_basis(u_meas_eci) if B is None else B
-    e = np.einsum("nij,nj->ni", B, -u)
-    H_r = -(B @ J)
-    return e, H_r
+    u, Jr = unit_and_jacobian(r_eci_m)
+    e, J_u = sphere_log(u_meas_eci, -u, B)
+    return e, -(J_u @ Jr)
 
 
 def body_direction_residual(r_eci_m, R_eci_from_body, p_target_eci_m, u_meas_body, B=None):
     """Direction from the spacecraft to a target at a known ECI position, in the body frame.
 
     ``d = p - r``, ``u_pred_body = R^T d/|d|`` (parallax included; Earth: p = 0; Moon/Sun:
-    ephemeris position), ``e = B(u_meas_body) u_pred_body``.
-    ``H_r = -B R^T (I - w w^T)/|d|`` with ``w = d/|d|``;
-    ``H_R = B skew(u_pred_body)`` (right perturbation of ``R_eci_from_body``).
+    ephemeris position), ``e = Log_{u_meas_body}(u_pred_body)`` (:func:`sphere_log`).
+    ``H_r = -J_u R^T (I - w w^T)/|d|`` with ``w = d/|d|``;
+    ``H_R = J_u skew(u_pred_body)`` (right perturbation of ``R_eci_from_body``).
 
     Parameters
     ----------
@@ -78,20 +203,20 @@ def body_direction_residual(r_eci_m, R_eci_from_body, p_target_eci_m, u_meas_bod
     """
     R = np.asarray(R_eci_from_body, dtype=float)
     d = np.asarray(p_target_eci_m, dtype=float) - np.asarray(r_eci_m, dtype=float)
-    w, J = unit_and_jacobian(d)
+    w, Jd = unit_and_jacobian(d)
     Rt = np.swapaxes(R, -1, -2)
     u_pred = np.einsum("nij,nj->ni", Rt, w)
-    B = tangent_basis(u_meas_body) if B is None else B
-    e = np.einsum("nij,nj->ni", B, u_pred)
-    H_r = -(B @ Rt @ J)
-    H_R = B @ skew(u_pred)
+    e, J_u = sphere_log(u_meas_body, u_pred, B)
+    H_r = -(J_u @ Rt @ Jd)
+    H_R = J_u @ skew(u_pred)
     return e, H_r, H_R
 
 
 def star_direction_residual(R_eci_from_body, s_eci, u_meas_body, B=None):
     """Direction at infinity (a star, or the Sun without parallax): attitude only.
 
-    ``u_pred_body = R^T s``, ``e = B(u_meas_body) u_pred_body``, ``H_R = B skew(u_pred_body)``.
+    ``u_pred_body = R^T s``, ``e = Log_{u_meas_body}(u_pred_body)`` (:func:`sphere_log`),
+    ``H_R = J_u skew(u_pred_body)``.
 
     Parameters
     ----------
@@ -107,9 +232,8 @@ def star_direction_residual(R_eci_from_body, s_eci, u_meas_body, B=None):
     s = np.asarray(s_eci, dtype=float)
     s = s / np.linalg.norm(s, axis=-1, keepdims=True)
     u_pred = np.einsum("nji,nj->ni", R, s)
-    B = tangent_basis(u_meas_body) if B is None else B
-    e = np.einsum("nij,nj->ni", B, u_pred)
-    return e, B @ skew(u_pred)
+    e, J_u = sphere_log(u_meas_body, u_pred, B)
+    return e, J_u @ skew(u_pred)
 
 
 # --- GTSAM CustomFactor adapters (one epoch each) -------------------------------------
@@ -119,17 +243,18 @@ def earth_direction_kernel(x, B, want_H, e, H):
     """One epoch of :func:`earth_direction_residual`, written out for the per-factor route.
 
     x (>= 3,): state, position first; B (2, 3): ``tangent_basis(u_meas)``. Writes
-    ``e = -B r/|r|`` into e (2,) and, if want_H, ``H = [-B (I - u u^T)/|r|, 0]`` into H (2, 6).
+    ``e = Log_{u_meas}(-r/|r|)`` into e (2,) (:func:`sphere_log_kernel`) and, if want_H,
+    ``H = [-J_u (I - u u^T)/|r|, 0]`` into H (2, 6).
     """
     n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
     u0, u1, u2 = x[0] / n, x[1] / n, x[2] / n
-    for i in range(2):
-        bu = B[i, 0] * u0 + B[i, 1] * u1 + B[i, 2] * u2
-        e[i] = -bu
-        if want_H:
-            H[i, 0] = -(B[i, 0] - bu * u0) / n
-            H[i, 1] = -(B[i, 1] - bu * u1) / n
-            H[i, 2] = -(B[i, 2] - bu * u2) / n
+    sphere_log_kernel(B, -u0, -u1, -u2, want_H, e, H)   # J_u into H[:, :3]
+    if want_H:
+        for i in range(2):
+            ju = H[i, 0] * u0 + H[i, 1] * u1 + H[i, 2] * u2
+            H[i, 0] = -(H[i, 0] - ju * u0) / n
+            H[i, 1] = -(H[i, 1] - ju * u1) / n
+            H[i, 2] = -(H[i, 2] - ju * u2) / n
             for j in range(3, H.shape[1]):
                 H[i, j] = 0.0
 

@@ -72,7 +72,7 @@ def tangent_basis(u):
     -------
     B : ndarray, shape (..., 2, 3)
         Rows ``b1``, ``b2``: orthonormal and orthogonal to ``u``. A direction residual is
-        ``e = B(u_meas) @ u_pred`` (2 components, radians for small errors).
+        the log map written in this basis (``factors.direction.sphere_log``).
     """
     u = np.asarray(u, dtype=float)
     u = u / np.linalg.norm(u, axis=-1, keepdims=True)

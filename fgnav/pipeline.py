@@ -178,9 +178,21 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     if "initial_orbit" in sol.extras:
         s["initial_orbit"] = sol.extras["initial_orbit"]
     for k, v in sol.extras.items():
-        if isinstance(v, (int, float, str, bool, list)):
+        if _is_plain(v):
             s.setdefault(k, v)
+    from fgnav.integrity import assess
+    s["integrity"] = assess(sol, p, options.motion_model())
     return s
+
+
+def _is_plain(v) -> bool:
+    """A value summary.json takes as it is: numbers, strings, lists and dicts of them
+    (per-row arrays such as ``row_weights`` stay out)."""
+    if isinstance(v, dict):
+        return all(_is_plain(x) for x in v.values())
+    if isinstance(v, list):
+        return all(_is_plain(x) for x in v)
+    return isinstance(v, (int, float, str, bool)) or v is None
 
 
 def residual_times(res: SmoothResult, p: Pass) -> dict:

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.constants import DEG, R_LIMB_SEED_M
+from factors.direction import sphere_log
 from factors.geometry import tangent_basis
 
 __all__ = [
@@ -131,7 +132,7 @@ def _stats(truth, fixes):
     B = tangent_basis(truth["u_cam"])
     z = []
     for f in ok:
-        e = B @ f.u_cam
+        e, _ = sphere_log(truth["u_cam"], f.u_cam, B)   # angle error on the tangent basis
         P = B @ f.cov_u @ B.T
         L = np.linalg.cholesky(P)
         z.append(np.linalg.solve(L, e))

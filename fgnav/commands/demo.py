@@ -56,16 +56,18 @@ def run(args) -> int:
             log_solution(args.rerun, sol, truth_x_eci=x_true)
     print()
     head = (f"{'method':<10} {'pos RMS m':>10} {'vel RMS m/s':>12} {'final pos m':>12} "
-            f"{'final vel m/s':>13} {'sigma_r RMS m':>13} {'NEES':>7} {'wall s':>7}")
+            f"{'final vel m/s':>13} {'sigma_r RMS m':>13} {'NEES':>7} {'wall s':>7} {'integrity':>9}")
     print(head)
     print("-" * len(head))
     for s in rows:
         print(f"{s['method']:<10} {s['position_rms_m']:>10.1f} {s['velocity_rms_mps']:>12.4f} "
               f"{s['final_position_error_m']:>12.1f} {s['final_velocity_error_mps']:>13.4f} "
-              f"{s['sigma_position_rms_m']:>13.1f} {s['nees_mean']:>7.2f} {s['wall_s']:>7.2f}")
+              f"{s['sigma_position_rms_m']:>13.1f} {s['nees_mean']:>7.2f} {s['wall_s']:>7.2f} "
+              f"{s['integrity']['status']:>9}")
     print(f"{'CRB':<10} {crb['crb_position_rms_m']:>10.1f} {crb['crb_velocity_rms_mps']:>12.4f} "
           f"{crb['crb_final_position_m']:>12.1f} {crb['crb_final_velocity_mps']:>13.4f}")
     print("\nRMS over the pass against truth from an independent DOP853 integrator; NEES is the "
           "mean over epochs (6 expected);\nthe EKF row is the filtered (causal) estimate, the "
-          "smoothers use all the data. Seed 002's EKF ended at 1.23 km / 0.17 m/s (10 Hz).")
+          "smoothers use all the data. Seed 002's EKF ended at 1.23 km / 0.17 m/s (10 Hz).\n"
+          "integrity: the verdict from the data alone (summary.json 'integrity'; README, Integrity).")
     return 0

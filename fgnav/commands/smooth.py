@@ -48,7 +48,10 @@ def register(sub):
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--truth", help="truth OEM: adds errors and NEES to summary.json")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
-    p.add_argument("--quiet", action="store_true", help="print nothing but errors")
+    p.add_argument("--quiet", action="store_true", help="print nothing but errors and the "
+                                                         "integrity warning")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 3 when the integrity verdict is not 'ok' (outputs are written)")
     p.add_argument("--checkpoint", metavar="FILE.npz",
                    help="isam2: save the online state every --checkpoint-every epochs")
     p.add_argument("--checkpoint-every", type=int, default=100, metavar="N",
@@ -101,8 +104,16 @@ def run(args) -> int:
         from fgnav.viz.rerun_log import log_solution
         log_solution(args.rerun, res.solution, truth_x_eci=res.x_true,
                      measurements=read_measurements(args.log), residual_t_s=residual_times(res, p))
+    integrity = res.summary["integrity"]
     if not args.quiet:
         keys = ["method", "epochs", "iterations", "wall_s", "crb_position_rms_m", "position_rms_m",
                 "velocity_rms_mps", "nees_mean"]
-        print(json.dumps({k: res.summary[k] for k in keys if k in res.summary}, indent=1))
-    return 0
+        brief = {k: res.summary[k] for k in keys if k in res.summary}
+        brief["integrity"] = integrity["status"]
+        print(json.dumps(brief, indent=1))
+    from fgnav.integrity import stderr_line
+    line = stderr_line(integrity)
+    if line:
+        import sys
+        print(line, file=sys.stderr)
+    return 3 if args.strict and integrity["status"] != "ok" else 0

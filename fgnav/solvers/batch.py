@@ -260,6 +260,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                             "q_stages": q_stages, "chi2_measurements": lin.chi2_meas,
                             "chi2_motion": lin.chi2_motion,
                             "n_measurement_rows": int(sum(v.size for v in lin.residuals.values())),
+                            "row_weights": lin.weights,
                             **robust_counts(options, lin.weights)})
 
 

@@ -39,6 +39,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     eye6 = np.eye(6)
     residuals: dict[str, np.ndarray] = {}  # innovations, whitened, in family row order
     rejected: dict[str, int] = {}
+    weights: dict[str, np.ndarray] = {}  # kind -> (M,) 0 where the gate rejected the row
     for k in range(N):
         t_k0 = time.perf_counter()
         if k > 0:
@@ -63,6 +64,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     ok, S = passes_gate(A, b, P, options.gate_probability)
                     if not ok:
                         rejected[kind] = rejected.get(kind, 0) + 1
+                        weights.setdefault(kind, np.ones(len(fam)))[j] = 0.0
                         continue
                 else:
                     S = A @ P @ A.T + np.eye(len(b))
@@ -82,6 +84,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     wall_s=wall, residuals=res, online_x_eci=xs.copy(), online_P_eci=Ps.copy(),
                     latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3, "residuals_are": "innovations (prior)",
-                            **({"gate_probability": options.gate_probability, "rejected": rejected}
+                            **({"gate_probability": options.gate_probability, "rejected": rejected,
+                                "row_weights": weights}
                                if options.gate_probability is not None else {}),
                             "latency_p50_s": float(np.median(latency))})

@@ -16,9 +16,11 @@ Residuals ``e`` and Jacobians ``H`` (position block; velocity columns zero):
 
 * ``prior_position`` / ``prior_velocity``: ``e = x[0:3] - xyz`` / ``x[3:6] - xyz``,
   ``H = [I 0]`` / ``[0 I]`` (skipped at epoch 0, where the initial state is the prior);
-* ``earth_direction`` (``factors.direction.earth_direction_residual``):
-  ``e = B(u_meas) (-r/|r|)``, ``H_r = -B (I - u u^T)/|r|``, ``B = tangent_basis(u_meas)``
-  (``factors.geometry``; precomputed once per row with the same numpy function);
+* ``earth_direction`` (``factors.direction.earth_direction_residual``): the log map of the
+  unit sphere at ``u_meas``, ``e = Log_{u_meas}(-r/|r|)`` (``|e|`` = angle, ``-u_meas`` the
+  farthest point), ``H_r = -J_u (I - u u^T)/|r|``, computed by the same numba kernel the
+  numpy residual calls (``factors.direction.earth_direction_kernel``), with
+  ``B = tangent_basis(u_meas)`` (``factors.geometry``) precomputed once per row;
 * ``limb_radius`` (``factors.limb``): ``e = arcsin(R_limb/|r|) - rho``,
   ``H_r = -R_limb / (|r| sqrt(|r|^2 - R_limb^2)) r^T/|r|``;
 * ``altitude`` (``factors.altimeter``): ``e = |r| - r_ref - h``, ``H_r = r^T/|r|``.

@@ -243,6 +243,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                             **({"gate_probability": gate,
                                 "rejected": {kind: int(m.sum()) for kind, m in rejected_rows.items()
                                              if m.any()}} if gate else {}),
+                            "row_weights": {kind: np.where(rejected_rows[kind], 0.0, w)
+                                            if kind in rejected_rows else w
+                                            for kind, w in lin.weights.items()},
                             **robust_counts(options, lin.weights)})
 
 

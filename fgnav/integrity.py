@@ -1,0 +1,465 @@
+"""Integrity of a solution: does its covariance tell the truth, or must the user be warned?
+
+A solver always returns numbers; this module decides, from the data alone (no truth), whether
+they deserve trust. Every test compares a statistic of the solution with its distribution
+under the hypothesis that the log and the models are right (Bar-Shalom, Li & Kirubarajan
+2001, ch. 5.4, consistency tests; Teunissen 1990, detection-identification-adaptation):
+
+* **measurement families**: the sum of squared whitened residuals of a family against the
+  chi-square distribution of its dimension (post-fit residuals of a smoother have fewer
+  degrees of freedom than rows, so the test is conservative; an EKF's innovations are
+  normalized by their own covariance ``A P A^T + I`` before the test);
+* **motion**: the chi-square of the process-noise rows; large when a force or a manoeuvre
+  is missing from the model (the smoother bends the orbit through the process noise);
+* **prior**: the Mahalanobis distance of the solution from the log's prior, chi-square with
+  6 degrees of freedom per prior epoch, and the initial orbit's verdict on the prior
+  (:mod:`fgnav.initial_orbit`);
+* **residual runs**: the largest windowed mean of whitened residuals in time order, over
+  windows of 4 to 4,096 measurements, against a Bonferroni threshold for all the windows
+  tested (a bias or an unmodelled force shows as a run of same-signed residuals that a
+  chi-square over the whole pass dilutes);
+* **rejections**: the fraction of each family a robust kernel or a gate threw away; beyond
+  :data:`MAX_REJECTED_FRACTION` the answer is not the data's;
+* **observability**: the weakest direction of the position covariance.
+
+The verdict is ``ok``, ``suspect`` (a statistic beyond its 1 - 1e-6 quantile but with
+covariances at most ~1.5x optimistic in sigma) or ``failed`` (a contradiction that makes the
+covariance untrustworthy: a chi-square more than :data:`FAILED_NORMALIZED_CHI2` times its
+expectation, a robust solve that rejected too much, a prior the data refute, no
+convergence, non-finite numbers).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+PRIOR_KINDS = ("prior_position", "prior_velocity")
+
+FALSE_ALARM_PROBABILITY = 1e-6
+"""Per-test probability of calling a consistent statistic inconsistent."""
+SUSPECT_NORMALIZED_CHI2 = 1.5
+"""chi2/dof above which (and beyond the quantile) a family is suspect: sigmas ~1.2x optimistic."""
+FAILED_NORMALIZED_CHI2 = 4.0
+"""chi2/dof above which a family fails: its sigma is at least 2x optimistic."""
+MAX_REJECTED_FRACTION = 0.25
+"""A robust kernel or gate that rejects more than this fraction of a family fails the run."""
+RUN_WINDOWS = (4, 16, 64, 256, 1024, 4096)
+RUN_FALSE_ALARM = 1e-4
+"""Family-wise false-alarm probability of the residual-run test (Bonferroni over windows)."""
+THIRD_BODY_NEES = 24.0
+"""Mean NEES of the error an omitted Sun/Moon gravity causes above which the run is suspect:
+the omission moves the solution by more than twice its own sigma (RMS over the pass).
+Above a quarter of it the summary notes it."""
+WEAK_POSITION_FRACTION = 0.1
+"""A position sigma above this fraction of the orbit radius means the orbit is not determined."""
+
+ADVICE = {
+    "outliers": "try --robust cauchy, or check the sigma column of that family",
+    "force": "try --third-body, a larger --process-noise, or check for a manoeuvre in the pass",
+    "prior": "give a better prior, or --ignore-prior to start from the measurements alone",
+    "converge": "give a better prior or --ignore-prior; --process-noise helps a poor first guess",
+    "rejected": "the model or the first guess is wrong for this family: check its sigma and "
+                "units, or try --ignore-prior",
+    "observability": "add measurements (limb, altitude) or a longer pass",
+    "third_body": "try --third-body",
+}
+
+
+def _chi2_test(chi2: float, dof: int) -> dict:
+    """chi2 of ``dof`` whitened components: normalized value and the log10 of its tail
+    probability under the chi-square distribution (``-inf`` for an impossible value)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    dof = max(int(dof), 1)
+    logsf = float(chi2_dist.logsf(chi2, dof)) if math.isfinite(chi2) else -math.inf
+    return {"chi2": float(chi2), "dof": dof, "normalized": float(chi2) / dof,
+            "log10_p": logsf / math.log(10.0)}
+
+
+def _severity(test: dict) -> str:
+    """ok / suspect / failed for a chi-square test (see the module docstring)."""
+    if not math.isfinite(test["chi2"]):
+        return "failed"
+    beyond = test["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY)
+    if beyond and test["normalized"] > FAILED_NORMALIZED_CHI2:
+        return "failed"
+    if beyond and test["normalized"] > SUSPECT_NORMALIZED_CHI2:
+        return "suspect"
+    return "ok"
+
+
+def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | None:
+    """The largest windowed mean of whitened residuals ``r`` (M, m) in time order.
+
+    For each window of ``w`` consecutive rows and each component, ``z = sum(r) / sqrt(w)``
+    is N(0, 1) for white unit residuals. Returns the largest ``|z|``, where it is, and the
+    Bonferroni threshold for the number of windows tested (family-wise false-alarm
+    probability :data:`RUN_FALSE_ALARM`).
+    """
+    from scipy.stats import norm
+
+    r = np.asarray(r, dtype=float)
+    ok = np.all(np.isfinite(r), axis=1)
+    r, t = r[ok], np.asarray(t_s, dtype=float)[ok]
+    M = len(r)
+    if M < windows[0]:
+        return None
+    order = np.argsort(t, kind="stable")
+    r, t = r[order], t[order]
+    c = np.vstack([np.zeros((1, r.shape[1])), np.cumsum(r, axis=0)])
+    best = (0.0, 0, 0, 0)
+    n_tests = 0
+    for w in windows:
+        if w > M:
+            break
+        z = (c[w:] - c[:-w]) / math.sqrt(w)
+        n_tests += z.size
+        i, j = np.unravel_index(int(np.argmax(np.abs(z))), z.shape)
+        if abs(z[i, j]) > abs(best[0]):
+            best = (float(z[i, j]), int(i), int(w), int(j))
+    z, i, w, j = best
+    threshold = float(norm.isf(RUN_FALSE_ALARM / (2.0 * max(n_tests, 1))))
+    return {"z": z, "threshold": threshold, "window": w, "component": j,
+            "t_start_s": float(t[i]), "t_end_s": float(t[i + w - 1])}
+
+
+def weakest_direction(x_eci: np.ndarray, P_eci: np.ndarray) -> dict:
+    """The largest position sigma over the pass and its ECI axis (eigenvector of P_rr)."""
+    P_rr = np.asarray(P_eci)[:, :3, :3]
+    ok = np.all(np.isfinite(P_rr), axis=(1, 2))
+    if not ok.any():
+        return {"sigma_m": math.inf}
+    idx = np.flatnonzero(ok)
+    lam, vec = np.linalg.eigh(0.5 * (P_rr[idx] + np.swapaxes(P_rr[idx], 1, 2)))
+    k = int(np.argmax(lam[:, -1]))
+    sigma = float(np.sqrt(max(lam[k, -1], 0.0)))
+    return {"sigma_m": sigma, "epoch_index": int(idx[k]), "axis_eci": vec[k, :, -1].tolist(),
+            "radius_m": float(np.linalg.norm(x_eci[idx[k], :3]))}
+
+
+def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> dict:
+    """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring).
+
+    ``model``: the :class:`factors.dynamics.MotionModel` of the solve (enables the
+    manoeuvre and omitted-force tests). ``normalized_residuals``: kind -> (M, m) residuals that are N(0, I) when the model is
+    right, if they differ from ``sol.residuals`` (an EKF's innovations normalized by their
+    covariance). Returns the ``"integrity"`` object of summary.json.
+    """
+    reasons: list[tuple[str, str, str]] = []  # (severity, text, advice key)
+    notes: list[str] = []
+    res = normalized_residuals
+    if res is None and sol.method == "ekf" and model is not None:
+        res = filter_normalized_innovations(p, sol, model)
+    if res is None:
+        res = sol.residuals
+    families: dict[str, dict] = {}
+
+    if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))):
+        reasons.append(("failed", "the solution has non-finite states or covariances", "converge"))
+
+    if sol.extras.get("converged") is False:
+        reasons.append(("failed", f"the {sol.method} solver did not converge in "
+                                  f"{sol.iterations} iterations", "converge"))
+
+    row_weights = sol.extras.get("row_weights") or {}
+
+    worst_run = None
+    for kind, r in res.items():
+        if kind in PRIOR_KINDS or kind not in p.families:
+            continue
+        r = np.asarray(r, dtype=float)
+        fam = p.families[kind]
+        keep = np.all(np.isfinite(r), axis=1)
+        w = row_weights.get(kind)
+        n_rej = 0 if w is None else int(np.sum(np.asarray(w) == 0))
+        if w is not None:
+            keep &= np.asarray(w) > 0
+        test = _chi2_test(float(np.sum(r[keep] ** 2)), int(keep.sum() * r.shape[1]))
+        test["rows"] = int(len(fam))
+        test["rejected"] = int(n_rej)
+        test["rejected_fraction"] = n_rej / max(len(fam), 1)
+        sev = _severity(test)
+        test["status"] = sev
+        families[kind] = test
+        if sev != "ok":
+            reasons.append((sev, f"{kind}: chi2/dof = {test['normalized']:.3g} over {test['dof']} "
+                                 f"components (expected ~1)", "outliers"))
+        if test["rejected_fraction"] > MAX_REJECTED_FRACTION:
+            reasons.append(("failed", f"{kind}: {n_rej} of {len(fam)} measurements rejected "
+                                      f"({100 * test['rejected_fraction']:.0f} % > "
+                                      f"{100 * MAX_REJECTED_FRACTION:.0f} %): the answer is not "
+                                      f"the data's", "rejected"))
+        elif n_rej:
+            notes.append(f"{kind}: {n_rej} of {len(fam)} measurements rejected as outliers")
+        run = largest_run(p.t_s[fam.k][keep], r[keep])
+        if run is not None:
+            run["kind"] = kind
+            test["largest_run"] = run
+            if worst_run is None or abs(run["z"]) / run["threshold"] > \
+                    abs(worst_run["z"]) / worst_run["threshold"]:
+                worst_run = run
+
+    if worst_run is not None and abs(worst_run["z"]) > worst_run["threshold"]:
+        sev = "failed" if abs(worst_run["z"]) > 2.0 * worst_run["threshold"] else "suspect"
+        reasons.append((sev, f"{worst_run['kind']}: a run of {worst_run['window']} residuals "
+                             f"({worst_run['t_start_s']:.0f}-{worst_run['t_end_s']:.0f} s) with mean "
+                             f"{worst_run['z'] / math.sqrt(worst_run['window']):+.2g} sigma (z = "
+                             f"{worst_run['z']:+.1f}, threshold {worst_run['threshold']:.1f}): "
+                             f"a bias or an unmodelled force", "force"))
+
+    motion = None
+    chi2_motion = sol.extras.get("chi2_motion")
+    if chi2_motion is not None and p.n_epochs > 1:
+        motion = _chi2_test(float(chi2_motion), 6 * (p.n_epochs - 1))
+        sev = "failed" if motion["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY) and \
+            motion["normalized"] > FAILED_NORMALIZED_CHI2 else \
+            "suspect" if motion["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY) else "ok"
+        motion["status"] = sev
+        if sev != "ok":
+            reasons.append((sev, f"motion: chi2/dof = {motion['normalized']:.3g} over "
+                                 f"{motion['dof']} process-noise components: the orbit bends "
+                                 f"away from the motion model", "force"))
+
+    prior = None
+    pr = [np.asarray(res[k], dtype=float) for k in PRIOR_KINDS if k in res and k in sol.residuals]
+    if pr and sol.method != "ekf":
+        m2 = float(sum(np.nansum(r * r) for r in pr))
+        prior = _chi2_test(m2, sum(r.size for r in pr))
+        prior["mahalanobis"] = math.sqrt(m2) if math.isfinite(m2) else math.inf
+        beyond = prior["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY)
+        prior["status"] = ("failed" if beyond and prior["normalized"] > FAILED_NORMALIZED_CHI2 ** 2
+                           else "suspect" if beyond else "ok")
+        if prior["status"] != "ok":
+            reasons.append((prior["status"], f"the prior is {prior['mahalanobis']:.3g} sigma "
+                                             f"(Mahalanobis) from the solution", "prior"))
+    iod = sol.extras.get("initial_orbit")
+    if isinstance(iod, dict) and iod.get("prior_consistent") is False:
+        reasons.append(("failed", f"the log's prior contradicts the measurements: "
+                                  f"{iod.get('prior_mahalanobis', math.nan):.3g} sigma from the "
+                                  f"orbit determined from the data alone", "prior"))
+
+    glr = third = None
+    finite = np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))
+    if model is not None and finite and p.n_epochs >= 8:
+        try:
+            mapped = _Mapped(p, sol, model, row_weights)
+        except (np.linalg.LinAlgError, ValueError):
+            mapped = None
+        if mapped is not None:
+            glr = manoeuvre_glr(mapped)
+            third = third_body_sensitivity(mapped, sol, model)
+    if glr is not None and glr["glr"] > glr["threshold"]:
+        glr["t_s"] = float(p.t_s[glr["epoch_index"]])
+        reasons.append(("failed" if glr["glr"] > 4.0 * glr["threshold"] else "suspect",
+                        f"the residuals ask for a manoeuvre of the orbit near t = {glr['t_s']:.0f} s "
+                        f"(likelihood ratio {glr['glr']:.3g} > {glr['threshold']:.3g})", "force"))
+    if third is not None and third["mean_nees"] > 0.25 * THIRD_BODY_NEES:
+        text = (f"the motion model omits Sun and Moon gravity ({third['max_accel_mps2']:.2g} "
+                f"m/s^2 here), which moves this solution by ~{third['position_rms_m']:.3g} m RMS "
+                f"({math.sqrt(third['mean_nees'] / 6):.2g} sigma)")
+        if third["mean_nees"] > THIRD_BODY_NEES:
+            reasons.append(("suspect", text, "third_body"))
+        else:
+            notes.append(text + "; --third-body if the spacecraft feels them")
+
+    weak = weakest_direction(sol.x_eci, sol.P_eci)
+    if weak.get("sigma_m", 0.0) > WEAK_POSITION_FRACTION * weak.get("radius_m", math.inf):
+        reasons.append(("suspect", f"the position is barely observable: sigma "
+                                   f"{weak['sigma_m'] / 1e3:.3g} km along "
+                                   f"{np.round(weak['axis_eci'], 3).tolist()} (ECI)",
+                        "observability"))
+
+    order = {"ok": 0, "suspect": 1, "failed": 2}
+    status = max((s for s, _, _ in reasons), key=order.get, default="ok")
+    advice = []
+    for _, _, key in sorted(reasons, key=lambda x: -order[x[0]]):
+        if ADVICE[key] not in advice:
+            advice.append(ADVICE[key])
+    out = {"status": status, "reasons": [t for _, t, _ in sorted(reasons, key=lambda x: -order[x[0]])],
+           "advice": advice, "notes": notes, "families": families,
+           "weakest_direction": weak}
+    if motion is not None:
+        out["motion"] = motion
+    if prior is not None:
+        out["prior"] = prior
+    if worst_run is not None:
+        out["largest_run"] = worst_run
+    if glr is not None:
+        out["manoeuvre_glr"] = glr
+    if third is not None:
+        out["third_body_omitted"] = third
+    return out
+
+
+def stderr_line(integrity: dict) -> str | None:
+    """One line for stderr when the verdict is not ``ok``: what is wrong, what to try."""
+    if integrity["status"] == "ok":
+        return None
+    first = integrity["reasons"][0] if integrity["reasons"] else "see summary.json"
+    more = len(integrity["reasons"]) - 1
+    tail = f" (+{more} more in summary.json)" if more > 0 else ""
+    advice = f"; {integrity['advice'][0]}" if integrity["advice"] else ""
+    return f"fgnav: integrity {integrity['status']}: {first}{tail}{advice}"
+
+
+# ---- tests of the motion model along the solution (linearized, deterministic dynamics) --
+
+class _Mapped:
+    """Every whitened measurement row mapped to the first state: ``H_j = a_j^T Phi(t_k, t_0)``.
+
+    With deterministic dynamics the pass is a linear model in the first state ``dx_0``; the
+    columns are scaled to unit norm (``dx_0 = s * dz``) so the 6x6 algebra is well
+    conditioned whatever the units.
+    """
+
+    def __init__(self, p, sol, model, row_weights=None):
+        from factors.dynamics import propagate_many
+        from fgnav.analysis.crb import cumulative_stm
+        from fgnav.graph import linearize_all
+        from fgnav.time import j2000_seconds
+
+        X = sol.x_eci
+        self.t0_j2000_s = float(j2000_seconds(p.epoch0))
+        _, Phi = propagate_many(X[:-1], np.diff(p.t_s), model, self.t0_j2000_s + p.t_s[:-1])
+        self.Phik = cumulative_stm(Phi)
+        rejected = {k: np.asarray(w) == 0 for k, w in (row_weights or {}).items()
+                    if k not in PRIOR_KINDS}
+        rows = linearize_all(p, X, None, rejected or None)
+        live = np.any(rows.A != 0, axis=1)
+        H = np.einsum("ri,rij->rj", rows.A[live], self.Phik[rows.k[live]])
+        norm = np.sqrt(np.sum(H * H, axis=0))
+        self.s = 1.0 / np.where(norm > 0, norm, 1.0)
+        self.H = H * self.s
+        self.b = rows.b[live]
+        self.k = rows.k[live]
+        self.J = self.H.T @ self.H
+        self.N = p.n_epochs
+
+
+def manoeuvre_glr(m: _Mapped) -> dict | None:
+    """Generalized likelihood ratio for an impulsive manoeuvre ``dv`` (3,) at each epoch.
+
+    A ``dv`` at ``tau`` adds the columns ``H_j Phi(t_0, tau) [0; I]`` to the rows after
+    ``tau`` (Willsky & Jones 1976). With ``h_tau = sum_{t_j >= tau} H_j^T b_j`` and
+    ``J_tau = sum_{t_j >= tau} H_j^T H_j`` the chi-square reduction it buys is
+    ``u^T M^+ u``, ``u = C^T (h_tau - J_tau J^-1 h)``, ``M = C^T (J_tau - J_tau J^-1 J_tau) C``,
+    ``C = Phi(t_k, t_0)^-1 [0; I]``: chi-square with 3 degrees of freedom without a
+    manoeuvre; the largest over the epochs is tested against the Bonferroni threshold.
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    N = m.N
+    if N < 8 or len(m.b) < 12:
+        return None
+    hk = np.zeros((N, 6))
+    Jk = np.zeros((N, 6, 6))
+    np.add.at(hk, m.k, m.H * m.b[:, None])
+    np.add.at(Jk, m.k, m.H[:, :, None] * m.H[:, None, :])
+    h_tau = np.cumsum(hk[::-1], axis=0)[::-1]
+    J_tau = np.cumsum(Jk[::-1], axis=0)[::-1]
+    try:
+        Jinv = np.linalg.inv(m.J)
+        C = np.linalg.solve(m.Phik, np.broadcast_to(np.eye(6)[:, 3:], (N, 6, 3))) / m.s[None, :, None]
+    except np.linalg.LinAlgError:
+        return None
+    h = h_tau[0]
+    u = np.einsum("kij,ki->kj", C, h_tau - J_tau @ (Jinv @ h))
+    Mt = J_tau - J_tau @ Jinv @ J_tau
+    M = np.einsum("kij,kil,klm->kjm", C, Mt, C)
+    # u^T M^+ u by eigen-decomposition (M is singular where no row follows the epoch)
+    w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
+    keep = w > 1e-9 * np.maximum(w[:, -1:], 1e-300)
+    proj = np.einsum("kij,ki->kj", V, u)
+    stat = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
+    stat[[0, -1]] = 0.0  # a manoeuvre before the first or after the last row is no test
+    k = int(np.argmax(stat))
+    threshold = float(chi2_dist.isf(RUN_FALSE_ALARM / max(N - 2, 1), 3))
+    return {"glr": float(stat[k]), "threshold": threshold, "epoch_index": k}
+
+
+def third_body_sensitivity(m: _Mapped, sol, model) -> dict | None:
+    """How far the omitted Sun and Moon gravity moves the solution (consider analysis).
+
+    The omitted acceleration ``a_3b(t)`` displaces the trajectory by
+    ``dx(t_k) = sum_s Phi(t_k, t_s) [0; a_3b(t_s)] dt`` (linear response along the solution);
+    the least-squares fit absorbs part of it through the first state,
+    ``dx_0 = -J^-1 H^T (A dx)``; what remains, ``e_k = dx(t_k) + Phi_k dx_0``, is the error
+    the omission causes (Tapley, Schutz & Born 2004, ch. 6, consider covariance). Returned as
+    its mean Mahalanobis size against the solution's covariances.
+    """
+    from factors.dynamics import accel_third_body
+    from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+
+    if model.third_body or m.N < 3:
+        return None
+    t = sol.t_s
+    tj = m.t0_j2000_s + t
+    r = sol.x_eci[:, :3]
+    a = (accel_third_body(r, sun_position_eci_m(tj), model.mu_sun) +
+         accel_third_body(r, moon_position_eci_m(tj), model.mu_moon))
+    # dx(t_k) = Phi_k sum_{s<k} Phi_s^-1 [0; a_s] dt_s  (rectangle rule per step)
+    dt = np.diff(t)
+    try:
+        g = np.linalg.solve(m.Phik[:-1], np.concatenate([np.zeros((m.N - 1, 3)), a[:-1]], axis=1)
+                            [..., None])[..., 0] * dt[:, None]
+    except np.linalg.LinAlgError:
+        return None
+    z = np.vstack([np.zeros((1, 6)), np.cumsum(g, axis=0)])      # Phi_k^-1 dx(t_k)
+    # predicted whitened residual change of each row: H_j (unscaled) z_k = (H_j / s) z_k
+    db = np.einsum("rj,rj->r", m.H, z[m.k] / m.s[None, :])
+    dz0 = -np.linalg.solve(m.J, m.H.T @ db)
+    e = np.einsum("kij,kj->ki", m.Phik, z + (dz0 * m.s)[None, :])
+    try:
+        nees = np.einsum("ki,ki->k", e, np.linalg.solve(sol.P_eci, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        return None
+    return {"mean_nees": float(np.mean(nees)),
+            "position_rms_m": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
+            "max_accel_mps2": float(np.max(np.linalg.norm(a, axis=1)))}
+
+
+def filter_normalized_innovations(p, sol, model) -> dict:
+    """A filter's innovations normalized by their own covariance, ``S^-1/2 b`` with
+    ``S = A P^- A^T + I`` (whitened rows ``A``), so that they are N(0, I) when the filter is
+    consistent (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.4.1-1, normalized innovation).
+
+    ``P^-_k = Phi_k P_{k-1} Phi_k^T + Q_k`` is rebuilt from the filtered covariances and the
+    measurement Jacobians are taken at the predicted states; rows sharing an epoch all use
+    the epoch's prediction (the sequential updates make the later ones smaller: the test
+    stays conservative). The innovations themselves are the filter's (``sol.residuals``).
+    """
+    from factors.dynamics import process_noise, propagate_many
+    from fgnav.graph import LINEARIZERS
+    from fgnav.measurements import prior_covariance
+    from fgnav.time import j2000_seconds
+
+    X, P = sol.x_eci, sol.P_eci
+    N = p.n_epochs
+    X_pred = X.copy()
+    P_pred = np.empty_like(P)
+    P_pred[0] = prior_covariance(p) if "prior_position" in p.families else P[0]
+    if N > 1:
+        dt = np.diff(p.t_s)
+        X1, Phi = propagate_many(X[:-1], dt, model, float(j2000_seconds(p.epoch0)) + p.t_s[:-1])
+        X_pred[1:] = X1
+        P_pred[1:] = Phi @ P[:-1] @ np.swapaxes(Phi, 1, 2) + process_noise(dt, sol.extras.get(
+            "q_m2_s3", 0.0) or 1e-30)
+    out = {}
+    for kind, r in sol.residuals.items():
+        fn = LINEARIZERS.get(kind)
+        if fn is None or kind in PRIOR_KINDS or kind not in p.families:
+            out[kind] = r
+            continue
+        fam = p.families[kind]
+        _, A, _, _ = fn(fam, X_pred)
+        S = A @ P_pred[fam.k] @ np.swapaxes(A, 1, 2) + np.eye(A.shape[1])
+        b = np.asarray(r, dtype=float)
+        ok = np.all(np.isfinite(b), axis=1)
+        z = np.full_like(b, np.nan)
+        if ok.any():
+            L = np.linalg.cholesky(S[ok])
+            z[ok] = np.linalg.solve(L, b[ok][..., None])[..., 0]
+        out[kind] = z
+    return out
