@@ -53,9 +53,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                         f"or add 'prior_position' and 'prior_velocity' rows.") from exc
     p = start.p
     if method == "batch":
-        if from_data:
+        if start.x_init is not None:
             # The initial orbit is already fitted to the data through the full dynamics:
-            # Gauss-Newton at the requested process noise at once (continuation if that fails).
+            # Gauss-Newton at the requested process noise at once (continuation if that fails:
+            # with a contradicted prior in the graph, a loose process noise would let the
+            # first states bend to the prior).
             from dataclasses import replace
             sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
                                x_init=start.x_init, progress=progress)
@@ -175,8 +177,6 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "source": p.source}
     s.update(crb_metrics(p, sol.x_eci, options))
-    if "initial_orbit" in sol.extras:
-        s["initial_orbit"] = sol.extras["initial_orbit"]
     for k, v in sol.extras.items():
         if _is_plain(v):
             s.setdefault(k, v)
