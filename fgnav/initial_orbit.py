@@ -49,6 +49,10 @@ Method
    ``rms^2`` when that exceeds 1 (a model that does not fit to the noise), so it is
    conservative: the subsample holds only part of the data.
 
+Sessions: the angle must be followed in time, so a gap across which it may have turned by
+more than 2 rad (the angular rate beside the gap times its length) splits the log, and the
+fit uses the longest session (its orbit is then propagated to any other epoch).
+
 Limits: elliptic orbits (e < 0.98); the arc must show curvature in time (a few minutes of
 a LEO pass, tens of minutes higher up) or the problem is not observable from the
 directions alone, which is reported. Refraction rows and body-frame Moon/Sun directions
@@ -104,6 +108,7 @@ class InitialOrbit:
     method : how the start was found, e.g. ``"angles-kepler+lm"`` or ``"gibbs+lm"``.
     n_used : epochs of the subsample the fit used.
     rms_whitened : RMS of the whitened residual rows at the fit (about 1 when it fits).
+    t_span_s : first and last epoch (s from epoch0) of the session the fit used.
     """
 
     k_ref: int
@@ -112,6 +117,7 @@ class InitialOrbit:
     method: str
     n_used: int
     rms_whitened: float
+    t_span_s: tuple[float, float] = (0.0, 0.0)  # first and last epoch (s) of the data used
 
 
 # ------------------------------------------------------------------------- what can start
@@ -199,10 +205,11 @@ def _plane(r_hat):
     return h, p_hat, q_hat, theta
 
 
-def _session(t, r_hat, max_turn_rad=2.0):
-    """The slice of the longest run of directions whose angle can be followed in time: a
-    gap splits the log when the angle it may hide (the faster of the angular rates on its
-    two sides times its length) exceeds ``max_turn_rad`` (unwrapping needs < pi)."""
+def _session(t, r_hat, t_near=None, max_turn_rad=2.0):
+    """The slice of the longest run of directions whose angle can be followed in time (or,
+    with ``t_near``, of the run nearest that time): a gap splits the log when the angle it
+    may hide (the faster of the angular rates on its two sides times its length) exceeds
+    ``max_turn_rad`` (unwrapping needs < pi)."""
     if len(t) < 3:
         return slice(0, len(t))
     dt = np.diff(t)
@@ -213,7 +220,11 @@ def _session(t, r_hat, max_turn_rad=2.0):
     near = np.maximum(np.concatenate([[0.0], rate[:-1]]), np.concatenate([rate[1:], [0.0]]))
     cut = np.flatnonzero(np.maximum(near, rate) * dt > max_turn_rad)
     bounds = np.concatenate([[0], cut + 1, [len(t)]])
-    i = int(np.argmax(np.diff(bounds)))
+    if t_near is None:
+        i = int(np.argmax(np.diff(bounds)))
+    else:
+        first, last = t[bounds[:-1]], t[bounds[1:] - 1]
+        i = int(np.argmin(np.maximum(first - t_near, 0.0) + np.maximum(t_near - last, 0.0)))
     return slice(int(bounds[i]), int(bounds[i + 1]))
 
 
@@ -433,18 +444,20 @@ def _levenberg_marquardt(sp, x0, t_ref, model, t0_j2000_s, max_iterations=60):
 
 # ------------------------------------------------------------------------- the entry point
 
-def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbit:
+def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
+                  near_k: int | None = None) -> InitialOrbit:
     """The orbit from the pass's directions (and ranges), without its prior rows.
 
     ``t0_j2000_s``: seconds since J2000 of the pass epoch (``fgnav.time.j2000_seconds``).
-    Raises :class:`UserError` when the log cannot start an orbit (see :func:`iod_support`)
-    or the fit does not converge.
+    ``near_k``: fit the session (see the module docstring) nearest epoch ``near_k`` rather
+    than the longest one. Raises :class:`UserError` when the log cannot start an orbit (see
+    :func:`iod_support`) or the fit does not converge.
     """
     ok, why = iod_support(p)
     if not ok:
         raise UserError(f"{p.source}: {why}")
     try:
-        return _initial_orbit(p, model, t0_j2000_s)
+        return _initial_orbit(p, model, t0_j2000_s, near_k)
     except UserError:
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
@@ -452,7 +465,7 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbi
                         f"'prior_position' and 'prior_velocity' rows") from exc
 
 
-def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrbit:
+def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> InitialOrbit:
     mu = model.mu
     fam = p.families["earth_direction"]
     order = np.argsort(fam.k, kind="stable")
@@ -462,7 +475,7 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrb
     # one direction per epoch for the geometry (the first, if several)
     first = np.concatenate([[True], np.diff(k_dir) > 0])
     k_dir, r_hat = k_dir[first], r_hat[first]
-    seg = _session(p.t_s[k_dir], r_hat)
+    seg = _session(p.t_s[k_dir], r_hat, None if near_k is None else float(p.t_s[near_k]))
     k_dir, r_hat = k_dir[seg], r_hat[seg]
     if len(k_dir) < MIN_DIRECTION_EPOCHS:
         raise UserError(f"{p.source}: too few direction epochs in one session for an initial "
@@ -520,6 +533,7 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float) -> InitialOrb
                         f"({p.counts()} over {p.t_s[-1] - p.t_s[0]:.0f} s): add 'prior_position' "
                         f"and 'prior_velocity' rows, range-type rows or a longer arc")
     return InitialOrbit(k_ref=k_ref, x_eci=x, P_eci=P, method=f"{how}+lm", n_used=len(k_sub),
+                        t_span_s=(float(t_dir[0]), float(t_dir[-1])),
                         rms_whitened=rms)
 
 
@@ -555,7 +569,10 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     and ``S = P_prior + P_iod`` the squared Mahalanobis distance ``d^T S^-1 d`` is
     chi-square with 6 degrees of freedom when both are right (the IOD uses no prior row, so
     the two are independent). The prior contradicts the data when it exceeds the quantile
-    ``probability`` (default 1 - 1e-6: one false alarm in a million clean logs).
+    ``probability`` (default 1 - 1e-6: one false alarm in a million clean logs). The
+    covariance is propagated linearly: use an initial orbit from data beside the prior's
+    epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
+    prior farther from that data than the data's own span).
     """
     from scipy.stats import chi2
 
@@ -661,11 +678,19 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
             info["consistency"] = f"not tested: {why.split(':')[0]}"
             return Start(p, x_guess, None, info)
         try:
-            iod = initial_orbit(strip_prior(p), model, t0_j2000_s)
+            iod = initial_orbit(strip_prior(p), model, t0_j2000_s, near_k=prior_state(p)[0])
         except UserError as exc:  # every failure of the fit is one (initial_orbit)
             info["consistency"] = f"not tested: {exc}"
             return Start(p, x_guess, None, info)
         info.update(_summary(iod, p))
+        t_prior = float(p.t_s[prior_state(p)[0]])
+        t_a, t_b = iod.t_span_s
+        away = max(t_a - t_prior, t_prior - t_b, 0.0)
+        if away > t_b - t_a:
+            info["consistency"] = (f"not tested: the prior's epoch is {away:.0f} s from the "
+                                   f"session of data the initial orbit uses ({t_b - t_a:.0f} s "
+                                   f"long), too far for a linear propagation of its covariance")
+            return Start(p, x_guess, None, info)
         if iod.rms_whitened > MAX_TEST_RMS:
             info["consistency"] = (f"not tested: the initial orbit fits the data to whitened rms "
                                    f"{iod.rms_whitened:.2f} (> {MAX_TEST_RMS:g}): forces missing "
