@@ -148,9 +148,18 @@ def build_pass(log) -> Pass:
     return p
 
 
-def check_observable(p: Pass) -> None:
-    """Refuse passes that cannot determine an orbit, with a message that says why."""
+def check_observable(p: Pass, require_prior: bool = True) -> None:
+    """Refuse passes that cannot determine an orbit, with a message that says why.
+
+    ``require_prior=False``: the orbit will start from the measurements
+    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here.
+    """
     n_obs = sum(p.count(k) for k in STATE_OBSERVING_KINDS if k != "moon_direction_body")
+    if not require_prior and n_obs == 0:
+        raise UserError(f"{p.source}: no measurements that observe the orbit "
+                        f"(found only: {p.counts() or 'nothing'})")
+    if not require_prior:
+        return
     if p.count("prior_position") == 0 or p.count("prior_velocity") == 0:
         if n_obs == 0:
             raise UserError(f"{p.source}: no measurements that observe the orbit "

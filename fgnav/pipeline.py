@@ -21,49 +21,104 @@ METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
 def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
           lag_s: float = 300.0, progress=None, gap_factor: float | None = 10.0,
-          checkpoint: str | None = None, checkpoint_every: int = 100, resume: bool = False) -> Solution:
+          checkpoint: str | None = None, checkpoint_every: int = 100, resume: bool = False,
+          ignore_prior: bool = False) -> Solution:
     """Run one estimator over a pass (after the observability checks).
 
     Gaps longer than ``gap_factor`` median steps get measurement-free state epochs
     (:func:`fgnav.measurements.fill_gaps`), or, when too long to bridge, separate the log
     into arcs solved one by one (:mod:`fgnav.solvers.arcs`); ``gap_factor=None`` keeps the
-    pass as given (already planned, or no gap handling).
+    pass as given (already planned, or no gap handling). Without prior rows, or with
+    ``ignore_prior``, the solvers start from the orbit the measurements give
+    (:func:`fgnav.initial_orbit.start_point`, which also tests a log's prior against that
+    orbit); ``Solution.extras["initial_orbit"]`` records the start.
     """
     from fgnav.analysis.crb import check_observability
-    from fgnav.solvers.batch import initial_guess, smooth_batch
+    from fgnav.initial_orbit import has_prior, start_point
+    from fgnav.solvers.batch import smooth_batch
     from fgnav.time import j2000_seconds
 
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
-    check_observable(p)
-    if gap_factor is not None:
-        from fgnav.solvers.arcs import plan_gaps
-        p = plan_gaps(p, options, gap_factor)
+    p = prepare_pass(p, options, gap_factor, ignore_prior)
+    from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
         from fgnav.solvers.arcs import solve_arcs
         if checkpoint or resume:
             raise UserError("--checkpoint/--resume: this log has gaps too long to bridge and is "
                             "solved as separate arcs, which checkpoints do not support")
         return solve_arcs(p, lambda arc: solve(arc, method, options, lag_s=lag_s,
-                                               progress=progress, gap_factor=None), method)
+                                               progress=progress, gap_factor=None,
+                                               ignore_prior=ignore_prior), method)
     model = options.motion_model()
-    check_observability(p, initial_guess(p, model, float(j2000_seconds(p.epoch0))), model)
+    start = start_point(p, method, model, float(j2000_seconds(p.epoch0)), ignore_prior=ignore_prior)
+    try:
+        check_observability(start.p, start.x_guess, model)
+    except UserError as exc:
+        if not from_data:
+            raise
+        raise type(exc)(f"{exc} Without a prior the orbit comes from the measurements alone: "
+                        f"or add 'prior_position' and 'prior_velocity' rows.") from exc
+    p = start.p
     if method == "batch":
-        return smooth_batch(p, options, progress=progress)
+        if start.x_init is not None:
+            # The initial orbit is already fitted to the data through the full dynamics:
+            # Gauss-Newton at the requested process noise at once (continuation if that fails:
+            # with a contradicted prior in the graph, a loose process noise would let the
+            # first states bend to the prior).
+            from dataclasses import replace
+            sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
+                               x_init=start.x_init, progress=progress)
+            if sol.extras.get("converged"):
+                return start.finish(sol)
+        return start.finish(smooth_batch(p, options, x_init=start.x_init, progress=progress))
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
         from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
         if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
-            return run_ekf_numba(p, options, progress=progress)
+            return start.finish(run_ekf_numba(p, options, progress=progress))
         from fgnav.solvers.ekf import run_ekf
-        return run_ekf(p, options, progress=progress)
+        return start.finish(run_ekf(p, options, progress=progress))
     from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
-    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                              progress=progress, checkpoint=checkpoint,
-                              checkpoint_every=checkpoint_every, resume=resume)
+    return start.finish(smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
+                                           progress=progress, checkpoint=checkpoint,
+                                           checkpoint_every=checkpoint_every, resume=resume))
+
+
+def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 10.0,
+                 ignore_prior: bool = False) -> Pass:
+    """The pass the solvers see: checked for observability, its long gaps planned (bridged
+    with measurement-free states or cut into arcs, :func:`fgnav.solvers.arcs.plan_gaps`).
+
+    The gap planning filters the pass; without a prior (or with ``ignore_prior``) that
+    filter starts from the initial orbit of the measurements, covariance inflated as for the
+    online methods (:func:`fgnav.initial_orbit.start_point`). A pass already planned is
+    returned as is.
+    """
+    from fgnav.initial_orbit import has_prior
+
+    from_data = ignore_prior or not has_prior(p)
+    check_observable(p, require_prior=not from_data)
+    if gap_factor is None or p.inserted is not None:
+        return p
+    from fgnav.solvers.arcs import long_gaps, plan_gaps
+
+    start = None
+    if from_data and len(long_gaps(p, gap_factor)):
+        from fgnav.initial_orbit import START_INFLATION, initial_orbit, propagate_orbit, strip_prior
+        from fgnav.time import j2000_seconds
+
+        model = options.motion_model()
+        t0 = float(j2000_seconds(p.epoch0))
+        p = strip_prior(p)
+        x0, P0 = propagate_orbit(initial_orbit(p, model, t0), p, model, t0, 0)
+        P0 = START_INFLATION * P0
+        start = (x0, float(np.sqrt(np.linalg.eigvalsh(P0[:3, :3])[-1])),
+                 float(np.sqrt(np.linalg.eigvalsh(P0[3:, 3:])[-1])))
+    return plan_gaps(p, options, gap_factor, start=start)
 
 
 def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
@@ -124,18 +179,23 @@ class SmoothResult:
 
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
-                progress=None, **solve_kw) -> tuple[SmoothResult, Pass]:
-    """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given)."""
+                progress=None, ignore_prior: bool = False, **solve_kw) -> tuple[SmoothResult, Pass]:
+    """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
+
+    ``ignore_prior``: start from the measurements' own orbit, leaving the log's prior rows
+    out of the solution and of the Cramer-Rao bound (:func:`solve`).
+    """
     t0 = time.perf_counter()
     log = read_measurements(log_path)
     p = build_pass(log)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
-    gap_factor = solve_kw.pop("gap_factor", 10.0)
-    if gap_factor is not None:
-        from fgnav.solvers.arcs import plan_gaps
-        check_observable(p)
-        p = plan_gaps(p, options, gap_factor)  # the pass the solvers see: summary uses it
-    sol = solve(p, method, options, lag_s=lag_s, progress=progress, **solve_kw)
+    # the pass the solvers see (gaps planned): the summary uses it
+    p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
+    sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
+                **solve_kw)
+    if ignore_prior:
+        from fgnav.initial_orbit import strip_prior
+        p = strip_prior(p)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
     x_true = None

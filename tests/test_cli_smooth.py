@@ -92,11 +92,25 @@ def test_too_few_epochs_to_observe_the_orbit_is_a_clear_error(tmp_path, capsys):
     assert "do not observe the orbit" in err and "weakest direction" in err
 
 
-def test_direction_rows_without_priors_ask_for_a_first_guess(tmp_path, capsys):
+def test_direction_rows_without_priors_start_from_the_initial_orbit(tmp_path, capsys):
+    # No prior rows: the orbit comes from the directions and limb ranges alone
+    # (fgnav.initial_orbit); the answer is checked against the DOP853 truth.
+    log, truth = _hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
+    out = tmp_path / "r"
+    rc = main(["smooth", str(log), "--out", str(out), "--truth", str(truth), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["initial_orbit"]["prior"] == "initial_orbit"
+    assert s["position_rms_m"] < 3 * s["crb_position_rms_m"] and s["nees_mean"] < 20
+
+
+def test_without_priors_and_without_directions_asks_for_a_prior(tmp_path, capsys):
     log, _ = _hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
+    log.write_text("".join(l + "\n" for l in log.read_text().splitlines() if "earth_direction" not in l))
     rc = main(["smooth", str(log), "--out", str(tmp_path / "r")])
-    assert rc == 2
-    assert "prior_position" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    assert "limb_radius" in err and "earth_direction" in err and "prior_position" in err
 
 
 def test_simulate_then_smooth_round_trip(tmp_path):

@@ -84,8 +84,12 @@ def test_mirrored_prior_is_not_fitted_with_a_normal_chi2(clean, tmp_path):
                                -p_clean.families["prior_position"].values["xyz"])
     sol = solve(p, "batch")
     rms = accuracy_metrics(sol, x_true)["position_rms_m"]
-    # either the data win over the weak prior, or the misfit is plain
-    assert rms < 10e3 or sol.chi2 > 1e6 * sol_clean.chi2, (rms, sol.chi2)
+    # either the data win over the weak prior, or the misfit is plain. Measured: started
+    # from the initial orbit (the prior contradicts the data), batch converges to the least
+    # cost compromise, 313 km RMS with chi2 9.2e7 (1.3e5 x clean, the prior rows' share);
+    # from the mirrored prior it stopped unconverged at the mirror, chi2 1.2e11.
+    assert rms < 10e3 or sol.chi2 > 1e4 * sol_clean.chi2, (rms, sol.chi2)
+    assert sol.extras["initial_orbit"]["prior_consistent"] is False
     # the mirror orbit itself is the farthest point of every direction row
     M = len(p.families["earth_direction"])
     _, _, b, _ = LINEARIZERS["earth_direction"](p.families["earth_direction"], -x_true)

@@ -62,6 +62,25 @@ def _report(log) -> dict:
     }
 
 
+def _no_prior(log) -> dict:
+    """Whether ``fgnav smooth`` can start this log from its measurements alone (no prior
+    rows, or --ignore-prior): the structural test of :func:`fgnav.initial_orbit.iod_support`
+    (the fit itself runs only in smooth)."""
+    from fgnav.errors import UserError
+    from fgnav.initial_orbit import has_prior, iod_support
+    from fgnav.measurements import build_pass
+
+    try:
+        if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
+            from fgnav.sem import preprocess_log
+            log = preprocess_log(log)[0]
+        p = build_pass(log)
+    except UserError as exc:
+        return {"possible": False, "has_prior": False, "reason": str(exc)}
+    ok, why = iod_support(p)
+    return {"possible": bool(ok), "has_prior": has_prior(p), "reason": why}
+
+
 def run(args) -> int:
     import json
 
@@ -93,6 +112,7 @@ def run(args) -> int:
         return 2
 
     rep = _report(log)
+    rep["no_prior"] = _no_prior(log)
     if args.json:
         print(json.dumps(rep, sort_keys=True))
         return 0
@@ -104,4 +124,7 @@ def run(args) -> int:
         print(f"  dropped ({reason}): {n}")
     for w in rep["warnings"]:
         print(f"  warning: {w}")
+    np_ = rep["no_prior"]
+    print(f"  without a prior: {'can be smoothed' if np_['possible'] else 'cannot be smoothed'} "
+          f"({np_['reason']})" + (" -- the log has prior rows" if np_["has_prior"] else ""))
     return 0

@@ -126,6 +126,10 @@ def register(sub):
                    help=f"epochs between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})")
     p.add_argument("--resume", action="store_true",
                    help="isam2: continue from --checkpoint (same log and options)")
+    p.add_argument("--ignore-prior", action="store_true",
+                   help="leave the log's prior_position/prior_velocity rows out and start from the "
+                        "orbit the measurements give (angles-only initial orbit determination; "
+                        "logs without prior rows, e.g. a CCSDS TDM, always do)")
     add_solver_options(p)
     p.set_defaults(func=run)
 
@@ -164,7 +168,7 @@ def run(args) -> int:
         res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
                              lag_s=args.lag_s, checkpoint=args.checkpoint,
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
-                             progress=bar)
+                             ignore_prior=args.ignore_prior, progress=bar)
     finally:
         bar.close()
     write_outputs(args.out, res, p)

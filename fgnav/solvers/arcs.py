@@ -70,17 +70,21 @@ def predict_across(p: Pass, k: int, x: np.ndarray, P: np.ndarray, options) -> di
             "x_pred": x1, "P_pred": P1}
 
 
-def plan_gaps(p: Pass, options, gap_factor: float = 10.0) -> Pass:
+def plan_gaps(p: Pass, options, gap_factor: float = 10.0, *, start: tuple | None = None) -> Pass:
     """Decide for every long gap whether it is bridged (see the module docstring) and fill
     the bridged ones; returns the pass the solvers see (``breaks``, ``arc_priors``,
-    ``gap_notes`` set). A pass already planned is returned as is."""
+    ``gap_notes`` set). A pass already planned is returned as is.
+
+    ``start = (x (6,), sigma_position_m, sigma_velocity_mps)``: the a-priori state of the
+    planning filter at epoch 0 for a pass without prior rows (the initial orbit)."""
     if p.inserted is not None:
         return p
     gaps = long_gaps(p, gap_factor)
     if not len(gaps):
         return fill_gaps(p, gap_factor)
     breaks, priors, notes = [], [], []
-    start, prior = 0, None
+    prior = start
+    start = 0
     while True:
         sub, _ = slice_pass(p, start, p.n_epochs, prior)
         sol = _filter(sub, options)

@@ -1,0 +1,722 @@
+"""Initial orbit determination (IOD) from the measurements alone, without an a-priori state.
+
+A smoother needs a first guess of the orbit. Logs usually carry it as ``prior_position`` /
+``prior_velocity`` rows, but a CCSDS TDM never does, and a prior may be wrong. This module
+computes the orbit from the geocentric directions (``earth_direction`` rows, and
+``earth_direction_body`` rows once rotated to ECI), adding the range-type rows
+(``limb_radius``, ``altitude``) when the log has them.
+
+Why not Gauss or Laplace
+------------------------
+A direction row measures ``u = -r/|r|``: the observer is, in effect, at the centre of
+attraction. The classical angles-only methods (Gauss, Laplace, double-r iteration;
+Vallado 2013, sec. 7.3) solve for the range from an observer *displaced* from the centre
+(a ground station): here that displacement is zero and their equations degenerate. What
+the directions do give is the orbital plane and the in-plane angle of the spacecraft as a
+function of time; by Kepler's laws that history fixes the shape (e), the orientation
+(argument of the reference direction) and the mean motion n, and the time of flight fixes
+the scale through Kepler's third law ``a = (mu / n^2)^(1/3)``.
+
+Method
+------
+1. *Plane.* The unit positions ``r_hat = -u`` lie on a great circle; its normal ``h_hat`` is
+   the right singular vector of the stacked ``r_hat`` with the smallest singular value, its
+   sign chosen so that ``sum_i r_hat_i x r_hat_(i+1)`` (the sense of motion) is along
+   ``+h_hat``. In-plane basis ``p`` (the first direction projected on the plane) and
+   ``q = h_hat x p``; the argument ``theta = atan2(r_hat.q, r_hat.p)``, unwrapped in time.
+2. *Angle history.* ``theta(t) = omega + nu(M0 + n (t - t_ref), e)`` with the true anomaly
+   ``nu`` from Kepler's equation ``M = E - e sin E`` (Newton's method; Vallado 2013,
+   Algorithm 2) and ``tan(nu/2) = sqrt((1+e)/(1-e)) tan(E/2)`` (Vallado 2013, eq. 2-14;
+   Curtis 2014, eq. 3.13). The four parameters (n, e, omega, M0) are found by a grid over e
+   (0 to 0.9) and n (around the observed mean angular rate; a factor 15 below to 6 above it
+   for arcs shorter than a revolution, where an eccentric orbit's rate is far from its mean
+   motion), a grid over M0 with omega solved in closed form (the mean residual), then
+   Levenberg-Marquardt (scipy ``least_squares``) from the best grid points. The state at
+   ``t_ref`` follows from the elements (Curtis 2014, eqs. 2.31, 2.48, 2.49; radial and
+   transverse velocity ``sqrt(mu/p) e sin nu`` and ``sqrt(mu/p) (1 + e cos nu)``).
+3. *Ranges.* A ``limb_radius`` row gives ``|r| = R_limb / sin(rho)``, an ``altitude`` row
+   ``|r| = r_ref + h``; with a direction at the same epoch, a position ``r = |r| r_hat``.
+   Three such positions spread over the arc give the velocity by Gibbs' method (Vallado
+   2013, Algorithm 54; Curtis 2014, Algorithm 5.1), or by the Herrick-Gibbs formula when
+   they span less than 3 deg (Vallado 2013, Algorithm 55): another candidate start.
+4. *Refinement.* From each candidate, Levenberg-Marquardt on the 6-state at ``t_ref`` over
+   the actual whitened residuals of the direction and range rows (the same linearizers as
+   the smoothers, :func:`fgnav.graph.linearize_all`) with the project's propagator (RK4
+   with its exact state-transition matrix, :func:`factors.dynamics.propagate`), over an
+   evenly spaced subsample of at most ``MAX_EPOCHS`` epochs (a 4 h pass at 1 Hz has
+   14,401); the candidate of least cost wins. Its covariance is the inverse of the
+   Gauss-Newton information ``(A^T A)^-1`` of the subsample, scaled by the fit's
+   ``rms^2`` when that exceeds 1 (a model that does not fit to the noise), so it is
+   conservative: the subsample holds only part of the data.
+
+Sessions: the angle must be followed in time, so a gap across which it may have turned by
+more than 2 rad (the angular rate beside the gap times its length) splits the log, and the
+fit uses the longest session (its orbit is then propagated to any other epoch).
+
+Limits: elliptic orbits (e < 0.98); the arc must show curvature in time (a few minutes of
+a LEO pass, tens of minutes higher up) or the problem is not observable from the
+directions alone, which is reported. Refraction rows and body-frame Moon/Sun directions
+cannot start an orbit and are not used here.
+
+References
+----------
+- D. A. Vallado, *Fundamentals of Astrodynamics and Applications*, 4th ed., Microcosm
+  Press, 2013: Kepler's equation (Algorithm 2), true anomaly from the eccentric anomaly
+  (eq. 2-14), Gibbs (Algorithm 54), Herrick-Gibbs (Algorithm 55), angles-only IOD (sec. 7.3).
+- R. H. Battin, *An Introduction to the Mathematics and Methods of Astrodynamics*, rev. ed.,
+  AIAA, 1999: Kepler's equation and the orbital elements (ch. 4), the time of flight.
+- H. D. Curtis, *Orbital Mechanics for Engineering Students*, 3rd ed., Butterworth-Heinemann,
+  2014: the state from the elements (ch. 2, 4), Gibbs' method (Algorithm 5.1).
+- K. Levenberg, "A method for the solution of certain non-linear problems in least
+  squares", *Quarterly of Applied Mathematics* 2, 1944; D. W. Marquardt, *SIAM J. Appl.
+  Math.* 11, 1963.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numba import njit
+
+from factors.constants import MU_EARTH_M3_S2
+from factors.dynamics import MotionModel, propagate
+from fgnav.errors import UserError
+from fgnav.measurements import Family, Pass, prior_covariance, prior_state
+
+__all__ = ["InitialOrbit", "initial_orbit", "prior_consistency", "propagate_orbit", "trajectory",
+           "iod_support", "start_point", "Start", "strip_prior", "has_prior",
+           "MAX_EPOCHS", "PRIOR_GATE_PROBABILITY", "START_INFLATION"]
+
+MAX_EPOCHS = 240          # epochs of the subsample the refinement uses
+MIN_DIRECTION_EPOCHS = 4  # 6 unknowns, 2 rows per direction: 3 epochs, plus one to check
+PRIOR_GATE_PROBABILITY = 1.0 - 1e-6
+RANGE_KINDS = ("limb_radius", "altitude")
+_FIT_KINDS = ("earth_direction",) + RANGE_KINDS
+_E_GRID = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
+_M0_GRID = np.linspace(-np.pi, np.pi, 24, endpoint=False)
+
+
+@dataclass(frozen=True)
+class InitialOrbit:
+    """An orbit determined from the measurements alone.
+
+    k_ref : epoch index (in the pass) of the state.
+    x_eci : (6,) state ``[r_eci_m, v_eci_mps]`` at ``t_s[k_ref]``.
+    P_eci : (6, 6) its covariance (SI), from the fit's information (see the module docstring).
+    method : how the start was found, e.g. ``"angles-kepler+lm"`` or ``"gibbs+lm"``.
+    n_used : epochs of the subsample the fit used.
+    rms_whitened : RMS of the whitened residual rows at the fit (about 1 when it fits).
+    t_span_s : first and last epoch (s from epoch0) of the session the fit used.
+    """
+
+    k_ref: int
+    x_eci: np.ndarray
+    P_eci: np.ndarray
+    method: str
+    n_used: int
+    rms_whitened: float
+    t_span_s: tuple[float, float] = (0.0, 0.0)  # first and last epoch (s) of the data used
+
+
+# ------------------------------------------------------------------------- what can start
+
+def iod_support(p: Pass) -> tuple[bool, str]:
+    """Whether :func:`initial_orbit` can start from this pass, and a sentence saying why."""
+    fam = p.families.get("earth_direction")
+    n_dir = 0 if fam is None else len(np.unique(fam.k))
+    if n_dir >= MIN_DIRECTION_EPOCHS:
+        ranges = [k for k in RANGE_KINDS if p.count(k)]
+        return True, (f"an initial orbit can be computed from {n_dir} direction epochs"
+                      + (f" and the {'/'.join(ranges)} rows" if ranges else ""))
+    others = sorted(k for k in p.families if k not in ("prior_position", "prior_velocity"))
+    return False, (f"no initial orbit from {', '.join(others) or 'no measurements'}"
+                   f"{f' ({n_dir} direction epochs)' if n_dir else ''}: it needs earth_direction "
+                   f"(or earth_direction_body + attitude) rows at {MIN_DIRECTION_EPOCHS} or more "
+                   f"epochs, optionally with limb_radius/altitude rows; otherwise add "
+                   f"'prior_position' and 'prior_velocity' rows")
+
+
+# ------------------------------------------------------------------------- Kepler pieces
+
+@njit(cache=True)
+def _nu_continuous_nb(M, e, out):
+    """Kernel of :func:`_true_anomaly_continuous` over flat arrays (e broadcast by the caller)."""
+    for i in range(M.shape[0]):
+        ei = e[i]
+        Mw = (M[i] + math.pi) % (2.0 * math.pi) - math.pi
+        # Kepler's equation M = E - e sin E by Newton's method (Vallado 2013, Algorithm 2)
+        # from Danby's start E = M + 0.85 e sign(sin M), which converges for every e < 1
+        E = Mw + (0.85 * ei if math.sin(Mw) >= 0.0 else -0.85 * ei)
+        for _ in range(50):
+            dE = (E - ei * math.sin(E) - Mw) / (1.0 - ei * math.cos(E))
+            E -= dE
+            if abs(dE) < 1e-13:
+                break
+        nu = 2.0 * math.atan2(math.sqrt(1.0 + ei) * math.sin(0.5 * E),
+                              math.sqrt(1.0 - ei) * math.cos(0.5 * E))
+        c = (nu - Mw + math.pi) % (2.0 * math.pi) - math.pi  # the equation of centre
+        out[i] = M[i] + c
+
+
+def _true_anomaly_continuous(M, e):
+    """True anomaly (rad) from the mean anomaly M (rad) and eccentricity e, continuous in M
+    (unwrapped alongside it): M plus the equation of centre. Broadcasts M and e."""
+    M, e = np.broadcast_arrays(np.asarray(M, dtype=float), np.asarray(e, dtype=float))
+    out = np.empty(M.size)
+    _nu_continuous_nb(np.ascontiguousarray(M).ravel(), np.ascontiguousarray(e).ravel(), out)
+    return out.reshape(M.shape)
+
+
+def _state_from_elements(n, e, omega, M, p_hat, q_hat, h_hat, mu):
+    """ECI state from mean motion n (rad/s), e, in-plane angle of perigee omega from p_hat,
+    mean anomaly M (Curtis 2014, eqs. 2.31, 2.48, 2.49; a from Kepler's third law)."""
+    a = (mu / n ** 2) ** (1.0 / 3.0)
+    nu = _true_anomaly_continuous(np.array([M]), e)[0]
+    slr = a * (1.0 - e * e)
+    r = slr / (1.0 + e * math.cos(nu))
+    th = omega + nu
+    r_hat = math.cos(th) * p_hat + math.sin(th) * q_hat
+    t_hat = np.cross(h_hat, r_hat)
+    s = math.sqrt(mu / slr)
+    return np.concatenate([r * r_hat, s * e * math.sin(nu) * r_hat + s * (1.0 + e * math.cos(nu)) * t_hat])
+
+
+# ------------------------------------------------------------------------- plane and angles
+
+def _plane(r_hat):
+    """Orbit normal from the unit positions (N,3), signed by the sense of motion; in-plane
+    basis (p, q) and the unwrapped angle theta (N,) of each position."""
+    _, s, Vt = np.linalg.svd(r_hat, full_matrices=False)
+    h = Vt[-1]
+    turn = np.sum(np.cross(r_hat[:-1], r_hat[1:]), axis=0)
+    if s[1] < 1e-3 * s[0]:
+        # an arc too short for the SVD: the plane of the turning directions
+        if np.linalg.norm(turn) == 0:
+            raise UserError("the directions do not move: no orbit plane from them")
+        h = turn / np.linalg.norm(turn)
+    if h @ turn < 0:
+        h = -h
+    p_hat = r_hat[0] - (r_hat[0] @ h) * h
+    p_hat /= np.linalg.norm(p_hat)
+    q_hat = np.cross(h, p_hat)
+    theta = np.unwrap(np.arctan2(r_hat @ q_hat, r_hat @ p_hat))
+    return h, p_hat, q_hat, theta
+
+
+def _session(t, r_hat, t_near=None, max_turn_rad=2.0):
+    """The slice of the longest run of directions whose angle can be followed in time (or,
+    with ``t_near``, of the run nearest that time): a gap splits the log when the angle it
+    may hide (the faster of the angular rates on its two sides times its length) exceeds
+    ``max_turn_rad`` (unwrapping needs < pi)."""
+    if len(t) < 3:
+        return slice(0, len(t))
+    dt = np.diff(t)
+    ang = np.arccos(np.clip(np.einsum("ij,ij->i", r_hat[:-1], r_hat[1:]), -1.0, 1.0))
+    rate = ang / np.where(dt > 0, dt, np.inf)
+    # the angular rate beside each step: the larger of its neighbours' (a gap is not its own
+    # witness); an isolated first/last step uses its one neighbour
+    near = np.maximum(np.concatenate([[0.0], rate[:-1]]), np.concatenate([rate[1:], [0.0]]))
+    cut = np.flatnonzero(np.maximum(near, rate) * dt > max_turn_rad)
+    bounds = np.concatenate([[0], cut + 1, [len(t)]])
+    if t_near is None:
+        i = int(np.argmax(np.diff(bounds)))
+    else:
+        first, last = t[bounds[:-1]], t[bounds[1:] - 1]
+        i = int(np.argmin(np.maximum(first - t_near, 0.0) + np.maximum(t_near - last, 0.0)))
+    return slice(int(bounds[i]), int(bounds[i + 1]))
+
+
+def _angle_fit(t, theta, mu):
+    """(n, e, omega, M0) candidates, best first, fitted to theta(t) (t from t_ref)."""
+    from scipy.optimize import least_squares
+
+    span_t = t[-1] - t[0]
+    span_th = theta[-1] - theta[0]
+    n_bar = max(span_th / span_t, 1e-9)
+    revs = span_th / (2 * np.pi)
+    n_max = math.sqrt(mu / 6.0e6 ** 3)
+    if revs >= 1.0:
+        n_grid = n_bar * np.linspace(revs / (revs + 1.0), (revs + 1.0) / revs, 40)
+    else:
+        n_grid = n_bar * np.geomspace(1.0 / 15.0, 6.0, 48)
+    n_grid = n_grid[n_grid < n_max]
+    if len(n_grid) == 0:
+        n_grid = np.array([min(n_bar, 0.99 * n_max)])
+    # coarse grid on a subsample of the angles: cost with omega in closed form
+    g = np.unique(np.linspace(0, len(t) - 1, min(len(t), 48)).round().astype(int))
+    tg, thg = t[g], theta[g]
+    E_, N_, M_ = np.meshgrid(_E_GRID, n_grid, _M0_GRID, indexing="ij")
+    Mall = M_[..., None] + N_[..., None] * tg
+    nu = _true_anomaly_continuous(Mall, E_[..., None])
+    d = thg - nu
+    d -= d.mean(axis=-1, keepdims=True)
+    cost = np.sum(d * d, axis=-1)
+    order = np.argsort(cost, axis=None)
+    f = np.unique(np.linspace(0, len(t) - 1, min(len(t), 400)).round().astype(int))
+    t, theta = t[f], theta[f]
+
+    def resid(x):
+        n, e, om, M0 = x
+        return theta - om - _true_anomaly_continuous(M0 + n * t, e)
+
+    out, seen = [], set()
+    for flat in order:
+        i, j, l = np.unravel_index(flat, cost.shape)
+        key = (i, j)
+        if key in seen:
+            continue
+        seen.add(key)
+        n0, e0, M00 = n_grid[j], _E_GRID[i], _M0_GRID[l]
+        om0 = float(np.mean(thg - _true_anomaly_continuous(M00 + n0 * tg, e0)))
+        try:
+            sol = least_squares(resid, [n0, e0, om0, M00], x_scale=[n0, 0.1, 0.1, 0.1],
+                                bounds=([n0 * 0.2, 0.0, -np.inf, -np.inf],
+                                        [min(n0 * 5.0, n_max), 0.98, np.inf, np.inf]),
+                                max_nfev=200)
+        except ValueError:
+            continue
+        out.append((float(np.mean(sol.fun ** 2)), sol.x))
+        if len(seen) >= 6:
+            break
+    out.sort(key=lambda c: c[0])
+    return out
+
+
+# ------------------------------------------------------------------------- ranges and Gibbs
+
+def _range_positions(p: Pass, u_by_k: dict):
+    """Epoch indices (M,) and ECI positions (M,3) where a range row and a direction coincide."""
+    ks, rs = [], []
+    for kind in RANGE_KINDS:
+        fam = p.families.get(kind)
+        if fam is None:
+            continue
+        if kind == "limb_radius":
+            rho = fam.values["rho_rad"]
+            ok = (rho > 0) & (rho < np.pi / 2)
+            rng = np.where(ok, fam.values["r_limb_m"] / np.sin(np.where(ok, rho, 1.0)), np.nan)
+        else:
+            rng = fam.values["r_ref_m"] + fam.values["h_m"]
+        for k, r in zip(fam.k.tolist(), rng.tolist()):
+            if k in u_by_k and np.isfinite(r) and r > 0:
+                ks.append(k)
+                rs.append(-r * u_by_k[k])
+    if not ks:
+        return np.zeros(0, int), np.zeros((0, 3))
+    ks = np.asarray(ks)
+    order = np.argsort(ks, kind="stable")
+    return ks[order], np.asarray(rs)[order]
+
+
+def _gibbs(r1, r2, r3, t1, t2, t3, mu):
+    """Velocity at r2 from three positions: Gibbs (Vallado 2013, Alg. 54; Curtis 2014,
+    Alg. 5.1) or, for positions less than 3 deg apart, Herrick-Gibbs (Vallado 2013, Alg. 55)."""
+    n1, n2, n3 = np.linalg.norm(r1), np.linalg.norm(r2), np.linalg.norm(r3)
+    ang12 = math.acos(np.clip(r1 @ r2 / (n1 * n2), -1, 1))
+    ang23 = math.acos(np.clip(r2 @ r3 / (n2 * n3), -1, 1))
+    if min(ang12, ang23) > math.radians(3.0):
+        N = n1 * np.cross(r2, r3) + n2 * np.cross(r3, r1) + n3 * np.cross(r1, r2)
+        D = np.cross(r1, r2) + np.cross(r2, r3) + np.cross(r3, r1)
+        S = r1 * (n2 - n3) + r2 * (n3 - n1) + r3 * (n1 - n2)
+        nd = N @ D
+        if not nd > 0:
+            return None, "gibbs"
+        return math.sqrt(mu / nd) * (np.cross(D, r2) / n2 + S), "gibbs"
+    d21, d31, d32 = t2 - t1, t3 - t1, t3 - t2
+    v2 = (-d32 * (1.0 / (d21 * d31) + mu / (12.0 * n1 ** 3)) * r1
+          + (d32 - d21) * (1.0 / (d21 * d32) + mu / (12.0 * n2 ** 3)) * r2
+          + d21 * (1.0 / (d32 * d31) + mu / (12.0 * n3 ** 3)) * r3)
+    return v2, "herrick-gibbs"
+
+
+def _gibbs_start(p: Pass, u_by_k: dict, mu: float):
+    """A state at ``k_ref`` from three range-derived positions spread over the arc, the
+    ranges smoothed by a running median of 11 rows; None when there are too few."""
+    ks, R = _range_positions(p, u_by_k)
+    if len(ks) < 3:
+        return None
+    norms = np.linalg.norm(R, axis=1)
+    picks = np.unique(np.clip(np.round(np.array([0.15, 0.5, 0.85]) * (len(ks) - 1)).astype(int),
+                              0, len(ks) - 1))
+    if len(picks) < 3:
+        picks = np.array([0, len(ks) // 2, len(ks) - 1])
+    pos = []
+    for i in picks:
+        lo, hi = max(0, i - 5), min(len(ks), i + 6)
+        pos.append(R[i] / norms[i] * np.median(norms[lo:hi]))
+    t = p.t_s[ks[picks]]
+    if len(np.unique(t)) < 3:
+        return None
+    v2, how = _gibbs(pos[0], pos[1], pos[2], t[0], t[1], t[2], mu)
+    if v2 is None or not np.all(np.isfinite(v2)):
+        return None
+    x = np.concatenate([pos[1], v2])
+    return x, int(ks[picks[1]]), how
+
+
+# ------------------------------------------------------------------------- refinement
+
+def _subpass(p: Pass, k_sub: np.ndarray) -> Pass:
+    """The direction and range rows at the epochs ``k_sub`` only, re-indexed 0..len-1."""
+    remap = -np.ones(p.n_epochs, dtype=int)
+    remap[k_sub] = np.arange(len(k_sub))
+    fams = {}
+    for kind in _FIT_KINDS:
+        f = p.families.get(kind)
+        if f is None:
+            continue
+        rows = np.flatnonzero(remap[f.k] >= 0)
+        if len(rows):
+            fams[kind] = Family(k=remap[f.k[rows]], values={n: v[rows] for n, v in f.values.items()},
+                                sigma=f.sigma[rows], line=f.line[rows])
+    return Pass(epoch0=p.epoch0, t_s=p.t_s[k_sub], families=fams, source=p.source)
+
+
+def _trajectory(x_ref, t_ref, t_sub, model, t0_j2000_s):
+    """States (M,6) at ``t_sub`` (sorted) and their STMs (M,6,6) with respect to x_ref."""
+    M = len(t_sub)
+    X = np.empty((M, 6))
+    Phi = np.empty((M, 6, 6))
+    i0 = int(np.searchsorted(t_sub, t_ref))
+    for rng in (range(i0, M), range(i0 - 1, -1, -1)):
+        x, F, tp = np.asarray(x_ref, dtype=float), np.eye(6), t_ref
+        for i in rng:
+            x, S = propagate(x, t_sub[i] - tp, model, t0_j2000_s + tp)
+            F = S @ F
+            tp = t_sub[i]
+            X[i], Phi[i] = x, F
+    return X, Phi
+
+
+def _linearize(sp: Pass, x_ref, t_ref, model, t0_j2000_s):
+    """Whitened residual (R,) and Jacobian (R,6) of the subsample with respect to x_ref."""
+    from fgnav.graph import linearize_all
+
+    X, Phi = _trajectory(x_ref, t_ref, sp.t_s, model, t0_j2000_s)
+    if not np.all(np.isfinite(X)) or np.min(np.linalg.norm(X[:, :3], axis=1)) < 1.0e6:
+        return None
+    try:
+        rows = linearize_all(sp, X)
+    except (ValueError, FloatingPointError, ZeroDivisionError):
+        return None
+    A = np.einsum("ri,rij->rj", rows.A, Phi[rows.k])
+    if not (np.all(np.isfinite(A)) and np.all(np.isfinite(rows.b))):
+        return None
+    return -rows.b, A
+
+
+def _levenberg_marquardt(sp, x0, t_ref, model, t0_j2000_s, max_iterations=60):
+    """Least squares of the subsample's whitened residuals over the 6-state at t_ref."""
+    lin = _linearize(sp, x0, t_ref, model, t0_j2000_s)
+    if lin is None:
+        return None
+    x = np.asarray(x0, dtype=float)
+    r, A = lin
+    cost = float(r @ r)
+    lam = 1e-3
+    for _ in range(max_iterations):
+        N = A.T @ A
+        g = A.T @ r
+        d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+        Ns = N / np.outer(d, d)
+        improved = False
+        for _ in range(12):
+            try:
+                dx = -np.linalg.solve(Ns + lam * np.eye(6), g / d) / d
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            new = _linearize(sp, x + dx, t_ref, model, t0_j2000_s)
+            if new is not None and float(new[0] @ new[0]) < cost:
+                x = x + dx
+                r, A = new
+                old, cost = cost, float(new[0] @ new[0])
+                lam = max(lam / 10.0, 1e-12)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved or old - cost < 1e-10 * max(old, 1.0):
+            break
+    return x, r, A, cost
+
+
+# ------------------------------------------------------------------------- the entry point
+
+def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
+                  near_k: int | None = None) -> InitialOrbit:
+    """The orbit from the pass's directions (and ranges), without its prior rows.
+
+    ``t0_j2000_s``: seconds since J2000 of the pass epoch (``fgnav.time.j2000_seconds``).
+    ``near_k``: fit the session (see the module docstring) nearest epoch ``near_k`` rather
+    than the longest one. Raises :class:`UserError` when the log cannot start an orbit (see
+    :func:`iod_support`) or the fit does not converge.
+    """
+    ok, why = iod_support(p)
+    if not ok:
+        raise UserError(f"{p.source}: {why}")
+    try:
+        return _initial_orbit(p, model, t0_j2000_s, near_k)
+    except UserError:
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        raise UserError(f"{p.source}: the initial orbit fit failed ({exc}); add "
+                        f"'prior_position' and 'prior_velocity' rows") from exc
+
+
+def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> InitialOrbit:
+    mu = model.mu
+    fam = p.families["earth_direction"]
+    order = np.argsort(fam.k, kind="stable")
+    k_dir = fam.k[order]
+    r_hat = -fam.values["u_eci"][order]
+    r_hat = r_hat / np.linalg.norm(r_hat, axis=1)[:, None]
+    # one direction per epoch for the geometry (the first, if several)
+    first = np.concatenate([[True], np.diff(k_dir) > 0])
+    k_dir, r_hat = k_dir[first], r_hat[first]
+    seg = _session(p.t_s[k_dir], r_hat, None if near_k is None else float(p.t_s[near_k]))
+    k_dir, r_hat = k_dir[seg], r_hat[seg]
+    if len(k_dir) < MIN_DIRECTION_EPOCHS:
+        raise UserError(f"{p.source}: too few direction epochs in one session for an initial "
+                        f"orbit; add 'prior_position' and 'prior_velocity' rows")
+    u_by_k = {k: -r for k, r in zip(k_dir.tolist(), r_hat)}
+    t_dir = p.t_s[k_dir]
+    # the epochs of the refinement: an even subsample of those with fit rows in the session
+    k_fit = np.unique(np.concatenate([p.families[k].k for k in _FIT_KINDS if k in p.families]))
+    k_fit = k_fit[(k_fit >= k_dir[0]) & (k_fit <= k_dir[-1])]
+    k_sub = k_fit[np.unique(np.linspace(0, len(k_fit) - 1, min(len(k_fit), MAX_EPOCHS)).round().astype(int))]
+    # the reference epoch: the subsample epoch nearest the middle of the arc
+    k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - 0.5 * (t_dir[0] + t_dir[-1])))])
+    t_ref = float(p.t_s[k_ref])
+    sp = _subpass(p, k_sub)
+    # RK4 sub-steps of up to 20 s: ~0.1 m per hour on the seed-002 transfer orbit and a
+    # LEO (error ~ h^4 from the 5 s figures in factors.dynamics), far below the IOD's sigma.
+    fit_model = replace(model, max_step_s=max(model.max_step_s, 20.0))
+
+    starts = []
+    h_hat, p_hat, q_hat, theta = _plane(r_hat)
+    for _, (n, e, om, M0) in _angle_fit(t_dir - t_ref, theta, mu)[:3]:
+        starts.append(("angles-kepler", _state_from_elements(n, e, om, M0, p_hat, q_hat, h_hat, mu)))
+    g = _gibbs_start(p, u_by_k, mu)
+    if g is not None:
+        x_g, k_g, how = g
+        if k_g != k_ref:
+            x_g = propagate(x_g, t_ref - p.t_s[k_g], fit_model, t0_j2000_s + p.t_s[k_g], with_stm=False)[0]
+        starts.append((how, x_g))
+    # Each start a few iterations, then the best of them to convergence.
+    fits = []
+    for how, x0 in starts:
+        if np.all(np.isfinite(x0)):
+            fit = _levenberg_marquardt(sp, x0, t_ref, fit_model, t0_j2000_s, max_iterations=4)
+            if fit is not None:
+                fits.append((fit[3], how, fit[0]))
+    best = None
+    if fits:
+        _, how, x0 = min(fits, key=lambda f: f[0])
+        fit = _levenberg_marquardt(sp, x0, t_ref, fit_model, t0_j2000_s)
+        best = None if fit is None else (how, fit)
+    if best is None:
+        raise UserError(f"{p.source}: no initial orbit could be fitted to the directions "
+                        f"({p.counts()}); add 'prior_position' and 'prior_velocity' rows")
+    how, (x, r, A, cost) = best
+    rms = math.sqrt(cost / len(r))
+    N = A.T @ A
+    d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+    try:
+        P = np.linalg.inv(N / np.outer(d, d)) / np.outer(d, d)
+    except np.linalg.LinAlgError:
+        P = np.full((6, 6), np.inf)
+    P = 0.5 * (P + P.T) * max(1.0, rms ** 2)
+    if not (np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)):
+        raise UserError(f"{p.source}: the directions alone do not determine the orbit "
+                        f"({p.counts()} over {p.t_s[-1] - p.t_s[0]:.0f} s): add 'prior_position' "
+                        f"and 'prior_velocity' rows, range-type rows or a longer arc")
+    return InitialOrbit(k_ref=k_ref, x_eci=x, P_eci=P, method=f"{how}+lm", n_used=len(k_sub),
+                        t_span_s=(float(t_dir[0]), float(t_dir[-1])),
+                        rms_whitened=rms)
+
+
+# ------------------------------------------------------------------------- uses
+
+def propagate_orbit(iod: InitialOrbit, p: Pass, model: MotionModel, t0_j2000_s: float,
+                    k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The initial orbit's state (6,) and covariance (6,6) at epoch ``k`` (linear mapping
+    ``Phi P Phi^T`` through the propagator's state-transition matrix)."""
+    t_ref = float(p.t_s[iod.k_ref])
+    x, Phi = propagate(iod.x_eci, float(p.t_s[k]) - t_ref, model, t0_j2000_s + t_ref)
+    return x, Phi @ iod.P_eci @ Phi.T
+
+
+def trajectory(iod: InitialOrbit, p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
+    """The initial orbit propagated to every epoch of the pass (N, 6): a first guess."""
+    X = np.empty((p.n_epochs, 6))
+    X[iod.k_ref] = iod.x_eci
+    for k in range(iod.k_ref + 1, p.n_epochs):
+        X[k] = propagate(X[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1],
+                         with_stm=False)[0]
+    for k in range(iod.k_ref - 1, -1, -1):
+        X[k] = propagate(X[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1],
+                         with_stm=False)[0]
+    return X
+
+
+def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s: float,
+                      probability: float = PRIOR_GATE_PROBABILITY) -> dict:
+    """Does the log's prior agree with the orbit its measurements give?
+
+    The initial orbit is propagated to the prior's epoch ``k0``; with ``d = x_prior - x_iod``
+    and ``S = P_prior + P_iod`` the squared Mahalanobis distance ``d^T S^-1 d`` is
+    chi-square with 6 degrees of freedom when both are right (the IOD uses no prior row, so
+    the two are independent). The prior contradicts the data when it exceeds the quantile
+    ``probability`` (default 1 - 1e-6: one false alarm in a million clean logs). The
+    covariance is propagated linearly: use an initial orbit from data beside the prior's
+    epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
+    prior farther from that data than the data's own span).
+    """
+    from scipy.stats import chi2
+
+    k0, x_prior = prior_state(p)
+    P_prior = prior_covariance(p, k0)
+    x_iod, P_iod = propagate_orbit(iod, p, model, t0_j2000_s, k0)
+    d = x_prior - x_iod
+    S = P_prior + P_iod
+    s = 1.0 / np.sqrt(np.diag(S))
+    m2 = float((d * s) @ np.linalg.solve(S * np.outer(s, s), d * s))
+    gate = float(chi2.ppf(probability, 6))
+    return {"prior_mahalanobis": math.sqrt(max(m2, 0.0)), "prior_mahalanobis2": m2,
+            "prior_dof": 6, "prior_gate_chi2": gate, "prior_gate_probability": probability,
+            "prior_consistent": bool(m2 <= gate),
+            "prior_position_offset_m": float(np.linalg.norm(d[:3])),
+            "prior_velocity_offset_mps": float(np.linalg.norm(d[3:]))}
+
+
+# ------------------------------------------------------------------------- the smoothers' start
+
+START_INFLATION = 100.0  # covariance factor of the initial orbit when it starts a filter
+MAX_TEST_RMS = 1.5       # the prior is tested only against a fit at the noise level
+
+
+def has_prior(p: Pass) -> bool:
+    """Whether the pass has both ``prior_position`` and ``prior_velocity`` rows."""
+    return p.count("prior_position") > 0 and p.count("prior_velocity") > 0
+
+
+def strip_prior(p: Pass) -> Pass:
+    """The pass without its ``prior_position`` / ``prior_velocity`` rows."""
+    fams = {k: f for k, f in p.families.items() if k not in ("prior_position", "prior_velocity")}
+    return Pass(epoch0=p.epoch0, t_s=p.t_s, families=fams, source=p.source,
+                warnings=list(p.warnings))
+
+
+def with_start_prior(p: Pass, x0: np.ndarray, P0: np.ndarray) -> Pass:
+    """The pass (priors stripped) with prior rows at epoch 0 of mean ``x0`` and isotropic
+    1-sigma the square root of the largest eigenvalue of each 3x3 block of ``P0`` (the
+    rows' format has one sigma per row, so the ellipsoid is covered by its sphere)."""
+    q = strip_prior(p)
+    sig_r = math.sqrt(float(np.linalg.eigvalsh(P0[:3, :3])[-1]))
+    sig_v = math.sqrt(float(np.linalg.eigvalsh(P0[3:, 3:])[-1]))
+    one = np.zeros(1, dtype=int)
+    q.families = {"prior_position": Family(k=one, values={"xyz": x0[None, :3].copy()},
+                                           sigma=np.array([sig_r]), line=np.zeros(1, dtype=int)),
+                  "prior_velocity": Family(k=one, values={"xyz": x0[None, 3:].copy()},
+                                           sigma=np.array([sig_v]), line=np.zeros(1, dtype=int)),
+                  **q.families}
+    return q
+
+
+@dataclass
+class Start:
+    """Where the smoothers start: the pass they see, the first guess of every state, the
+    batch first guess (None: the solver's own from the log's prior) and the summary entry."""
+
+    p: Pass
+    x_guess: np.ndarray
+    x_init: np.ndarray | None
+    info: dict
+    synthetic_prior: bool = False
+
+    def finish(self, sol):
+        """Record the start in ``sol.extras["initial_orbit"]``; drop the residuals of a
+        synthetic start prior (not a measurement of the log)."""
+        if self.synthetic_prior:
+            for kind in ("prior_position", "prior_velocity"):
+                sol.residuals.pop(kind, None)
+        sol.extras["initial_orbit"] = self.info
+        return sol
+
+
+def _summary(iod: InitialOrbit, p: Pass) -> dict:
+    return {"method": iod.method, "epoch_index": int(iod.k_ref), "t_s": float(p.t_s[iod.k_ref]),
+            "position_sigma_m": float(math.sqrt(np.trace(iod.P_eci[:3, :3]))),
+            "velocity_sigma_mps": float(math.sqrt(np.trace(iod.P_eci[3:, 3:]))),
+            "rms_whitened": float(iod.rms_whitened), "n_used": int(iod.n_used)}
+
+
+def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
+                ignore_prior: bool = False) -> Start:
+    """Choose the smoothers' start (see the README, "No prior").
+
+    * The log has a prior (and ``ignore_prior`` is False): the prior starts the solvers;
+      when the measurements support an initial orbit, :func:`prior_consistency` tests the
+      prior against it, and a prior that contradicts the data no longer starts the solvers:
+      batch keeps the prior in its graph but starts Gauss-Newton (and any robust kernel)
+      from the initial orbit; the online methods (whose start *is* their prior) start from
+      the initial orbit, covariance inflated by ``START_INFLATION``, in place of the prior.
+    * No prior rows, or ``ignore_prior``: the initial orbit. Batch uses it as the first
+      guess only (no prior factor: the solution is the measurements'); isam2 / fixed-lag /
+      ekf start at epoch 0 from it with its covariance inflated by ``START_INFLATION``.
+    """
+    from fgnav.solvers.first_guess import initial_guess
+
+    prior = has_prior(p) and not ignore_prior
+    if prior:
+        x_guess = initial_guess(p, model, t0_j2000_s)
+        info = {"prior": "log"}
+        ok, why = iod_support(p)
+        if not ok:
+            info["consistency"] = f"not tested: {why.split(':')[0]}"
+            return Start(p, x_guess, None, info)
+        try:
+            iod = initial_orbit(strip_prior(p), model, t0_j2000_s, near_k=prior_state(p)[0])
+        except UserError as exc:  # every failure of the fit is one (initial_orbit)
+            info["consistency"] = f"not tested: {exc}"
+            return Start(p, x_guess, None, info)
+        info.update(_summary(iod, p))
+        t_prior = float(p.t_s[prior_state(p)[0]])
+        t_a, t_b = iod.t_span_s
+        away = max(t_a - t_prior, t_prior - t_b, 0.0)
+        if away > t_b - t_a:
+            info["consistency"] = (f"not tested: the prior's epoch is {away:.0f} s from the "
+                                   f"session of data the initial orbit uses ({t_b - t_a:.0f} s "
+                                   f"long), too far for a linear propagation of its covariance")
+            return Start(p, x_guess, None, info)
+        if iod.rms_whitened > MAX_TEST_RMS:
+            info["consistency"] = (f"not tested: the initial orbit fits the data to whitened rms "
+                                   f"{iod.rms_whitened:.2f} (> {MAX_TEST_RMS:g}): forces missing "
+                                   f"from the motion model, or outliers")
+            return Start(p, x_guess, None, info)
+        info.update(prior_consistency(p, iod, model, t0_j2000_s))
+        if info["prior_consistent"]:
+            return Start(p, x_guess, None, info)
+        x_iod = trajectory(iod, p, model, t0_j2000_s)
+        if method == "batch":
+            info["start"] = "initial orbit (the log's prior contradicts the data; it stays in the graph)"
+            return Start(p, x_iod, x_iod, info)
+        x0, P0 = propagate_orbit(iod, p, model, t0_j2000_s, 0)
+        info["prior"] = "initial_orbit"
+        info["start"] = (f"initial orbit at epoch 0, covariance inflated x{START_INFLATION:g}, in place "
+                         f"of the log's prior, which contradicts the data")
+        return Start(with_start_prior(p, x0, START_INFLATION * P0), x_iod, None, info,
+                     synthetic_prior=True)
+    q = strip_prior(p)
+    iod = initial_orbit(q, model, t0_j2000_s)
+    info = {"prior": "ignored" if has_prior(p) else "initial_orbit", **_summary(iod, p)}
+    x_iod = trajectory(iod, p, model, t0_j2000_s)
+    if method == "batch":
+        info["start"] = "initial orbit as the first guess; no prior factor"
+        return Start(q, x_iod, x_iod, info)
+    x0, P0 = propagate_orbit(iod, p, model, t0_j2000_s, 0)
+    info["start"] = f"initial orbit at epoch 0, covariance inflated x{START_INFLATION:g}"
+    return Start(with_start_prior(q, x0, START_INFLATION * P0), x_iod, None, info,
+                 synthetic_prior=True)
