@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.measurements import build_pass
-from fgnav.pipeline import accuracy_metrics, solve, summarize, truth_at
+from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
 from fgnav.simulate import faults as F
 from fgnav.solvers.batch import SmootherOptions
 
@@ -55,8 +55,8 @@ FAULTS = {
 
 def run_case(made, method="batch", options=SmootherOptions()):
     log, t, x = made
-    p = build_pass(log)
     try:
+        p = prepare_pass(build_pass(log), options)
         sol = solve(p, method, options)
     except Exception as exc:  # noqa: BLE001 - a study records every outcome
         return {"status": "refused", "error": f"{type(exc).__name__}: {exc}"[:200]}

@@ -18,7 +18,7 @@ from fgnav.integrity import assess, largest_run, stderr_line
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
-from fgnav.pipeline import accuracy_metrics, solve, summarize, truth_at
+from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
 from fgnav.solvers.batch import SmootherOptions
 
 ONE_HOUR = {"duration_h": 1.0}
@@ -26,7 +26,7 @@ ONE_HOUR = {"duration_h": 1.0}
 
 def verdict(made, method="batch", options=SmootherOptions()):
     log, t, x = made
-    p = build_pass(log)
+    p = prepare_pass(build_pass(log), options)
     sol = solve(p, method, options)
     s = summarize(sol, p, options)
     s.update(accuracy_metrics(sol, truth_at(t, x, sol.t_s)))
@@ -102,6 +102,36 @@ def test_small_manoeuvre_leaves_no_evidence_in_direction_only_data():
     glr = s["integrity"]["manoeuvre_glr"]
     assert s["nees_mean"] > 50
     assert glr["glr"] < glr["threshold"]
+
+
+@pytest.mark.parametrize("method", ["batch", "isam2", "ekf"])
+def test_mirrored_directions_fail(method):
+    """30 % of the directions flipped (u -> -u): on the sphere each is pi from its
+    prediction, and the verdict fails the run (it was bit-identical to the clean one)."""
+    s = verdict(F.mirrored(0.3, **ONE_HOUR), method)
+    assert s["integrity"]["status"] == "failed"
+    assert s["integrity"]["families"]["earth_direction"]["normalized"] > 1e3
+
+
+def test_no_prior_is_ok_and_near_the_bound():
+    """No prior rows: the orbit comes from the measurements (initial orbit determination),
+    the smoothed solution is trusted and accurate (the bound here is computed with the
+    solution's own pass, which has no prior either)."""
+    s = verdict(F.without_prior(**ONE_HOUR))
+    assert s["initial_orbit"]["prior"] == "initial_orbit"
+    assert s["integrity"]["status"] == "ok", s["integrity"]["reasons"]
+    assert s["position_rms_m"] < 2.0 * s["crb_position_rms_m"]
+    assert s["nees_mean"] < 15
+
+
+@pytest.mark.parametrize("method", ["batch", "fixed-lag", "ekf"])
+def test_a_gap_is_ok_and_consistent(method):
+    """Twenty minutes without data in a 1 h pass: a state at every epoch, a trusted verdict
+    and a NEES that matches."""
+    s = verdict(F.gap(1200.0, 1200.0, **ONE_HOUR), method)
+    assert s["integrity"]["status"] == "ok", s["integrity"]["reasons"]
+    assert s["nees_mean"] < 15
+    assert s.get("inserted_epochs", 0) > 0
 
 
 def test_robust_solve_that_rejects_everything_fails():

@@ -1,0 +1,127 @@
+"""``fgnav smooth`` end to end on mutated logs and options (hypothesis).
+
+Whatever the log and the options, the command ends in one of two ways: exit 0 (or 3 with
+``--strict``) with a summary.json that carries an integrity verdict, or exit 2 with one
+``fgnav: error:`` message. Never a traceback, never a hang.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from hypothesis import HealthCheck, event, given, settings
+from hypothesis import strategies as st
+
+from fgnav.cli import main
+from fgnav.io.log_csv import write_log
+from fgnav.simulate import faults as F
+
+KINDS = ["prior_position", "prior_velocity", "earth_direction", "limb_radius", "altitude",
+         "attitude", "earth_direction_body", "refraction", "bogus"]
+
+
+_CLEAN: list[str] = []
+
+
+def clean_lines(tmp_path) -> list[str]:
+    """A short clean GEO log (direction + limb, 31 epochs), as lines; made once."""
+    if not _CLEAN:
+        log, _, _ = F.clean("geo-limb", duration_h=0.5, step_s=120.0)
+        write_log(tmp_path / "clean.csv", log)
+        _CLEAN.extend((tmp_path / "clean.csv").read_text().splitlines())
+    return list(_CLEAN)
+
+
+def _mutate_line(line: str, data) -> str:
+    if line.startswith("#") or line.startswith("epoch,"):
+        return line
+    cols = line.split(",")
+    op = data.draw(st.sampled_from(["number", "nan", "empty", "kind", "epoch", "flip", "sigma",
+                                    "extra", "garbage"]))
+    if op == "number" and len(cols) > 2:
+        i = data.draw(st.integers(2, len(cols) - 1))
+        cols[i] = repr(data.draw(st.floats(allow_nan=False, allow_infinity=True, width=64)))
+    elif op == "nan":
+        cols[data.draw(st.integers(0, len(cols) - 1))] = "nan"
+    elif op == "empty":
+        cols[data.draw(st.integers(0, len(cols) - 1))] = ""
+    elif op == "kind":
+        cols[1] = data.draw(st.sampled_from(KINDS))
+    elif op == "epoch":
+        cols[0] = data.draw(st.sampled_from(["2025-03-01T00:00:60Z", "2016-12-31T23:59:60Z",
+                                             "2025-02-30T00:00:00Z", "yesterday", "2025-03-01",
+                                             "2025-03-21T00:00:00.000000Z"]))
+    elif op == "flip" and len(cols) >= 5:
+        cols[2:5] = [c[1:] if c.startswith("-") else "-" + c for c in cols[2:5]]
+    elif op == "sigma":
+        cols[5] = data.draw(st.sampled_from(["0", "-1", "1e-300", "1e-12", "1e300", "inf"]))
+    elif op == "extra":
+        cols.append("1.0")
+    else:
+        return data.draw(st.text(max_size=40).filter(lambda s: "\n" not in s and "\r" not in s))
+    return ",".join(cols)
+
+
+METHOD_OPTIONS = {  # options each method uses: two valid values first, then bad ones
+    "--robust": (["batch", "isam2", "fixed-lag"], ["huber", "cauchy", "none"]),
+    "--gate": (["isam2", "fixed-lag", "ekf"], ["0.9999", "0.99", "1.0", "0", "nan"]),
+    "--lag-s": (["fixed-lag"], ["300", "60", "0", "-5", "nan"]),
+    "--process-noise": (["batch", "isam2", "fixed-lag", "ekf"], ["1e-12", "1e-8", "0", "inf"]),
+}
+
+
+@st.composite
+def options(draw):
+    """Mostly options the method uses (so most runs reach the solver), sometimes one it does
+    not use or a bad value (which must be refused with exit 2)."""
+    method = draw(st.sampled_from(["batch", "isam2", "fixed-lag", "ekf"]))
+    opts = ["--method", method]
+    for flag, (methods, values) in METHOD_OPTIONS.items():
+        if method in methods and draw(st.integers(0, 2)) == 0:
+            opts += [flag, draw(st.sampled_from(values[:2] if draw(st.integers(0, 3)) else values))]
+        elif method not in methods and draw(st.integers(0, 9)) == 0:
+            opts += [flag, values[0]]
+    for flag in ("--third-body", "--strict", "--ignore-prior"):
+        if draw(st.integers(0, 3)) == 0:
+            opts.append(flag)
+    return opts
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
+                                                                  HealthCheck.too_slow])
+@given(data=st.data(), opts=options())
+def test_smooth_end_to_end_never_a_traceback(tmp_path, capsys, data, opts):
+    lines = clean_lines(tmp_path)
+    n = len(lines)
+    # structural mutations: drop a block (a gap), duplicate rows, truncate, mutate values
+    if data.draw(st.booleans()):
+        a = data.draw(st.integers(2, n - 1))
+        b = data.draw(st.integers(a, n))
+        del lines[a:b]
+    if data.draw(st.booleans()) and len(lines) > 3:
+        i = data.draw(st.integers(2, len(lines) - 1))
+        lines.insert(i, lines[i])
+    for _ in range(data.draw(st.integers(0, 4))):
+        if len(lines) > 2:
+            i = data.draw(st.integers(2, len(lines) - 1))
+            lines[i] = _mutate_line(lines[i], data)
+    text = "\n".join(lines) + "\n"
+    if data.draw(st.booleans()):
+        text = text[:data.draw(st.integers(0, len(text)))]
+    log = tmp_path / "log.csv"
+    log.write_text(text)
+    out = tmp_path / "out"
+    rc = main(["smooth", str(log), "--out", str(out), "--quiet", *opts])
+    err = capsys.readouterr().err
+    event(f"exit {rc}")
+    assert "Traceback" not in err
+    assert rc in (0, 2, 3), (rc, err)
+    if rc == 2:
+        assert err.startswith("fgnav: error:"), err
+    else:
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["integrity"]["status"] in ("ok", "suspect", "failed")
+        assert np.isfinite(summary["epochs"])
+        if rc == 3:
+            assert summary["integrity"]["status"] != "ok"
