@@ -296,6 +296,36 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     return out
 
 
+def needs_prior_test(sol, p) -> str | None:
+    """Why a solution started from the log's prior should have that prior tested against
+    the measurements' own orbit, or None when it fits the data: no convergence, non-finite
+    numbers, a measurement family beyond the suspect chi-square (its rejected rows left out)
+    or mostly rejected, or the prior itself beyond its gate. Cheap: residuals only."""
+    if sol.extras.get("converged") is False:
+        return "no convergence"
+    if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))):
+        return "non-finite solution"
+    row_weights = sol.extras.get("row_weights") or {}
+    prior_chi2, prior_dof = 0.0, 0
+    for kind, r in sol.residuals.items():
+        r = np.asarray(r, dtype=float)
+        keep = np.all(np.isfinite(r), axis=1)
+        if kind in PRIOR_KINDS:
+            prior_chi2 += float(np.sum(r[keep] ** 2))
+            prior_dof += int(keep.sum() * r.shape[1])
+            continue
+        w = row_weights.get(kind)
+        if w is not None:
+            if np.mean(np.asarray(w) == 0) > MAX_REJECTED_FRACTION:
+                return f"{kind}: most rows rejected"
+            keep &= np.asarray(w) > 0
+        if _severity(_chi2_test(float(np.sum(r[keep] ** 2)), int(keep.sum() * r.shape[1]))) != "ok":
+            return f"{kind}: residuals beyond their noise"
+    if prior_dof and _chi2_test(prior_chi2, prior_dof)["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY):
+        return "the prior is far from the solution"
+    return None
+
+
 def stderr_line(integrity: dict) -> str | None:
     """One line for stderr when the verdict is not ``ok``: what is wrong, what to try."""
     if integrity["status"] == "ok":

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgnav.errors import UserError
+from fgnav.errors import NotObservableError, UserError
 from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.solution import Solution
 from fgnav.solvers.batch import SmootherOptions
@@ -30,12 +30,15 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     into arcs solved one by one (:mod:`fgnav.solvers.arcs`); ``gap_factor=None`` keeps the
     pass as given (already planned, or no gap handling). Without prior rows, or with
     ``ignore_prior``, the solvers start from the orbit the measurements give
-    (:func:`fgnav.initial_orbit.start_point`, which also tests a log's prior against that
-    orbit); ``Solution.extras["initial_orbit"]`` records the start.
+    (:func:`fgnav.initial_orbit.start_point`). With a prior they start from it, and when the
+    solution does not fit the data the prior is tested against that orbit and, if the data
+    refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
+    records the start.
     """
     from fgnav.analysis.crb import check_observability
-    from fgnav.initial_orbit import has_prior, start_point
-    from fgnav.solvers.batch import smooth_batch
+    from fgnav.initial_orbit import Start, has_prior, start_point
+    from fgnav.integrity import needs_prior_test
+    from fgnav.solvers.first_guess import initial_guess
     from fgnav.time import j2000_seconds
 
     if method not in METHODS:
@@ -53,14 +56,48 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                                                progress=progress, gap_factor=None,
                                                ignore_prior=ignore_prior), method)
     model = options.motion_model()
-    start = start_point(p, method, model, float(j2000_seconds(p.epoch0)), ignore_prior=ignore_prior)
+    t0_j2000 = float(j2000_seconds(p.epoch0))
+
+    def run(start: Start) -> Solution:
+        try:
+            check_observability(start.p, start.x_guess, model)
+        except UserError as exc:
+            if not from_data:
+                raise
+            raise type(exc)(f"{exc} Without a prior the orbit comes from the measurements "
+                            f"alone: or add 'prior_position' and 'prior_velocity' rows.") from exc
+        return start.finish(_dispatch(start, method, options, lag_s=lag_s, progress=progress,
+                                      checkpoint=checkpoint, checkpoint_every=checkpoint_every,
+                                      resume=resume))
+
+    if from_data or checkpoint:
+        return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior))
+    # From the log's prior first; the prior is tested against the orbit of the measurements
+    # alone (initial orbit determination, 0.2-0.5 s) only when the solution does not fit the
+    # data, and the solve is repeated from that orbit when the data refute the prior.
     try:
-        check_observability(start.p, start.x_guess, model)
-    except UserError as exc:
-        if not from_data:
-            raise
-        raise type(exc)(f"{exc} Without a prior the orbit comes from the measurements alone: "
-                        f"or add 'prior_position' and 'prior_velocity' rows.") from exc
+        sol = run(Start(p, initial_guess(p, model, t0_j2000), None, {"prior": "log"}))
+    except NotObservableError as exc:  # along the prior's orbit; the data's may do
+        sol, why, failure = None, "not observable along the prior's orbit", exc
+    else:
+        why, failure = needs_prior_test(sol, p), None
+    if why is None:
+        sol.extras["initial_orbit"]["consistency"] = "not tested: the solution fits the data"
+        return sol
+    start = start_point(p, method, model, t0_j2000)
+    start.info["tested_because"] = why
+    if start.info.get("prior_consistent") is False:
+        return run(start)
+    if failure is not None:
+        raise failure
+    return start.finish(sol)
+
+
+def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
+              checkpoint_every, resume) -> Solution:
+    """The chosen estimator from a start point (:class:`fgnav.initial_orbit.Start`)."""
+    from fgnav.solvers.batch import smooth_batch
+
     p = start.p
     if method == "batch":
         if start.x_init is not None:
@@ -72,20 +109,20 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
             sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
                                x_init=start.x_init, progress=progress)
             if sol.extras.get("converged"):
-                return start.finish(sol)
-        return start.finish(smooth_batch(p, options, x_init=start.x_init, progress=progress))
+                return sol
+        return smooth_batch(p, options, x_init=start.x_init, progress=progress)
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
         from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
         if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
-            return start.finish(run_ekf_numba(p, options, progress=progress))
+            return run_ekf_numba(p, options, progress=progress)
         from fgnav.solvers.ekf import run_ekf
-        return start.finish(run_ekf(p, options, progress=progress))
+        return run_ekf(p, options, progress=progress)
     from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
-    return start.finish(smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                                           progress=progress, checkpoint=checkpoint,
-                                           checkpoint_every=checkpoint_every, resume=resume))
+    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
+                              progress=progress, checkpoint=checkpoint,
+                              checkpoint_every=checkpoint_every, resume=resume)
 
 
 def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 10.0,
