@@ -36,13 +36,19 @@ def with_rows(log, *, xyz=None, sigma=None, keep=None, t_s=None):
                            sigma[keep], extra)
 
 
-def outliers(fraction=0.05, seed=0, **opts):
-    """``fraction`` of the Earth directions replaced by random unit vectors."""
+def _direction_rows(fraction, seed, salt, opts):
+    """A clean pass, a copy of its xyz, and ``fraction`` of its Earth-direction rows drawn
+    at random (the draw seeded by ``salt + seed``)."""
     log, t, x = clean(seed=seed, **opts)
-    rng = np.random.default_rng(1000 + seed)
-    xyz = log.xyz.copy()
+    rng = np.random.default_rng(salt + seed)
     rows = np.flatnonzero(log.kind == "earth_direction")
     bad = rng.choice(rows, int(round(fraction * len(rows))), replace=False)
+    return log, t, x, log.xyz.copy(), bad, rng
+
+
+def outliers(fraction=0.05, seed=0, **opts):
+    """``fraction`` of the Earth directions replaced by random unit vectors."""
+    log, t, x, xyz, bad, rng = _direction_rows(fraction, seed, 1000, opts)
     v = rng.standard_normal((len(bad), 3))
     xyz[bad] = v / np.linalg.norm(v, axis=1, keepdims=True)
     return with_rows(log, xyz=xyz), t, x
@@ -50,11 +56,7 @@ def outliers(fraction=0.05, seed=0, **opts):
 
 def mirrored(fraction=0.3, seed=0, **opts):
     """``fraction`` of the Earth directions replaced by their opposite (u -> -u)."""
-    log, t, x = clean(seed=seed, **opts)
-    rng = np.random.default_rng(2000 + seed)
-    xyz = log.xyz.copy()
-    rows = np.flatnonzero(log.kind == "earth_direction")
-    bad = rng.choice(rows, int(round(fraction * len(rows))), replace=False)
+    log, t, x, xyz, bad, _ = _direction_rows(fraction, seed, 2000, opts)
     xyz[bad] = -xyz[bad]
     return with_rows(log, xyz=xyz), t, x
 
