@@ -245,7 +245,10 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
 
     glr = third = None
     finite = np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))
-    if model is not None and finite and p.n_epochs >= 8:
+    if getattr(p, "breaks", ()):
+        notes.append("manoeuvre and omitted-force tests not run: the log is solved as separate "
+                     "arcs")
+    elif model is not None and finite and p.n_epochs >= 8:
         try:
             mapped = _Mapped(p, sol, model, row_weights)
         except (np.linalg.LinAlgError, ValueError):

@@ -150,6 +150,14 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
                 keep = r[kind] >= 0
                 residuals[kind][r[kind][keep]] = res[keep]
     extras = dict(sols[0].extras)
+    weights = {}  # robust weights / gate decisions of every row, in the order of p
+    for s, r in zip(sols, rows):
+        for kind, w in (s.extras.get("row_weights") or {}).items():
+            if kind in r and kind in p.families:
+                keep = r[kind] >= 0
+                weights.setdefault(kind, np.ones(len(p.families[kind])))[r[kind][keep]] = \
+                    np.asarray(w)[keep]
+    extras["row_weights"] = weights
     for key in ("chi2_measurements", "chi2_motion"):
         if all(key in s.extras for s in sols):
             extras[key] = float(sum(s.extras[key] for s in sols))
