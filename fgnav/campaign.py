@@ -217,7 +217,7 @@ def _scenario_for(params):
 
 
 def _options_for(params):
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     kw = {}
     if params.get("q_m2_s3") is not None:

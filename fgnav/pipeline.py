@@ -14,7 +14,7 @@ import numpy as np
 from fgnav.errors import NotObservableError, UserError
 from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.solution import Solution
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
@@ -119,7 +119,8 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
             return run_ekf_numba(p, options, progress=progress)
         from fgnav.solvers.ekf import run_ekf
         return run_ekf(p, options, progress=progress)
-    from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
+    from fgnav.solvers.incremental import smooth_incremental
+    from fgnav.solvers.options import IncrementalOptions
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
                               progress=progress, checkpoint=checkpoint,
                               checkpoint_every=checkpoint_every, resume=resume)

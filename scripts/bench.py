@@ -86,7 +86,7 @@ def worker(method: str, pass_file: str) -> dict:
     with open(pass_file, "rb") as fh:
         p, x_true = pickle.load(fh)
     from fgnav.solution import latency_summary
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
     options = SmootherOptions()
     out: dict = {"method": method, "epochs": int(p.n_epochs)}
     if method == "batch":
@@ -98,7 +98,8 @@ def worker(method: str, pass_file: str) -> dict:
         out["converged"] = bool(sol.extras.get("converged"))
         out["marginals"] = bool(sol.P_eci.shape == (p.n_epochs, 6, 6) and np.all(np.isfinite(sol.P_eci)))
     elif method in ("fixed-lag", "isam2"):
-        from fgnav.solvers.incremental import IncrementalOptions, smooth_incremental
+        from fgnav.solvers.incremental import smooth_incremental
+        from fgnav.solvers.options import IncrementalOptions
         t0 = time.perf_counter()
         sol = smooth_incremental(p, options, IncrementalOptions(lag_s=LAG_S), method=method)
         out["solver_s"] = time.perf_counter() - t0

@@ -23,7 +23,7 @@ import numpy as np
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
 from fgnav.simulate import faults as F
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 
 ONE_HOUR = {"duration_h": 1.0}
 DAY_S = 86400.0

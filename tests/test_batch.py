@@ -14,7 +14,8 @@ from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.batch import SmootherOptions, build_linear_graph, eliminate_chain, smooth_batch
+from fgnav.solvers.batch import build_linear_graph, eliminate_chain, smooth_batch
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.time import j2000_seconds
 

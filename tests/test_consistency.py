@@ -59,7 +59,7 @@ def monte_carlo():
     from fgnav.pipeline import solve
     from fgnav.scenarios import load_scenario
     from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     scn = load_scenario("gto-transfer").with_options(step_s=60.0, duration_h=1.0)
     opt = SmootherOptions()

@@ -13,7 +13,7 @@ import pytest
 from fgnav.measurements import Family, build_pass
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import first_state, run_ekf_numba
 
@@ -91,7 +91,7 @@ def test_equals_numpy_ekf_with_third_body_and_step_latency():
 
 def test_prior_at_later_epoch_is_propagated_back():
     p, sim = _mixed_pass(seed=5, duration_h=0.5)
-    from fgnav.solvers.batch import initial_guess
+    from fgnav.solvers.first_guess import initial_guess
     from fgnav.time import j2000_seconds
 
     # move the priors to epoch 7: the first state is the prior propagated back

@@ -158,7 +158,7 @@ def test_sessions_20_days_apart_are_solved_as_two_arcs_with_a_bounded_state_coun
 def test_the_20_day_gap_is_reported_not_bridged_with_its_prediction():
     p, _ = two_sessions(20.0)
     from fgnav.solvers.arcs import KAPPA_MAX, gap_summary, plan_gaps
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     planned = plan_gaps(p, SmootherOptions())
     (g,) = gap_summary(planned)
@@ -172,7 +172,7 @@ def test_a_long_bridged_gap_gets_at_most_the_bounded_number_of_states():
     """A 6 h gap at 30 s sampling (719 epochs at the median step) gets 200 evenly spaced."""
     p, _, _ = gap_case(6 * 3600.0)
     from fgnav.solvers.arcs import plan_gaps
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     planned = plan_gaps(p, SmootherOptions())
     assert planned.inserted.sum() == MAX_INSERTED_PER_GAP
@@ -243,7 +243,8 @@ def test_motion_model_over_a_day_long_step():
 def test_chain_marginals_stay_exact_across_a_12_hour_step():
     """The O(N) marginals and update of the QR-eliminated chain against a dense SVD solve
     when one step is 12 h long (its process-noise covariance 1e8 times a 2-min step's)."""
-    from fgnav.solvers.batch import SmootherOptions, build_linear_graph, eliminate_chain
+    from fgnav.solvers.batch import build_linear_graph, eliminate_chain
+    from fgnav.solvers.options import SmootherOptions
     from fgnav.solvers.chain import back_substitute, chain_marginals
 
     scn = load_scenario("gto-transfer").with_options(step_s=120.0, duration_h=13.0)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fgnav.pipeline import solve
-from fgnav.solvers.incremental import IncrementalOptions
+from fgnav.solvers.options import IncrementalOptions
 
 from test_batch import gto
 

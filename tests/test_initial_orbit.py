@@ -28,7 +28,7 @@ from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 from fgnav.time import format_utc, j2000_seconds
 
 NEES_GATE_6 = chi2.ppf(0.9999, 6)

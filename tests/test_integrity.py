@@ -19,7 +19,7 @@ from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 
 ONE_HOUR = {"duration_h": 1.0}
 

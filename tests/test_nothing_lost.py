@@ -13,7 +13,7 @@ from fgnav.cli import main
 from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.incremental import smooth_incremental
 
 

@@ -23,7 +23,8 @@ from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.simulate.refraction_sim import true_tangent_height_m
-from fgnav.solvers.batch import SmootherOptions, initial_guess
+from fgnav.solvers.first_guess import initial_guess
+from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
 

@@ -10,7 +10,7 @@ from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import perturb_directions, simulate_pass
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 
 STEP_S = 20.0
 

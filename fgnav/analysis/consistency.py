@@ -129,7 +129,7 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
 
     The predicted state of epoch k is the filtered state of k-1 propagated with the same
     motion model and process noise as :func:`fgnav.solvers.ekf.run_ekf` (``options`` is its
-    :class:`~fgnav.solvers.batch.SmootherOptions`); all of epoch k's measurement rows form one
+    :class:`~fgnav.solvers.options.SmootherOptions`); all of epoch k's measurement rows form one
     joint innovation. Returns ``(nis (K,), dof (K,))`` over epochs 1..N-1 that carry data.
     """
     from factors.dynamics import process_noise, propagate

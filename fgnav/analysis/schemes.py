@@ -90,7 +90,8 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
     from fgnav.measurements import build_pass
     from fgnav.scenarios import load_scenario
     from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.batch import SmootherOptions, initial_guess
+    from fgnav.solvers.first_guess import initial_guess
+    from fgnav.solvers.options import SmootherOptions
     from fgnav.time import j2000_seconds
 
     base = load_scenario(scenario).with_options(duration_h=duration_h)
@@ -131,7 +132,7 @@ def sem_study(seed=0, *, scenario="leo-sun-earth-moon", duration_h=None, q_m2_s3
     from fgnav.scenarios import load_scenario
     from fgnav.sem import preprocess_log
     from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     scn = load_scenario(scenario).with_options(duration_h=duration_h)
     sim = simulate_pass(scn, seed=seed)

@@ -92,7 +92,7 @@ def check_solver_args(args, methods) -> None:
 
 
 def solver_options(args):
-    from fgnav.solvers.batch import SmootherOptions
+    from fgnav.solvers.options import SmootherOptions
 
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,

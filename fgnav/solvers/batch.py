@@ -26,40 +26,14 @@ import numpy as np
 
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from fgnav.errors import NotObservableError
-from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solvers.first_guess import initial_guess
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.time import j2000_seconds
-
-@dataclass(frozen=True)
-class SmootherOptions:
-    """Options of the smoothers (SI units)."""
-
-    q_m2_s3: float = DEFAULT_Q_M2_S3
-    third_body: bool = False
-    max_iterations: int = 60
-    q_start_m2_s3: float = 1e-6
-    continuation_factor: float = 1e3
-    tol_position_m: float = 1e-3
-    tol_velocity_mps: float = 1e-6
-    tol_sigma: float = 1e-4  # ... or every update below this fraction of its marginal sigma
-    max_step_s: float | None = None
-    robust: str | None = None          # None | "huber" | "cauchy" (measurements, not priors)
-    robust_k: float | None = None      # kernel threshold in sigmas (default: 95% efficiency)
-    reject_probability: float = 1.0 - 1e-6  # after a robust solve: chi2 gate for rejection
-    gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
-    init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
-
-    def motion_model(self) -> MotionModel:
-        kw = {"third_body": self.third_body}
-        if self.max_step_s is not None:
-            kw["max_step_s"] = self.max_step_s
-        return MotionModel(**kw)
-
 
 _UNIT = {}
 

@@ -18,7 +18,7 @@ from fgnav.robust import passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
-from fgnav.solvers.batch import SmootherOptions
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.incremental import rows_by_epoch
 from fgnav.time import j2000_seconds

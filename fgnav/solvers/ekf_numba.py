@@ -45,6 +45,7 @@ from factors.geometry import tangent_basis
 from fgnav.measurements import prior_covariance
 from fgnav.solution import Solution
 from fgnav.solvers.first_guess import first_state
+from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
 __all__ = ["SUPPORTED_KINDS", "run_ekf_numba", "pack_pass", "first_state", "prior_covariance"]
@@ -329,14 +330,13 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     """Filter the pass forward with the numba kernel; the same :class:`Solution` as
     ``fgnav.solvers.ekf.run_ekf`` (filtered states/covariances, innovations as residuals).
 
-    options : ``fgnav.solvers.batch.SmootherOptions`` (q_m2_s3, motion model); default one.
+    options : ``fgnav.solvers.options.SmootherOptions`` (q_m2_s3, motion model); default one.
     progress : optional callable(k); when given the kernel runs in chunks of ~1 % of the pass.
     step_latency : time every epoch separately (one kernel call per epoch from Python, so
         ``latency_s`` includes the call overhead a Python host loop would pay); otherwise
         the pass runs in one call and ``latency_s`` is the mean step time at every epoch.
     """
     if options is None:
-        from fgnav.solvers.batch import SmootherOptions
         options = SmootherOptions()
     t_start = time.perf_counter()
     model = options.motion_model()

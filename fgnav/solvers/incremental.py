@@ -45,7 +45,6 @@ from __future__ import annotations
 import contextlib
 import gc
 import time
-from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -58,28 +57,13 @@ from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass
 from fgnav.solution import Solution, latency_summary
 from fgnav.measurements import prior_covariance
-from fgnav.solvers.batch import SmootherOptions, linearize_and_eliminate, robust_counts
+from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
 from fgnav.solvers.chain import chain_marginals
 from fgnav.solvers.first_guess import first_state
+from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.time import j2000_seconds
 
 X = gtsam.symbol_shorthand.X
-
-
-@dataclass(frozen=True)
-class IncrementalOptions:
-    relinearize_position_m: float = 1000.0
-    relinearize_velocity_mps: float = 1.0
-    partial_relinearization_check: bool = True  # check only the states the update touched
-    relinearize_skip: int = 1
-    lag_s: float = 300.0
-    harvest_s: float = 60.0  # fixed-lag: smoothed states are read out in blocks this long
-    wildfire_threshold: float = 100.0  # back-substitution stops below this update (SI units)
-
-    def __post_init__(self):
-        if not (self.lag_s > 0 and self.harvest_s >= 0):
-            raise UserError(f"fixed-lag smoother: the lag must be > 0 s and the harvest block "
-                            f">= 0 s, got lag {self.lag_s} s, harvest {self.harvest_s} s")
 
 
 def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:

@@ -1,0 +1,55 @@
+"""Options of the smoothers and filters (SI units): plain frozen dataclasses, no solver code.
+
+They live apart from the solvers so that every solver (batch, iSAM2/fixed-lag, the EKFs) and
+every caller can import them without importing another solver (and GTSAM with it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from factors.dynamics import MotionModel
+from fgnav.defaults import DEFAULT_Q_M2_S3
+from fgnav.errors import UserError
+
+
+@dataclass(frozen=True)
+class SmootherOptions:
+    """Options of the smoothers (SI units)."""
+
+    q_m2_s3: float = DEFAULT_Q_M2_S3
+    third_body: bool = False
+    max_iterations: int = 60
+    q_start_m2_s3: float = 1e-6
+    continuation_factor: float = 1e3
+    tol_position_m: float = 1e-3
+    tol_velocity_mps: float = 1e-6
+    tol_sigma: float = 1e-4  # ... or every update below this fraction of its marginal sigma
+    max_step_s: float | None = None
+    robust: str | None = None          # None | "huber" | "cauchy" (measurements, not priors)
+    robust_k: float | None = None      # kernel threshold in sigmas (default: 95% efficiency)
+    reject_probability: float = 1.0 - 1e-6  # after a robust solve: chi2 gate for rejection
+    gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
+    init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
+
+    def motion_model(self) -> MotionModel:
+        kw = {"third_body": self.third_body}
+        if self.max_step_s is not None:
+            kw["max_step_s"] = self.max_step_s
+        return MotionModel(**kw)
+
+
+@dataclass(frozen=True)
+class IncrementalOptions:
+    relinearize_position_m: float = 1000.0
+    relinearize_velocity_mps: float = 1.0
+    partial_relinearization_check: bool = True  # check only the states the update touched
+    relinearize_skip: int = 1
+    lag_s: float = 300.0
+    harvest_s: float = 60.0  # fixed-lag: smoothed states are read out in blocks this long
+    wildfire_threshold: float = 100.0  # back-substitution stops below this update (SI units)
+
+    def __post_init__(self):
+        if not (self.lag_s > 0 and self.harvest_s >= 0):
+            raise UserError(f"fixed-lag smoother: the lag must be > 0 s and the harvest block "
+                            f">= 0 s, got lag {self.lag_s} s, harvest {self.harvest_s} s")
