@@ -70,6 +70,19 @@ class Pass:
         return {k: len(f) for k, f in self.families.items()}
 
 
+def rows_by_epoch(p: Pass) -> list[list[tuple[str, np.ndarray]]]:
+    """For each epoch, the (kind, row indices) of its measurements."""
+    out: list[list[tuple[str, np.ndarray]]] = [[] for _ in range(p.n_epochs)]
+    for kind, fam in p.families.items():
+        order = np.argsort(fam.k, kind="stable")
+        ks = fam.k[order]
+        bounds = np.flatnonzero(np.diff(ks)) + 1
+        for grp in np.split(order, bounds):
+            if len(grp):
+                out[int(fam.k[grp[0]])].append((kind, grp))
+    return out
+
+
 def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
     """Rotation vectors (M,3) -> rotation matrices (M,3,3) (Rodrigues)."""
     theta = np.linalg.norm(w, axis=1)

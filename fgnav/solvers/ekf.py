@@ -15,12 +15,11 @@ import numpy as np
 from factors.dynamics import propagate, process_noise
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS
 from fgnav.robust import passes_gate
-from fgnav.measurements import Pass
+from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.first_guess import first_state
-from fgnav.solvers.incremental import rows_by_epoch
 from fgnav.time import j2000_seconds
 
 

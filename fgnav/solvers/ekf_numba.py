@@ -7,7 +7,7 @@ Same math, step for step (SI, ECI, state ``x = [r_eci_m; v_eci_mps]``):
   white-acceleration process noise ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``
   (Bar-Shalom eq. 6.2.2-12; ``factors.dynamics.process_noise``);
 * update, per epoch and per measurement kind (all rows of one kind at one epoch at once, in
-  the order of ``fgnav.solvers.incremental.rows_by_epoch``), with the whitened rows
+  the order of ``fgnav.measurements.rows_by_epoch``), with the whitened rows
   ``A = H/sigma``, ``b = -e/sigma`` of ``fgnav.graph.LINEARIZERS``:
   ``S = A P A^T + I``, ``K = P A^T S^-1``, ``x <- x + K b``,
   ``P <- (I - K A) P (I - K A)^T + K K^T`` (Joseph form).

@@ -54,7 +54,7 @@ from factors.motion import make_motion_factor
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
 from fgnav.robust import RobustKernel, passes_gate
-from fgnav.measurements import Pass
+from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution, latency_summary
 from fgnav.measurements import prior_covariance
 from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
@@ -79,19 +79,6 @@ def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
     gn.setWildfireThreshold(opt.wildfire_threshold)
     params.setOptimizationParams(gn)
     return params
-
-
-def rows_by_epoch(p: Pass) -> list[list[tuple[str, np.ndarray]]]:
-    """For each epoch, the (kind, row indices) of its measurements."""
-    out: list[list[tuple[str, np.ndarray]]] = [[] for _ in range(p.n_epochs)]
-    for kind, fam in p.families.items():
-        order = np.argsort(fam.k, kind="stable")
-        ks = fam.k[order]
-        bounds = np.flatnonzero(np.diff(ks)) + 1
-        for grp in np.split(order, bounds):
-            if len(grp):
-                out[int(fam.k[grp[0]])].append((kind, grp))
-    return out
 
 
 def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
