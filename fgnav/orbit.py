@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.interpolate import CubicHermiteSpline
 
 from fgnav.constants import (
     AU_M, J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, OMEGA_EARTH_RAD_S, R_EARTH_M,
@@ -315,7 +317,6 @@ def integrate_truth(x0, t_s, *, j2=True, third_body=False, drag=None, srp=None,
     solution (j2=False): 0.05 mm after 1 h, 0.26 mm after 4 h, 3.6 mm after 12 h with the
     defaults; rtol=1e-13, atol=1e-8 gives 0.3 mm after 12 h at about the same cost.
     """
-    from scipy.integrate import solve_ivp
 
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (6,):
@@ -343,3 +344,18 @@ def integrate_truth(x0, t_s, *, j2=True, third_body=False, drag=None, srp=None,
         out[sel] = sol.sol(t[sel]).T
     out[t == 0.0] = x0
     return out
+
+
+def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """Truth states at ``t_s``: exact where the epochs coincide, else cubic Hermite
+    interpolation of position with velocity (and of velocity, linearly between samples)."""
+    idx = np.searchsorted(t_truth, t_s)
+    idx = np.clip(idx, 0, len(t_truth) - 1)
+    exact = np.abs(t_truth[idx] - t_s) < 1e-6
+    if exact.all():
+        return x_truth[idx]
+    if t_s.min() < t_truth[0] - 1e-6 or t_s.max() > t_truth[-1] + 1e-6:
+        raise UserError("the truth does not cover the estimated epochs "
+                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {t_s.min():.1f}..{t_s.max():.1f} s)")
+    r = CubicHermiteSpline(t_truth, x_truth[:, :3], x_truth[:, 3:], axis=0)
+    return np.column_stack([r(t_s), r.derivative()(t_s)])

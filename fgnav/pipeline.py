@@ -13,6 +13,7 @@ import numpy as np
 
 from fgnav.errors import NotObservableError, UserError
 from fgnav.measurements import Pass, build_pass, check_observable
+from fgnav.orbit import truth_at
 from fgnav.solution import Solution
 from fgnav.solvers.options import SmootherOptions
 
@@ -157,23 +158,6 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
         start = (x0, float(np.sqrt(np.linalg.eigvalsh(P0[:3, :3])[-1])),
                  float(np.sqrt(np.linalg.eigvalsh(P0[3:, 3:])[-1])))
     return plan_gaps(p, options, gap_factor, start=start)
-
-
-def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
-    """Truth states at ``t_s``: exact where the epochs coincide, else cubic Hermite
-    interpolation of position with velocity (and of velocity, linearly between samples)."""
-    idx = np.searchsorted(t_truth, t_s)
-    idx = np.clip(idx, 0, len(t_truth) - 1)
-    exact = np.abs(t_truth[idx] - t_s) < 1e-6
-    if exact.all():
-        return x_truth[idx]
-    if t_s.min() < t_truth[0] - 1e-6 or t_s.max() > t_truth[-1] + 1e-6:
-        raise UserError("the truth does not cover the estimated epochs "
-                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {t_s.min():.1f}..{t_s.max():.1f} s)")
-    from scipy.interpolate import CubicHermiteSpline
-
-    r = CubicHermiteSpline(t_truth, x_truth[:, :3], x_truth[:, 3:], axis=0)
-    return np.column_stack([r(t_s), r.derivative()(t_s)])
 
 
 def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:

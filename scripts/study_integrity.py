@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.measurements import build_pass
-from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
+from fgnav.orbit import truth_at
+from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize
 from fgnav.simulate import faults as F
 from fgnav.solvers.options import SmootherOptions
 

@@ -17,7 +17,8 @@ from fgnav.graph import LINEARIZERS
 from fgnav.io.log_csv import read_log
 from fgnav.measurements import build_pass
 from fgnav.io.oem import read_oem
-from fgnav.pipeline import accuracy_metrics, solve, truth_at
+from fgnav.orbit import truth_at
+from fgnav.pipeline import accuracy_metrics, solve
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,8 @@ from fgnav.integrity import assess, largest_run, stderr_line
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
-from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize, truth_at
+from fgnav.orbit import truth_at
+from fgnav.pipeline import accuracy_metrics, prepare_pass, solve, summarize
 from fgnav.solvers.options import SmootherOptions
 
 ONE_HOUR = {"duration_h": 1.0}

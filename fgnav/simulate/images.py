@@ -189,7 +189,7 @@ def render_pass_frames(sim, out_dir, *, seed: int = 0, config: ImageConfig = Ima
     """
     import cv2
 
-    from fgnav.pipeline import truth_at
+    from fgnav.orbit import truth_at
     from fgnav.progress import progress
     from fgnav.simulate.limb_render import LimbScene, render_limb
     from fgnav.simulate.star_render import render_star_field
@@ -256,9 +256,9 @@ def ideal_log_like(log, epoch0, t_truth_s: np.ndarray, x_truth: np.ndarray, seed
     ``earth_direction`` = true ``-r/|r|`` rotated by tangent-plane noise of 1σ ``sigma``
     (:func:`fgnav.simulate.pass_sim.perturb_directions`), ``limb_radius`` =
     ``asin(R_limb/|r|) + sigma n``; prior rows are copied. ``t_truth_s`` are seconds from
-    ``epoch0``; truth is interpolated with :func:`fgnav.pipeline.truth_at`."""
+    ``epoch0``; truth is interpolated with :func:`fgnav.orbit.truth_at`."""
     from fgnav.io.log_csv import log_from_arrays
-    from fgnav.pipeline import truth_at
+    from fgnav.orbit import truth_at
     from fgnav.simulate.pass_sim import perturb_directions
     from fgnav.time import seconds_since
 
