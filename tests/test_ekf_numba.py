@@ -13,9 +13,9 @@ import pytest
 from fgnav.measurements import Family, build_pass
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import first_state, run_ekf_numba
+from fgnav.solvers.options import SmootherOptions
 
 REL = 1e-9
 
