@@ -291,7 +291,7 @@ def test_earth_direction_factor_kernel_equals_numpy_at_large_angles(rng, angle_d
 def test_residual_at_truth_is_the_noise_the_simulator_drew():
     """fgnav.simulate rotates the true direction by the tangent vector n ~ N(0, sigma^2 I)
     (Exp map); the log map at the truth returns n itself, at any noise level."""
-    from fgnav.simulate.pass_sim import perturb_directions
+    from fgnav.simulate.noise import perturb_directions
 
     rng = np.random.default_rng(5)
     u = _unit(rng.normal(size=(200, 3)))

@@ -9,7 +9,8 @@ from fgnav.errors import NotObservableError
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
-from fgnav.simulate.pass_sim import perturb_directions, simulate_pass
+from fgnav.simulate.noise import perturb_directions
+from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.options import SmootherOptions
 
 STEP_S = 20.0

@@ -17,7 +17,8 @@ from fgnav.errors import UserError
 from fgnav.orbit import state_to_elements
 from fgnav.scenarios import load_scenario
 from fgnav.sem import earth_relative_body_vector, preprocess_log, sem_epochs
-from fgnav.simulate.pass_sim import perturb_directions, simulate_pass
+from fgnav.simulate.noise import perturb_directions
+from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.simulate.sem_sim import lvlh_R_eci_from_body, occulted_by_earth
 from fgnav.time import j2000_seconds, parse_utc
 

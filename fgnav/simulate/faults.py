@@ -15,7 +15,8 @@ import numpy as np
 from fgnav.io.log_csv import log_from_arrays
 from fgnav.orbit import integrate_truth
 from fgnav.scenarios import load_scenario
-from fgnav.simulate.pass_sim import perturb_directions, simulate_pass
+from fgnav.simulate.noise import perturb_directions
+from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.time import j2000_seconds
 
 

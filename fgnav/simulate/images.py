@@ -254,12 +254,12 @@ def ideal_log_like(log, epoch0, t_truth_s: np.ndarray, x_truth: np.ndarray, seed
     """The comparison log: same rows, epochs and per-row sigmas as ``log`` (e.g. one
     extracted from images), but measurements drawn from the truth with exactly that noise:
     ``earth_direction`` = true ``-r/|r|`` rotated by tangent-plane noise of 1σ ``sigma``
-    (:func:`fgnav.simulate.pass_sim.perturb_directions`), ``limb_radius`` =
+    (:func:`fgnav.simulate.noise.perturb_directions`), ``limb_radius`` =
     ``asin(R_limb/|r|) + sigma n``; prior rows are copied. ``t_truth_s`` are seconds from
     ``epoch0``; truth is interpolated with :func:`fgnav.orbit.truth_at`."""
     from fgnav.io.log_csv import log_from_arrays
     from fgnav.orbit import truth_at
-    from fgnav.simulate.pass_sim import perturb_directions
+    from fgnav.simulate.noise import perturb_directions
     from fgnav.time import seconds_since
 
     rng = np.random.default_rng(seed)

@@ -17,12 +17,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.geometry import tangent_basis
 from fgnav.constants import DEG
 from fgnav.io.log_csv import MeasurementLog, log_from_arrays
 from fgnav.orbit import integrate_truth
 from fgnav.errors import UserError
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
+from fgnav.simulate.noise import perturb_directions
 from fgnav.time import j2000_seconds, parse_utc
 
 
@@ -34,16 +34,6 @@ class SimulatedPass:
     t_s: np.ndarray          # (N,) truth epochs (every measurement epoch)
     x_true: np.ndarray       # (N,6)
     log: MeasurementLog
-
-
-def perturb_directions(u: np.ndarray, sigma_rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Rotate unit vectors (M,3) by isotropic tangent-plane noise of 1σ ``sigma_rad`` per axis."""
-    B = tangent_basis(u)
-    n = rng.standard_normal((len(u), 2)) * np.asarray(sigma_rad, dtype=float).reshape(-1, 1)
-    theta = np.linalg.norm(n, axis=1)
-    d = np.einsum("mi,mij->mj", n, B) / np.where(theta > 0, theta, 1.0)[:, None]
-    out = np.cos(theta)[:, None] * u + np.sin(theta)[:, None] * d
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
 
 
 def sensor_epochs(scn: Scenario, period_s: float | None) -> np.ndarray:

@@ -10,7 +10,7 @@ kind ``altitude``). The body is three-axis stabilized, Earth pointing: body = LV
 Directions are geometric, spacecraft -> body, so the Moon's parallax (up to
 ``asin(|r|/|r_moon|)`` ~ 1.0 deg in LEO) and the Sun's (~9 arcsec) are in the data; the
 preprocessing (``fgnav.sem``) removes them with the seed's triangle. Noise: the true unit
-vector rotated by isotropic tangent-plane noise (``pass_sim.perturb_directions``),
+vector rotated by isotropic tangent-plane noise (``noise.perturb_directions``),
 ``sigma_deg`` 1σ per axis. Visibility: the Sun is not seen when the Earth's disc (radius
 ``R_e``) hides it (eclipse); the Moon likewise, and not closer than
 ``min_sun_elongation_deg`` to the Sun (stray light). Ephemeris: ``factors.ephemeris``
@@ -64,7 +64,7 @@ def simulate_body_direction_rows(spec, t_s, x_true, epoch0, rng):
     ``moon_direction_body``; ``spec.sigma_deg`` the 1σ per tangent axis (deg);
     ``x_true`` (N, 6) the truth at ``t_s`` (s from ``epoch0``).
     """
-    from fgnav.simulate.pass_sim import perturb_directions
+    from fgnav.simulate.noise import perturb_directions
     from fgnav.time import j2000_seconds
 
     r = x_true[:, :3]
