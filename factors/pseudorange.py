@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.adapters import custom_factor
+
 __all__ = [
     "ANTENNA_TX_BODY_M", "ANTENNA_RX_BODY_M", "N_LINKS", "CLOCK_SIGNS",
     "rotation_xyz", "m21_from_rpy", "link_offsets",
@@ -229,8 +231,6 @@ def make_pseudorange_factor(key_pos, key_clock, rho_meas_m, M21, sigma_m, param=
     ``key_pos``: Vector3 key (Cartesian r m, or spherical (R, az, el)); ``key_clock``:
     Vector1 key (c dt, m); ``sigma_m``: code noise (m), float or (6,).
     """
-    from factors.adapters import custom_factor
-
     res = _residual_for(param, pseudorange_residual, pseudorange_residual_spherical)
     z = np.asarray(rho_meas_m, dtype=float).copy()
     M = np.asarray(M21, dtype=float).copy()
@@ -246,8 +246,6 @@ def make_pseudorange_factor(key_pos, key_clock, rho_meas_m, M21, sigma_m, param=
 
 def make_carrier_factor(key_pos, key_clock, key_amb, phi_meas_m, M21, sigma_m, param="cartesian"):
     """``gtsam.CustomFactor`` for the six carrier phases of one epoch (``key_amb``: Vector6, m)."""
-    from factors.adapters import custom_factor
-
     res = _residual_for(param, carrier_residual, carrier_residual_spherical)
     z = np.asarray(phi_meas_m, dtype=float).copy()
     M = np.asarray(M21, dtype=float).copy()

@@ -59,7 +59,17 @@ import numpy as np
 
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
-from fgnav.vision.limb import EDGE_LOCATOR_VAR_PX2  # noqa: F401  (re-export; defined by the edge locator)
+from fgnav.io.log_csv import log_from_arrays, read_log
+from fgnav.io.text import read_utf8_text
+from fgnav.progress import progress
+from fgnav.time import format_utc, parse_utc, seconds_since
+from fgnav.vision.attitude import matrix_from_quat
+from fgnav.vision.camera import PinholeCamera
+from fgnav.vision.catalogue import decimal_year
+from fgnav.vision.horizon import METHODS, estimate_horizon
+from fgnav.vision.limb import EDGE_LOCATOR_VAR_PX2, extract_limb_points, ransac_limb
+from fgnav.vision.star_id import solve_lost_in_space
+from fgnav.vision.stars import detect_stars
 
 __all__ = ["REQUIRED_COLUMNS", "FrameEntry", "EpochProducts", "ExtractionResult",
            "find_frames_index", "read_frames_index", "attitude_from_star_frame",
@@ -167,14 +177,9 @@ def _num(path, lineno, col, text, *, optional=False, positive=False):
 
 def read_frames_index(path) -> list[FrameEntry]:
     """Parse and validate ``frames.csv`` (comment lines ``#``; image paths relative to it)."""
-    from fgnav.time import parse_utc
-    from fgnav.vision.attitude import matrix_from_quat
-    from fgnav.vision.camera import PinholeCamera
-
     path = find_frames_index(path)
     base = path.parent
     entries: list[FrameEntry] = []
-    from fgnav.io.text import read_utf8_text
 
     text = read_utf8_text(path, "a frames.csv index")  # BOM ignored; not UTF-8: line and byte
     lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
@@ -254,9 +259,6 @@ def _load_image(e: FrameEntry) -> np.ndarray:
 # ------------------------------------------------------------------------ front ends
 def attitude_from_star_frame(img: np.ndarray, e: FrameEntry, epoch_year: float):
     """(R_eci_from_body, P_att_rad2 (body frame, right perturbation), matched stars)."""
-    from fgnav.vision.star_id import solve_lost_in_space
-    from fgnav.vision.stars import detect_stars
-
     det = detect_stars(img)
     sol = solve_lost_in_space(det.uv_px, e.camera, sigma_px=det.sigma_px, epoch_year=epoch_year)
     Rbc = e.R_body_from_cam
@@ -267,9 +269,6 @@ def horizon_from_limb_frame(img: np.ndarray, e: FrameEntry, method: str, seed,
                             curvature_correction: bool = True):
     """Horizon fix of one limb frame (camera frame), field stop applied as a mask; ``seed``
     (int or sequence) seeds the RANSAC generator."""
-    from fgnav.vision.horizon import estimate_horizon
-    from fgnav.vision.limb import extract_limb_points, ransac_limb
-
     cam = e.camera
     mask = None
     if e.field_radius_px is not None:
@@ -316,8 +315,6 @@ def earth_direction_eci(R_eci_from_body, P_att_rad2, u_body, C_u_body_rad2):
 
 # ------------------------------------------------------------------------------ pass
 def _priors_log(priors_path, index_path: Path):
-    from fgnav.io.log_csv import read_log
-
     p = Path(priors_path) if priors_path is not None else index_path.parent / "measurements.csv"
     if not p.is_file():
         if priors_path is None:
@@ -341,12 +338,6 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
     of epoch k uses ``default_rng([seed, k, j])``); edge_floor_px : limb-edge systematic floor (px);
     curvature_correction : apply the edge-curvature correction (module doc, step 2).
     """
-    from fgnav.io.log_csv import log_from_arrays
-    from fgnav.progress import progress
-    from fgnav.time import format_utc, seconds_since
-    from fgnav.vision.catalogue import decimal_year
-    from fgnav.vision.horizon import METHODS
-
     if method not in METHODS:
         raise UserError(f"unknown horizon method {method!r}; expected one of {', '.join(METHODS)}")
     if rows not in ROW_MODES:

@@ -79,11 +79,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
+from scipy.optimize import least_squares
+from scipy.stats import chi2
 
 from factors.constants import MU_EARTH_M3_S2
 from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError
+from fgnav.graph import linearize_all
 from fgnav.measurements import Family, Pass, prior_covariance, prior_state
+from fgnav.solvers.first_guess import initial_guess
 
 __all__ = ["InitialOrbit", "initial_orbit", "prior_consistency", "propagate_orbit", "trajectory",
            "iod_support", "start_point", "Start", "strip_prior", "has_prior",
@@ -230,8 +234,6 @@ def _session(t, r_hat, t_near=None, max_turn_rad=2.0):
 
 def _angle_fit(t, theta, mu):
     """(n, e, omega, M0) candidates, best first, fitted to theta(t) (t from t_ref)."""
-    from scipy.optimize import least_squares
-
     span_t = t[-1] - t[0]
     span_th = theta[-1] - theta[0]
     n_bar = max(span_th / span_t, 1e-9)
@@ -392,8 +394,6 @@ def _trajectory(x_ref, t_ref, t_sub, model, t0_j2000_s):
 
 def _linearize(sp: Pass, x_ref, t_ref, model, t0_j2000_s):
     """Whitened residual (R,) and Jacobian (R,6) of the subsample with respect to x_ref."""
-    from fgnav.graph import linearize_all
-
     X, Phi = _trajectory(x_ref, t_ref, sp.t_s, model, t0_j2000_s)
     if not np.all(np.isfinite(X)) or np.min(np.linalg.norm(X[:, :3], axis=1)) < 1.0e6:
         return None
@@ -574,8 +574,6 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
     prior farther from that data than the data's own span).
     """
-    from scipy.stats import chi2
-
     k0, x_prior = prior_state(p)
     P_prior = prior_covariance(p, k0)
     x_iod, P_iod = propagate_orbit(iod, p, model, t0_j2000_s, k0)
@@ -667,8 +665,6 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
       guess only (no prior factor: the solution is the measurements'); isam2 / fixed-lag /
       ekf start at epoch 0 from it with its covariance inflated by ``START_INFLATION``.
     """
-    from fgnav.solvers.first_guess import initial_guess
-
     prior = has_prior(p) and not ignore_prior
     if prior:
         x_guess = initial_guess(p, model, t0_j2000_s)

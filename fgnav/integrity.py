@@ -35,6 +35,14 @@ import math
 
 import numpy as np
 
+from factors.dynamics import accel_third_body, process_noise, propagate_many
+from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from fgnav.analysis.crb import cumulative_stm
+from fgnav.graph import LINEARIZERS, linearize_all
+from fgnav.measurements import prior_covariance
+from fgnav.time import j2000_seconds
+from scipy.stats import chi2 as chi2_dist
+
 PRIOR_KINDS = ("prior_position", "prior_velocity")
 
 FALSE_ALARM_PROBABILITY = 1e-6
@@ -70,8 +78,6 @@ ADVICE = {
 def _chi2_test(chi2: float, dof: int) -> dict:
     """chi2 of ``dof`` whitened components: normalized value and the log10 of its tail
     probability under the chi-square distribution (``-inf`` for an impossible value)."""
-    from scipy.stats import chi2 as chi2_dist
-
     dof = max(int(dof), 1)
     logsf = float(chi2_dist.logsf(chi2, dof)) if math.isfinite(chi2) else -math.inf
     return {"chi2": float(chi2), "dof": dof, "normalized": float(chi2) / dof,
@@ -351,11 +357,6 @@ class _Mapped:
     """
 
     def __init__(self, p, sol, model, row_weights=None):
-        from factors.dynamics import propagate_many
-        from fgnav.analysis.crb import cumulative_stm
-        from fgnav.graph import linearize_all
-        from fgnav.time import j2000_seconds
-
         X = sol.x_eci
         self.t0_j2000_s = float(j2000_seconds(p.epoch0))
         _, Phi = propagate_many(X[:-1], np.diff(p.t_s), model, self.t0_j2000_s + p.t_s[:-1])
@@ -384,8 +385,6 @@ def manoeuvre_glr(m: _Mapped) -> dict | None:
     ``C = Phi(t_k, t_0)^-1 [0; I]``: chi-square with 3 degrees of freedom without a
     manoeuvre; the largest over the epochs is tested against the Bonferroni threshold.
     """
-    from scipy.stats import chi2 as chi2_dist
-
     N = m.N
     if N < 8 or len(m.b) < 12:
         return None
@@ -425,9 +424,6 @@ def third_body_sensitivity(m: _Mapped, sol, model) -> dict | None:
     the omission causes (Tapley, Schutz & Born 2004, ch. 6, consider covariance). Returned as
     its mean Mahalanobis size against the solution's covariances.
     """
-    from factors.dynamics import accel_third_body
-    from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-
     if model.third_body or m.N < 3:
         return None
     t = sol.t_s
@@ -466,11 +462,6 @@ def filter_normalized_innovations(p, sol, model) -> dict:
     the epoch's prediction (the sequential updates make the later ones smaller: the test
     stays conservative). The innovations themselves are the filter's (``sol.residuals``).
     """
-    from factors.dynamics import process_noise, propagate_many
-    from fgnav.graph import LINEARIZERS
-    from fgnav.measurements import prior_covariance
-    from fgnav.time import j2000_seconds
-
     X, P = sol.x_eci, sol.P_eci
     N = p.n_epochs
     X_pred = X.copy()

@@ -32,6 +32,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicHermiteSpline
 
+from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.constants import (
     AU_M, J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, OMEGA_EARTH_RAD_S, R_EARTH_M,
 )
@@ -261,7 +262,6 @@ def _coerce(opt, cls, name):
 
 
 def _sun_moon(t_j2000_s):
-    from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
     return sun_position_eci_m(t_j2000_s), moon_position_eci_m(t_j2000_s)
 
 

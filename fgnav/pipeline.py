@@ -5,17 +5,39 @@ The CLI (``fgnav smooth``/``demo``) is a thin layer over these functions.
 
 from __future__ import annotations
 
+import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from fgnav.analysis.crb import check_observability, cramer_rao_bound
 from fgnav.errors import NotObservableError, UserError
+from fgnav.initial_orbit import (
+    START_INFLATION, Start, has_prior, initial_orbit, propagate_orbit, start_point, strip_prior,
+)
+from fgnav.integrity import assess, needs_prior_test
+from fgnav.io.atomic import atomic_write_text
+from fgnav.io.log_csv import read_log
+from fgnav.io.oem import read_oem, write_oem
+from fgnav.io.outputs import (
+    check_readable_file, commit_outputs, make_staging, remove_stale_staging,
+)
+from fgnav.io.summary import write_summary
+from fgnav.io.tdm import read_tdm
 from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.orbit import truth_at
+from fgnav.sem import preprocess_log
 from fgnav.solution import Solution
-from fgnav.solvers.options import SmootherOptions
+from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
+from fgnav.solvers.batch import smooth_batch
+from fgnav.solvers.ekf import run_ekf
+from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+from fgnav.solvers.first_guess import initial_guess
+from fgnav.solvers.incremental import smooth_incremental
+from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.time import j2000_seconds, seconds_since
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
@@ -36,12 +58,6 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
     """
-    from fgnav.analysis.crb import check_observability
-    from fgnav.initial_orbit import Start, has_prior, start_point
-    from fgnav.integrity import needs_prior_test
-    from fgnav.solvers.first_guess import initial_guess
-    from fgnav.time import j2000_seconds
-
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
@@ -49,7 +65,6 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     p = prepare_pass(p, options, gap_factor, ignore_prior)
     from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
-        from fgnav.solvers.arcs import solve_arcs
         if checkpoint or resume:
             raise UserError("--checkpoint/--resume: this log has gaps too long to bridge and is "
                             "solved as separate arcs, which checkpoints do not support")
@@ -97,8 +112,6 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
               checkpoint_every, resume) -> Solution:
     """The chosen estimator from a start point (:class:`fgnav.initial_orbit.Start`)."""
-    from fgnav.solvers.batch import smooth_batch
-
     p = start.p
     if method == "batch":
         if start.x_init is not None:
@@ -106,7 +119,6 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
             # Gauss-Newton at the requested process noise at once (continuation if that fails:
             # with a contradicted prior in the graph, a loose process noise would let the
             # first states bend to the prior).
-            from dataclasses import replace
             sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
                                x_init=start.x_init, progress=progress)
             if sol.extras.get("converged"):
@@ -115,13 +127,9 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
-        from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
         if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
             return run_ekf_numba(p, options, progress=progress)
-        from fgnav.solvers.ekf import run_ekf
         return run_ekf(p, options, progress=progress)
-    from fgnav.solvers.incremental import smooth_incremental
-    from fgnav.solvers.options import IncrementalOptions
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
                               progress=progress, checkpoint=checkpoint,
                               checkpoint_every=checkpoint_every, resume=resume)
@@ -137,19 +145,13 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     online methods (:func:`fgnav.initial_orbit.start_point`). A pass already planned is
     returned as is.
     """
-    from fgnav.initial_orbit import has_prior
-
     from_data = ignore_prior or not has_prior(p)
     check_observable(p, require_prior=not from_data)
     if gap_factor is None or p.inserted is not None:
         return p
-    from fgnav.solvers.arcs import long_gaps, plan_gaps
 
     start = None
     if from_data and len(long_gaps(p, gap_factor)):
-        from fgnav.initial_orbit import START_INFLATION, initial_orbit, propagate_orbit, strip_prior
-        from fgnav.time import j2000_seconds
-
         model = options.motion_model()
         t0 = float(j2000_seconds(p.epoch0))
         p = strip_prior(p)
@@ -177,14 +179,11 @@ def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
     """The Cramér–Rao bound of ``p`` along ``x_ref``; with ``t_ref`` (the epochs of
     ``x_ref``, a superset of ``p.t_s``, e.g. a solution with gap-filling epochs) only the
     states at the pass's own epochs are used."""
-    from fgnav.analysis.crb import cramer_rao_bound
-
     if len(x_ref) != p.n_epochs:
         if t_ref is None:
             raise ValueError(f"crb_metrics: {len(x_ref)} states for a pass of {p.n_epochs} epochs")
         x_ref = x_ref[np.searchsorted(t_ref, p.t_s)]
     if p.breaks:  # separate arcs: the bound of each, pooled over all epochs
-        from fgnav.solvers.arcs import arcs_bound
         c = arcs_bound(p, x_ref, options.motion_model())
     else:
         c = cramer_rao_bound(p, x_ref, options.motion_model())
@@ -216,7 +215,6 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
                 **solve_kw)
     if ignore_prior:
-        from fgnav.initial_orbit import strip_prior
         p = strip_prior(p)
     sol.wall_s = time.perf_counter() - t0
     summary = summarize(sol, p, options)
@@ -231,10 +229,6 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
 def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
     """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
     validated before any solving: readable, finite states, epochs covering the pass."""
-    from fgnav.io.oem import read_oem
-    from fgnav.io.outputs import check_readable_file
-    from fgnav.time import seconds_since
-
     check_readable_file(path, "--truth")
     oem = read_oem(path)
     t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
@@ -256,13 +250,10 @@ def read_measurements(path: str | Path):
     if not path.exists():
         raise UserError(f"{path}: no such file")
     if path.suffix.lower() in (".tdm", ".kvn"):
-        from fgnav.io.tdm import read_tdm
         return read_tdm(path)
-    from fgnav.io.log_csv import read_log
     log = read_log(path)
     if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
         # Seed 001's scheme: TRIAD attitude from the Sun and Moon, Earth direction to ECI.
-        from fgnav.sem import preprocess_log
         log = preprocess_log(log)[0]
     return log
 
@@ -277,14 +268,12 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     if p.inserted is not None and p.inserted.any():
         s["inserted_epochs"] = int(p.inserted.sum())
     if p.gap_notes:
-        from fgnav.solvers.arcs import gap_summary
         s["gaps"] = gap_summary(p)
     if p.warnings:
         s["warnings"] = list(p.warnings)
     for k, v in sol.extras.items():
         if _is_plain(v):
             s.setdefault(k, v)
-    from fgnav.integrity import assess
     s["integrity"] = assess(sol, p, options.motion_model())
     return s
 
@@ -316,13 +305,6 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
     and latency.csv of an online method, a report's plots) are removed, and so are staging
     folders left by a killed run (:mod:`fgnav.io.outputs`); other files are left alone.
     """
-    import shutil
-
-    from fgnav.io.atomic import atomic_write_text
-    from fgnav.io.oem import write_oem
-    from fgnav.io.outputs import commit_outputs, make_staging, remove_stale_staging
-    from fgnav.io.summary import write_summary
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(out)

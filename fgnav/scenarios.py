@@ -22,8 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.text import parse_toml, read_utf8_text
+from fgnav.orbit import elements_to_state, mean_to_true_anomaly
 from fgnav.paths import data_dir
+from fgnav.time import parse_utc, seconds_since
 
 SENSOR_KINDS = ("earth_direction", "limb_radius", "altitude", "refraction",
                 "earth_direction_body", "sun_direction_body", "moon_direction_body")
@@ -247,7 +251,6 @@ def _value(src: _Source, table, index, key, value, spec, label):
             value = value.replace(tzinfo=None).isoformat() + "Z"
         if not isinstance(value, str):
             raise bad()
-        from fgnav.time import parse_utc
 
         try:
             parse_utc(value)
@@ -284,9 +287,6 @@ def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
 
 
 def _orbit_state(src: _Source, orbit: dict) -> tuple:
-    from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
-    from fgnav.orbit import elements_to_state, mean_to_true_anomaly
-
     _check_keys(src, "orbit", 0, orbit, tuple(ORBIT_KEYS), "orbit.", "[orbit]")
     v = {k: _value(src, "orbit", 0, k, orbit[k], ORBIT_KEYS[k], f"orbit.{k}") for k in orbit}
     forms = "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg and " \
@@ -354,7 +354,6 @@ def load_scenario(name_or_path: str) -> Scenario:
             raise UserError(f"unknown scenario '{name_or_path}'; built-in: {', '.join(builtin_names())}")
     if not path.is_file():
         raise UserError(f"{path}: no such scenario file")
-    from fgnav.io.text import parse_toml, read_utf8_text
 
     text = read_utf8_text(path, "a scenario TOML file")
     d = parse_toml(path, text)
@@ -418,7 +417,6 @@ def check_size(scn: Scenario, max_epochs: int = MAX_EPOCHS,
             f"{max_duration_h:g} h of one simulated pass; shorten it (--duration-h) or raise the "
             f"limit with --max-duration-h H (the truth integration takes ~8 s per simulated day "
             f"in LEO with every force)")
-    from fgnav.time import parse_utc, seconds_since
 
     if scn.duration_h * 3600.0 > seconds_since(parse_utc("2261-12-31T23:59:59Z"),
                                                parse_utc(scn.epoch)):  # datetime64[ns] range

@@ -39,6 +39,8 @@ from factors.constants import R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import UserError
+from fgnav.io.log_csv import log_from_arrays
+from fgnav.time import j2000_seconds
 
 __all__ = ["SemEpochs", "earth_relative_body_vector", "sem_epochs", "preprocess_log"]
 
@@ -137,9 +139,6 @@ def preprocess_log(log, *, first="sun"):
     row (TRIAD, 1σ = sqrt of the largest eigenvalue of its covariance); and the
     :class:`SemEpochs`. Sigmas come from the log rows.
     """
-    from fgnav.io.log_csv import log_from_arrays
-    from fgnav.time import j2000_seconds
-
     t_all = np.asarray(log.t_s, dtype=float)
     xyz = np.asarray(log.xyz, dtype=float)
     sig = np.asarray(log.sigma, dtype=float)

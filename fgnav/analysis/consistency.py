@@ -23,6 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.dynamics import process_noise, propagate
+from fgnav.graph import LINEARIZERS
+from fgnav.time import j2000_seconds
+from scipy.stats import chi2
+
 PRIOR_KINDS = ("prior_position", "prior_velocity")
 
 __all__ = ["nees", "chi2_band", "AneesResult", "anees", "nees_curve", "nis_ekf",
@@ -38,8 +43,6 @@ def nees(x_est: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> np.ndarray:
 
 def chi2_band(dof: float, n_runs: int, alpha: float = 0.05) -> tuple[float, float]:
     """Two-sided (1 - alpha) band of the mean of ``n_runs`` independent chi2(dof) values."""
-    from scipy.stats import chi2
-
     n = int(n_runs)
     if n < 1 or dof <= 0:
         raise ValueError(f"chi2_band: need n_runs >= 1 and dof > 0, found {n_runs}, {dof}")
@@ -95,8 +98,6 @@ def nees_curve(nees_runs: np.ndarray, dof: int = 6, alpha: float = 0.05):
 
 def _family_rows(p, kind, X):
     """(k, A (M,m,6), b (M,m)) of one family linearized at X (whitened)."""
-    from fgnav.graph import LINEARIZERS
-
     k, A, b, _ = LINEARIZERS[kind](p.families[kind], X)
     m = A.shape[1]
     return np.asarray(k), np.asarray(A).reshape(len(k), m, 6), np.asarray(b).reshape(len(k), m)
@@ -108,8 +109,6 @@ def nis_smoother(p, sol) -> tuple[np.ndarray, np.ndarray]:
     Returns ``(nis (M,), dof (M,))`` over every non-prior measurement of the pass ``p``
     (a :class:`fgnav.measurements.Pass`), with ``sol.x_eci`` / ``sol.P_eci`` at ``p``'s epochs.
     """
-    from fgnav.graph import LINEARIZERS
-
     out, dofs = [], []
     for kind in p.families:
         if kind in PRIOR_KINDS or kind not in LINEARIZERS:
@@ -132,9 +131,6 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
     :class:`~fgnav.solvers.options.SmootherOptions`); all of epoch k's measurement rows form one
     joint innovation. Returns ``(nis (K,), dof (K,))`` over epochs 1..N-1 that carry data.
     """
-    from factors.dynamics import process_noise, propagate
-    from fgnav.time import j2000_seconds
-
     model = options.motion_model()
     t0 = float(j2000_seconds(p.epoch0))
     N = p.n_epochs
@@ -148,7 +144,6 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
         Pp[k] = Phi @ sol.P_eci[k - 1] @ Phi.T + process_noise(dt, options.q_m2_s3)
     A_by_k: dict[int, list] = {}
     b_by_k: dict[int, list] = {}
-    from fgnav.graph import LINEARIZERS
 
     for kind in p.families:
         if kind in PRIOR_KINDS or kind not in LINEARIZERS:

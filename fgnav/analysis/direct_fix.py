@@ -39,6 +39,7 @@ import numpy as np
 from factors.constants import R_EARTH_M
 from factors.refraction import (refraction_residual, refraction_sigma_m,
                                 tangent_height_from_refraction_m)
+from fgnav.sem import preprocess_log
 
 __all__ = ["cone_axis", "cone_fix_candidates", "refine_refraction_fix", "refraction_direct_fix",
            "DirectFixes", "refraction_direct_fixes", "sem_direct_fixes"]
@@ -215,7 +216,5 @@ def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
 def sem_direct_fixes(log, first="sun"):
     """Seed 001 direct fixes ``r = -(R_e + H) C_b^i L_we`` of a raw Sun/Earth/Moon log
     (:func:`fgnav.sem.preprocess_log`); ``k`` indexes the fix epochs themselves."""
-    from fgnav.sem import preprocess_log
-
     _, ep = preprocess_log(log, first=first)
     return DirectFixes(np.arange(len(ep.t_s)), ep.t_s, ep.r_fix_eci_m, ep.P_fix_m2)

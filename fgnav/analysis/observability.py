@@ -27,6 +27,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.direction import earth_direction_residual
+from factors.dynamics import MotionModel, propagate
+
 STATE_NAMES = ("x", "y", "z", "vx", "vy", "vz")
 
 __all__ = ["observability_matrix", "ObservabilityResult", "analyze_observability",
@@ -35,8 +38,6 @@ __all__ = ["observability_matrix", "ObservabilityResult", "analyze_observability
 
 def _trajectory_stm(x0_eci, t_s, model, t0_j2000_s):
     """States (n,6) and Phi(t_j, t_0) (n,6,6) at ``t_s`` (t_s[0] = 0) by the motion model."""
-    from factors.dynamics import propagate
-
     n = len(t_s)
     X = np.empty((n, 6))
     Phi = np.empty((n, 6, 6))
@@ -55,9 +56,6 @@ def observability_matrix(x0_eci, period_s: float, n_samples: int = 6, model=None
     ``x0_eci`` (6,) [m, m/s] is the linearization point (the seed uses its initial state),
     ``period_s`` the sample period T, ``n_samples`` the number of blocks.
     """
-    from factors.direction import earth_direction_residual
-    from factors.dynamics import MotionModel
-
     if period_s <= 0 or n_samples < 1:
         raise ValueError(f"observability_matrix: need period_s > 0 and n_samples >= 1, "
                          f"found {period_s}, {n_samples}")

@@ -32,6 +32,16 @@ import dataclasses
 
 import numpy as np
 
+from fgnav.analysis.direct_fix import refraction_direct_fixes, sem_direct_fixes
+from fgnav.measurements import build_pass
+from fgnav.pipeline import accuracy_metrics, solve
+from fgnav.scenarios import load_scenario
+from fgnav.sem import preprocess_log
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.solvers.first_guess import initial_guess
+from fgnav.solvers.options import SmootherOptions
+from fgnav.time import j2000_seconds
+
 __all__ = ["SEM_Q_M2_S3", "SEM_SEED_FIGURES", "MADAN_POSITION_M", "refraction_study",
            "sem_study", "format_refraction_table", "format_sem_table"]
 
@@ -46,8 +56,6 @@ MADAN_POSITION_M = 100.0
 
 
 def _estimate(p, x_true_at, options, settle_s):
-    from fgnav.pipeline import accuracy_metrics, solve
-
     out = {}
     for method in ("batch", "ekf"):
         sol = solve(p, method, options)
@@ -86,14 +94,6 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
     Each case simulates the scenario with the other source switched off (same ``seed``),
     then runs the direct fixes, the EKF and the batch smoother.
     """
-    from fgnav.analysis.direct_fix import refraction_direct_fixes
-    from fgnav.measurements import build_pass
-    from fgnav.scenarios import load_scenario
-    from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.first_guess import initial_guess
-    from fgnav.solvers.options import SmootherOptions
-    from fgnav.time import j2000_seconds
-
     base = load_scenario(scenario).with_options(duration_h=duration_h)
     options = SmootherOptions() if q_m2_s3 is None else SmootherOptions(q_m2_s3=q_m2_s3)
     (i_ref, spec), = [(i, s) for i, s in enumerate(base.sensors) if s.kind == "refraction"]
@@ -127,13 +127,6 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
 def sem_study(seed=0, *, scenario="leo-sun-earth-moon", duration_h=None, q_m2_s3=SEM_Q_M2_S3,
               settle_s=3600.0, first="sun"):
     """Seed 001: direct fixes, EKF and smoother on one simulated pass; returns a dict."""
-    from fgnav.analysis.direct_fix import sem_direct_fixes
-    from fgnav.measurements import build_pass
-    from fgnav.scenarios import load_scenario
-    from fgnav.sem import preprocess_log
-    from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.options import SmootherOptions
-
     scn = load_scenario(scenario).with_options(duration_h=duration_h)
     sim = simulate_pass(scn, seed=seed)
     at = _truth_lookup(sim)

@@ -30,11 +30,20 @@ centre axis, i.e. half the 2-D angle error), gives the RMS
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from factors.constants import DEG, R_LIMB_SEED_M
 from factors.direction import sphere_log
 from factors.geometry import tangent_basis
+from fgnav.errors import UserError
+from fgnav.simulate.limb_render import (
+    LimbRadiance, SEED000_DETECTOR, add_detector_noise, render_limb_ideal, scene_from_altitude,
+)
+from fgnav.vision.horizon import estimate_horizon
+from fgnav.vision.limb import extract_limb_points, ransac_limb
+from fgnav.vision.sensor import SEED000_SUBAPERTURE_CAMERA
 
 __all__ = [
     "TABLE3_SEED", "TABLE3_CASES", "TABLE3_SIGNAL_E", "TABLE5_SEED", "TABLE5_ANGLE_ERRORS_DEG",
@@ -82,15 +91,6 @@ def table3_frame_fixes(case: str, n_runs: int, rng: np.random.Generator, *,
 
     Failed fits (e.g. the ellipse fit returning a hyperbola on a short arc) are ``None``.
     """
-    from dataclasses import replace
-
-    from fgnav.errors import UserError
-    from fgnav.simulate.limb_render import (SEED000_DETECTOR, LimbRadiance, add_detector_noise,
-                                            render_limb_ideal, scene_from_altitude)
-    from fgnav.vision.horizon import estimate_horizon
-    from fgnav.vision.limb import extract_limb_points, ransac_limb
-    from fgnav.vision.sensor import SEED000_SUBAPERTURE_CAMERA
-
     if case not in TABLE3_CASES:
         raise UserError(f"unknown table-3 case {case!r}; expected one of {list(TABLE3_CASES)}")
     cam = SEED000_SUBAPERTURE_CAMERA

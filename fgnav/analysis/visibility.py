@@ -17,6 +17,10 @@ from __future__ import annotations
 import numpy as np
 
 from factors.constants import DEG
+from fgnav.constants import MU_EARTH_M3_S2, R_EARTH_M
+from fgnav.errors import UserError
+from fgnav.orbit import elements_to_state
+from fgnav.scenarios import Scenario, SensorSpec, load_scenario
 
 R_SEED_VISIBILITY_M = 6_371_000.0
 """Earth radius that reproduces seed 002's printed band (98.3-985.6 km)."""
@@ -72,11 +76,6 @@ def visibility_scenario(orbit: str, sigma_deg: float = 0.01, step_s: float = 10.
     """A scenario whose UV ring gives geocentric direction + limb radius (both ``sigma_deg``)
     every ``step_s``: ``gto-transfer`` or one of :data:`VISIBILITY_ORBITS` (altitudes above
     ``R_EARTH_M``; prior 1 km / 0.1 m/s per axis, random)."""
-    from fgnav.constants import MU_EARTH_M3_S2, R_EARTH_M
-    from fgnav.errors import UserError
-    from fgnav.orbit import elements_to_state
-    from fgnav.scenarios import Scenario, SensorSpec, load_scenario
-
     sensors = (SensorSpec("earth_direction", sigma_deg=sigma_deg),
                SensorSpec("limb_radius", sigma_deg=sigma_deg, r_limb_km=6375.0))
     if orbit == "gto-transfer":

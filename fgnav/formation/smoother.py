@@ -23,8 +23,11 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+import gtsam
 import numpy as np
+from scipy.linalg import solve_triangular
 
+from factors.adapters import custom_factor
 from factors.geometry import so3_exp
 from factors.pseudorange import (
     N_LINKS, make_carrier_factor, make_pseudorange_factor, predict_ranges, spherical_to_cartesian,
@@ -158,8 +161,6 @@ def _position_and_jacobian(p, param):
 
 
 def _keys():
-    import gtsam
-
     return (lambda k: gtsam.symbol("p", k), lambda k: gtsam.symbol("v", k),
             lambda k: gtsam.symbol("c", k), gtsam.symbol("n", 0))
 
@@ -176,10 +177,6 @@ class FormationGraph:
 
     def prior_factors(self):
         """Priors at epoch 0 from the formation design (nominal orbit), clock 0, ambiguities 0."""
-        import gtsam
-
-        from factors.adapters import custom_factor
-
         sc, sim = self.sc, self.sim
         nom = sim["nominal_lvlh"][0]
         r_b = sim["R_body_from_lvlh"][0] @ nom[:3]
@@ -212,8 +209,6 @@ class FormationGraph:
 
     def epoch_factors(self, k):
         """Measurement factors of epoch k and (for k > 0) the motion/clock factors k-1 -> k."""
-        from factors.adapters import custom_factor
-
         sim, sc, param = self.sim, self.sc, self.param
         out = [make_pseudorange_factor(self.P(k), self.C(k), sim["rho_m"][k], sim["M21"][k],
                                        sc.sigma_code_m, param)]
@@ -239,8 +234,6 @@ class FormationGraph:
         return out
 
     def graph(self):
-        import gtsam
-
         g = gtsam.NonlinearFactorGraph()
         for f in self.prior_factors():
             g.add(f)
@@ -252,8 +245,6 @@ class FormationGraph:
     def initial_values(self):
         """Initial guess: single-epoch code solutions (position, clock), design velocity,
         ambiguities from carrier minus code at epoch 0."""
-        import gtsam
-
         sim, sc = self.sim, self.sc
         K = sim["t_s"].size
         x0 = np.tile([sc.radius_m, 0.0, 0.0, 0.0], (K, 1))
@@ -324,9 +315,6 @@ def _both_coords(res: TrackResult):
 
 def _dense_covariances(graph, values, keys):
     """Per-epoch 7x7 covariance blocks from a dense QR of the whitened Jacobian."""
-    import gtsam
-    from scipy.linalg import solve_triangular
-
     order = gtsam.Ordering()
     for k in keys:
         order.push_back(k)
@@ -348,8 +336,6 @@ def _extract(values, fg: FormationGraph):
 
 def solve_batch(sim, sc: FormationScenario, param="spherical", max_iter=20, tol=1e-9):
     """Batch Gauss–Newton with QR elimination (own loop). Returns :class:`TrackResult`."""
-    import gtsam
-
     fg = FormationGraph(sim, sc, param)
     graph = fg.graph()
     values, _, _ = fg.initial_values()
@@ -387,8 +373,6 @@ def default_relinearize_thresholds(param, sc: FormationScenario):
     A single float threshold (GTSAM's default 0.1) would never relinearize the angles
     (0.1 rad = 100 m at 1 km).
     """
-    import gtsam
-
     tm = gtsam.ISAM2ThresholdMap()
     ang = 1e-5 / sc.radius_m
     tm.insert(("p", np.array([1e-5, 1e-5, 1e-5]) if param == "cartesian"
@@ -416,8 +400,6 @@ def solve_isam2(sim, sc: FormationScenario, param="spherical", factorization="QR
     nonlinear in az, el): on the 600 s case 3 extra updates left it 0.36 sigma off the batch
     optimum, 6 reach it (1e-7 sigma). ``extra_updates=None``: 6 spherical, 3 Cartesian.
     """
-    import gtsam
-
     fg = FormationGraph(sim, sc, param)
     if extra_updates is None:   # measured: enough to reach the batch optimum (see above)
         extra_updates = 6 if param == "spherical" else 3

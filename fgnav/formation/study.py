@@ -15,11 +15,18 @@ lambda_min / lambda_max of ``A^T A`` (A unwhitened, the seed's), ``rcond_1norm``
 
 from __future__ import annotations
 
+import json
+import os
+
 import numpy as np
 
 from factors.pseudorange import predict_ranges, spherical_to_cartesian
 from fgnav.formation.single_epoch import (
-    PARAMS, conditioning, design_matrix, solve_single_epoch, solve_single_epoch_many, to_param,
+    PARAMS, conditioning, design_matrix, from_param, solve_single_epoch, solve_single_epoch_many,
+    to_param,
+)
+from fgnav.formation.smoother import (
+    nees_of, scenario_dict, simulate_formation, solve_batch, solve_isam2,
 )
 
 __all__ = ["SEED003", "seed003_truth", "conditioning_study", "coverage_monte_carlo",
@@ -72,7 +79,6 @@ def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
     x0 = np.tile(np.asarray(SEED003["x0_cart_m"]), (runs, 1))
     x, _, conv = solve_single_epoch_many(z, M21, param, x0)
     if param == "cartesian":
-        from fgnav.formation.single_epoch import from_param
         s = to_param(from_param(x[:, :3], param), "spherical")
     else:
         s = x[:, :3]
@@ -169,12 +175,6 @@ def run_track(sc, param="spherical", solver="batch", seed=0, out_dir=None, rerun
     coordinate sets by the Jacobian of r(R, az, el)) and ``out_dir/summary.json``.
     Returns the summary dict.
     """
-    import json
-    import os
-
-    from fgnav.formation.smoother import nees_of, scenario_dict, simulate_formation, solve_batch, \
-        solve_isam2
-
     rng = np.random.default_rng(seed)
     sim = simulate_formation(sc, rng)
     res = (solve_batch if solver == "batch" else solve_isam2)(sim, sc, param)

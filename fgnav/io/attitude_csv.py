@@ -12,10 +12,13 @@ and the off-diagonal covariances (rad^2).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fgnav.errors import InputFormatError
 from fgnav.io.atomic import atomic_write_text
+from fgnav.io.text import read_utf8_text
 from fgnav.time import format_utc, parse_utc
 
 COLUMNS = ("epoch", "qw", "qx", "qy", "qz", "sigma_x_rad", "sigma_y_rad", "sigma_z_rad",
@@ -48,11 +51,7 @@ def read_attitude_csv(path):
     UTF-8 (a byte-order mark is ignored); every error is an
     :class:`~fgnav.errors.InputFormatError` naming the line and the column.
     """
-    import math
-
     import gtsam
-
-    from fgnav.io.text import read_utf8_text
 
     text = read_utf8_text(path, "an attitude CSV file")  # not UTF-8: the line and the byte
     epochs, Rs, Ps = [], [], []

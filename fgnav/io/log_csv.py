@@ -96,6 +96,8 @@ from typing import Any
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.atomic import atomic_writer
+from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
 
 __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
@@ -192,8 +194,6 @@ class MeasurementLog:
 
     def epochs_utc(self) -> np.ndarray:
         """Absolute epoch of each row, ``datetime64[ns]`` UTC."""
-        from fgnav.time import add_seconds
-
         return add_seconds(self.epoch0, self.t_s)
 
     def counts(self) -> dict[str, int]:
@@ -289,8 +289,6 @@ def _parse_number(text: str, column: str) -> float:
 
 
 def _parse_epoch(text: str) -> np.datetime64:
-    from fgnav.time import UtcRangeError, parse_utc
-
     if not _EPOCH_RE.match(text):
         raise _RowError("bad_epoch", "epoch", _EPOCH_EXPECTED, text)
     try:
@@ -350,8 +348,6 @@ def read_log(path, *, on_bad_row: str = "error") -> MeasurementLog:
 
 
 def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
-    from fgnav.time import seconds_since
-
     drop = on_bad_row == "drop"
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
@@ -453,8 +449,6 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     med = int(np.sort(ns)[(len(ns) - 1) // 2])
     far = np.abs(ns.astype(float) - float(med)) > EPOCH_OUTLIER_DAYS * _NS_PER_DAY  # no overflow
     if far.any():
-        from fgnav.time import format_utc
-
         for j in np.flatnonzero(far):
             days = (int(ns[j]) - med) / _NS_PER_DAY
             bad(int(line_arr[j]), _RowError(
@@ -528,8 +522,6 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
     """
-    from fgnav.time import parse_utc
-
     if isinstance(epoch0, str):
         epoch0 = parse_utc(epoch0)
     epoch0 = np.datetime64(epoch0, "ns")
@@ -567,7 +559,6 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
             found = "" if err.found is None else f", found {err.found!r}"
             raise UserError(f"log_from_arrays: row {i}, column '{err.column}': expected "
                             f"{err.expected}{found}") from None
-    from fgnav.time import add_seconds
 
     ns = add_seconds(epoch0, t_s).astype(np.int64)
     line = np.zeros(M, dtype=np.int64)
@@ -587,8 +578,6 @@ def _fmt(v: float) -> str:
 
 
 def _fmt_epoch(ns: int) -> str:
-    from fgnav.time import format_utc
-
     return format_utc(np.datetime64(int(ns), "ns"), "us" if ns % 1000 == 0 else "ns")
 
 
@@ -598,9 +587,6 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     The extra columns are written only when some row uses them. Each row is validated
     first (a log that cannot be read back is never written).
     """
-    from fgnav.io.atomic import atomic_writer
-    from fgnav.time import add_seconds
-
     M = len(log.t_s)
     kind = np.asarray(log.kind).astype(str)
     xyz = np.asarray(log.xyz, dtype=float)

@@ -60,6 +60,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.atomic import atomic_writer
+from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
 
 __all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch"]
 
@@ -95,8 +97,6 @@ def parse_ccsds_epoch(text: str) -> np.datetime64:
 
     Fractions beyond nanoseconds are truncated. Raises ``ValueError`` if malformed.
     """
-    from fgnav.time import UtcRangeError, parse_utc
-
     m = _EPOCH_RE.match(text.strip())
     if m is None:
         raise ValueError(f"not a CCSDS epoch: {text!r}")
@@ -122,8 +122,6 @@ def parse_ccsds_epoch(text: str) -> np.datetime64:
 
 def format_ccsds_epoch(t64) -> str:
     """datetime64 -> ``YYYY-MM-DDThh:mm:ss.ffffff`` (UTC, microseconds; ns when needed)."""
-    from fgnav.time import format_utc
-
     t = np.datetime64(t64, "ns")
     return format_utc(t, "us" if int(t.astype(np.int64)) % 1000 == 0 else "ns")[:-1]
 
@@ -203,8 +201,6 @@ def _header_line(path, lineno, s, meta) -> bool:
 
 def read_oem(path) -> OemData:
     """Read an OEM (KVN) file into SI arrays (see the module docstring for what is accepted)."""
-    from fgnav.time import seconds_since
-
     lines = _read_lines(path)
     it = iter([(n, t) for n, t in lines if t.strip()])
     meta: dict = {"comments": [], "segments": []}
@@ -429,9 +425,6 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     whose covariance has a NaN/inf gets no covariance block (read back as NaN). Written in
     km, km/s, km**2 (see the module docstring). ``creation_date`` (datetime64) defaults to now.
     """
-    from fgnav.io.atomic import atomic_writer
-    from fgnav.time import add_seconds, parse_utc
-
     if isinstance(epoch0, str):
         epoch0 = parse_utc(epoch0)
     t_s = np.asarray(t_s, dtype=float).reshape(-1)

@@ -26,6 +26,7 @@ import tempfile
 from pathlib import Path
 
 from fgnav.errors import UserError
+from fgnav.io.atomic import atomic_write_text
 
 __all__ = ["MANIFEST", "STAGING_PREFIX", "SMOOTH_OUTPUTS", "REPORT_OUTPUTS", "make_staging",
            "remove_stale_staging", "read_manifest", "commit_outputs", "check_writable_dir",
@@ -130,7 +131,6 @@ def commit_outputs(out: Path, stage: Path | None, names: list[str], group: str,
             target.unlink()
     groups = {g: v for g, v in (previous or {}).items() if g not in replaces}
     groups[group] = list(names)
-    from fgnav.io.atomic import atomic_write_text
 
     atomic_write_text(out / MANIFEST, json.dumps({"format": "fgnav-outputs-1", "groups": groups},
                                                  indent=1) + "\n")

@@ -11,16 +11,17 @@ import json
 import math
 import os
 
+import numpy as np
+
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_write_text
+from fgnav.time import format_utc
 
 __all__ = ["write_summary", "read_summary", "to_jsonable"]
 
 
 def to_jsonable(obj):
     """Convert ``obj`` recursively to JSON-ready Python values (NaN/inf -> None)."""
-    import numpy as np
-
     if obj is None or isinstance(obj, (bool, str)):
         return obj
     if isinstance(obj, int):
@@ -37,8 +38,6 @@ def to_jsonable(obj):
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
     if isinstance(obj, np.datetime64):
-        from fgnav.time import format_utc
-
         return format_utc(obj)
     if isinstance(obj, np.ndarray):
         if np.issubdtype(obj.dtype, np.datetime64):

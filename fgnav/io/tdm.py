@@ -45,7 +45,9 @@ import re
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE, _sort_rows
 from fgnav.io.oem import _KVN_RE, _epoch, _header_line, _number, _read_lines
+from fgnav.time import seconds_since
 
 __all__ = ["read_tdm"]
 
@@ -62,7 +64,6 @@ def _sigma_from_comment(path, lineno, comment):
     except InputFormatError:
         raise InputFormatError(path, lineno, "sigma_deg", "COMMENT sigma_deg=<1-sigma in deg, "
                                "a number > 0>", m.group(1)) from None
-    from fgnav.io.log_csv import SIGMA_RANGE
 
     lo, hi, _ = SIGMA_RANGE["earth_direction"]
     if not lo <= math.radians(s) <= hi:
@@ -77,9 +78,6 @@ def read_tdm(path, sigma_rad: float | None = None):
 
     ``sigma_rad``: 1σ angular noise (rad); if None, taken from ``COMMENT sigma_deg=...``.
     """
-    from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, _sort_rows
-    from fgnav.time import seconds_since
-
     if sigma_rad is not None:
         sigma_rad = float(sigma_rad)
         if not (math.isfinite(sigma_rad) and sigma_rad > 0.0):

@@ -9,6 +9,9 @@ byte offset from the start of the file, so that the user can find and fix it.
 
 from __future__ import annotations
 
+import re
+import tomllib
+
 from fgnav.errors import InputFormatError, UserError
 
 __all__ = ["read_utf8_text", "decode_utf8", "load_toml", "parse_toml"]
@@ -53,9 +56,6 @@ def load_toml(path, what: str = "a TOML file") -> dict:
 def parse_toml(path, text: str) -> dict:
     """Parse the TOML ``text`` of ``path``; a syntax error is an
     :class:`~fgnav.errors.InputFormatError` naming the line and column."""
-    import re
-    import tomllib
-
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

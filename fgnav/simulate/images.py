@@ -35,9 +35,21 @@ from pathlib import Path
 
 import numpy as np
 
-from factors.constants import DEG
+from factors.constants import DEG, R_LIMB_SEED_M
 from fgnav.errors import UserError
+from fgnav.io.atomic import atomic_writer
+from fgnav.io.log_csv import log_from_arrays
+from fgnav.orbit import truth_at
+from fgnav.progress import progress
+from fgnav.simulate.limb_render import LimbScene, render_limb
+from fgnav.simulate.noise import perturb_directions
+from fgnav.simulate.pass_sim import sensor_epochs
+from fgnav.simulate.star_render import render_star_field
+from fgnav.time import add_seconds, format_utc, seconds_since
+from fgnav.vision.attitude import quat_from_matrix
 from fgnav.vision.camera import PinholeCamera
+from fgnav.vision.catalogue import decimal_year, load_catalogue
+from fgnav.vision.sensor import seed000_limb_subapertures
 
 __all__ = ["ImageConfig", "FrameRecord", "FRAME_COLUMNS", "STAR_FIELD_1024_CAMERA",
            "earth_pointing_attitude", "limb_in_field", "frame_epochs", "render_pass_frames",
@@ -101,9 +113,6 @@ class FrameRecord:
     psf_sigma_px: float | None = None
 
     def to_row(self) -> list[str]:
-        from fgnav.time import format_utc
-        from fgnav.vision.attitude import quat_from_matrix
-
         def f(x):
             return "" if x is None else repr(float(x))
 
@@ -145,8 +154,6 @@ def limb_in_field(u_cam: np.ndarray, rho_rad: float, half_field_rad: float, marg
 
 def frame_epochs(scenario, period_s: float | None) -> np.ndarray:
     """Image epochs (s from the pass epoch): every ``period_s`` (default the scenario step)."""
-    from fgnav.simulate.pass_sim import sensor_epochs
-
     if period_s is not None and not period_s > 0:
         raise UserError(f"image period must be > 0 s, got {period_s}")
     return sensor_epochs(scenario, period_s)
@@ -158,14 +165,11 @@ def _r_limb_of(scenario, cfg: ImageConfig) -> float:
     for s in scenario.sensors:
         if s.kind == "limb_radius":
             return float(s.r_limb_km) * 1e3
-    from factors.constants import R_LIMB_SEED_M
     return float(R_LIMB_SEED_M)
 
 
 def write_frames_index(path, records: list[FrameRecord], comments=()) -> None:
     """Write ``frames.csv`` atomically (module doc)."""
-    from fgnav.io.atomic import atomic_writer
-
     lines = ["# fgnav image index (fgnav.simulate.images): one row per 16-bit PNG frame\n",
              "# q_body_from_cam: scalar-first quaternion of R_body_from_cam (sensor calibration)\n",
              "# truth_*: true position (ECI, m), attitude, Earth direction/angular radius (camera\n",
@@ -188,14 +192,6 @@ def render_pass_frames(sim, out_dir, *, seed: int = 0, config: ImageConfig = Ima
     the star frame only.
     """
     import cv2
-
-    from fgnav.orbit import truth_at
-    from fgnav.progress import progress
-    from fgnav.simulate.limb_render import LimbScene, render_limb
-    from fgnav.simulate.star_render import render_star_field
-    from fgnav.time import add_seconds, format_utc
-    from fgnav.vision.catalogue import decimal_year, load_catalogue
-    from fgnav.vision.sensor import seed000_limb_subapertures
 
     cfg = config
     subs = seed000_limb_subapertures()
@@ -257,11 +253,6 @@ def ideal_log_like(log, epoch0, t_truth_s: np.ndarray, x_truth: np.ndarray, seed
     (:func:`fgnav.simulate.noise.perturb_directions`), ``limb_radius`` =
     ``asin(R_limb/|r|) + sigma n``; prior rows are copied. ``t_truth_s`` are seconds from
     ``epoch0``; truth is interpolated with :func:`fgnav.orbit.truth_at`."""
-    from fgnav.io.log_csv import log_from_arrays
-    from fgnav.orbit import truth_at
-    from fgnav.simulate.noise import perturb_directions
-    from fgnav.time import seconds_since
-
     rng = np.random.default_rng(seed)
     t = np.asarray(seconds_since(log.epochs_utc(), epoch0), float)
     r = truth_at(np.asarray(t_truth_s, float), np.asarray(x_truth, float), t)[:, :3]

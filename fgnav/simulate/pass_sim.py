@@ -17,12 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fgnav.constants import DEG
+from fgnav.constants import DEG, R_EARTH_M
 from fgnav.io.log_csv import MeasurementLog, log_from_arrays
 from fgnav.orbit import integrate_truth
 from fgnav.errors import UserError
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.noise import perturb_directions
+from fgnav.simulate.refraction_sim import simulate_refraction_rows
+from fgnav.simulate.sem_sim import simulate_body_direction_rows
 from fgnav.time import j2000_seconds, parse_utc
 
 
@@ -88,16 +90,13 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
             rho = np.arcsin(r_limb / rn) + s * rng.standard_normal(len(t))
             add("limb_radius", t, np.column_stack([rho, np.full(len(t), r_limb), np.full(len(t), np.nan)]), s)
         elif spec.kind == "altitude":
-            from fgnav.constants import R_EARTH_M
             h = rn - R_EARTH_M + spec.sigma_m * rng.standard_normal(len(t))
             add("altitude", t, np.column_stack([h, np.full(len(t), R_EARTH_M), np.full(len(t), np.nan)]),
                 spec.sigma_m)
         elif spec.kind == "refraction":
-            from fgnav.simulate.refraction_sim import simulate_refraction_rows
             for chunk in simulate_refraction_rows(spec, t, x_true[idx], epoch0, rng):
                 add(*chunk)
         elif spec.kind in ("earth_direction_body", "sun_direction_body", "moon_direction_body"):
-            from fgnav.simulate.sem_sim import simulate_body_direction_rows
             for chunk in simulate_body_direction_rows(spec, t, x_true[idx], epoch0, rng):
                 add(*chunk)
     t_cat = np.concatenate(ts)

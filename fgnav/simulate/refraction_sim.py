@@ -37,6 +37,8 @@ import numpy as np
 from factors.constants import ARCSEC, DEG, R_EARTH_M
 from factors.geometry import so3_exp, so3_log
 from factors.refraction import REFRACTION_VALID_BAND_M, refraction_model
+from fgnav.simulate.sem_sim import lvlh_R_eci_from_body
+from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
            "simulate_refraction_rows", "SIGMA_FLOOR_RAD"]
@@ -89,9 +91,6 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
     """Rows of the refraction sensor ``spec`` at epochs ``t_s`` (``pass_sim`` protocol):
     a list of ``(kind, t, xyz, sigma[, extra])`` chunks, kinds ``refraction`` and
     ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator."""
-    from fgnav.simulate.sem_sim import lvlh_R_eci_from_body
-    from fgnav.vision.catalogue import decimal_year, load_catalogue
-
     if catalogue is None:
         catalogue = load_catalogue(epoch_year=decimal_year(epoch0),
                                    vmag_max=spec.vmag_max)

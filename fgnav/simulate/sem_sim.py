@@ -24,6 +24,8 @@ import numpy as np
 
 from factors.constants import DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from fgnav.simulate.noise import perturb_directions
+from fgnav.time import j2000_seconds
 
 __all__ = ["lvlh_R_eci_from_body", "occulted_by_earth", "simulate_body_direction_rows"]
 
@@ -64,9 +66,6 @@ def simulate_body_direction_rows(spec, t_s, x_true, epoch0, rng):
     ``moon_direction_body``; ``spec.sigma_deg`` the 1σ per tangent axis (deg);
     ``x_true`` (N, 6) the truth at ``t_s`` (s from ``epoch0``).
     """
-    from fgnav.simulate.noise import perturb_directions
-    from fgnav.time import j2000_seconds
-
     r = x_true[:, :3]
     R = lvlh_R_eci_from_body(x_true)
     t_j = float(j2000_seconds(epoch0)) + np.asarray(t_s, dtype=float)

@@ -31,9 +31,12 @@ import dataclasses
 import numpy as np
 
 from factors.dynamics import process_noise, propagate
+from fgnav.analysis.crb import CrbResult, cramer_rao_bound
 from fgnav.errors import UserError
 from fgnav.measurements import Pass, format_duration, fill_gaps, long_gaps, slice_pass
 from fgnav.solution import Solution
+from fgnav.solvers.ekf import run_ekf
+from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
 from fgnav.time import j2000_seconds
 
 KAPPA_MAX = 1.0
@@ -42,15 +45,12 @@ KAPPA_MAX = 1.0
 
 def _filter(p: Pass, options):
     """Filtered states and covariances of a pass (the numba EKF where it applies)."""
-    from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
-
     plain = dataclasses.replace(options, gate_probability=None, robust=None)
     if set(p.families) <= set(SUPPORTED_KINDS):
         try:
             return run_ekf_numba(p, plain)
         except ValueError:
             pass
-    from fgnav.solvers.ekf import run_ekf
     return run_ekf(p, plain)
 
 
@@ -175,8 +175,6 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
 def arcs_bound(p: Pass, x_ref: np.ndarray, model):
     """The Cramér–Rao bound of a pass split into arcs: each arc's own (its a-priori state
     included), pooled over all epochs (a :class:`fgnav.analysis.crb.CrbResult`)."""
-    from fgnav.analysis.crb import CrbResult, cramer_rao_bound
-
     bounds = [0, *p.breaks, p.n_epochs]
     cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
                            x_ref[a:b], model)

@@ -29,6 +29,7 @@ from fgnav.errors import NotObservableError
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass
+from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solution import Solution
@@ -257,7 +258,6 @@ def _ekf_first_guess(p: Pass, options: SmootherOptions):
     (measurement kinds it does not model, ``init="prior"``, or a filter that fails)."""
     if options.init != "auto":
         return None
-    from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
 
     if not set(p.families) <= set(SUPPORTED_KINDS):
         return None

@@ -44,21 +44,25 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import hashlib
+import io
+import os
 import time
 
 import gtsam
 import numpy as np
 
-from factors.dynamics import process_noise, propagate
-from factors.motion import make_motion_factor
+from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
+from factors.motion import make_motion_factor, motion_residual
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
+from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution, latency_summary
 from fgnav.measurements import prior_covariance
 from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
-from fgnav.solvers.chain import chain_marginals
+from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.time import j2000_seconds
@@ -326,8 +330,6 @@ def polish_chain(p: Pass, x: np.ndarray, q_m2_s3: float, model, t0_j2000_s: floa
     Returns ``(x, lin, P, iterations)``: the states, the linearization of the last
     iteration (residuals, chi-square), the marginal covariances (N, 6, 6), the count.
     """
-    from fgnav.solvers.chain import back_substitute
-
     for it in range(1, max_iterations + 1):
         lin = linearize_and_eliminate(p, x, q_m2_s3, model, t0_j2000_s, kernel, rejected)
         P = chain_marginals(lin.R, lin.S)
@@ -345,9 +347,6 @@ def _motion_chi2(p, x, x_next, q, model, t0_j2000):
     """Chi-square of the motion factors of a fixed-lag run: step k -> k + 1 evaluated at
     ``x[k]`` and ``x_next[k]``, the two states of one window estimate (``x[k + 1]`` where
     ``x_next`` is NaN: the last state, read with its predecessor in the final block)."""
-    from factors.dynamics import process_noise_sqrt_information
-    from factors.motion import motion_residual
-
     if p.n_epochs < 2:
         return 0.0
     nxt = np.where(np.isnan(x_next[:-1]), x[1:], x_next[:-1])
@@ -364,8 +363,6 @@ def _fingerprint(p: Pass, options: SmootherOptions, inc: IncrementalOptions, met
     """Identifies the run a checkpoint belongs to: the pass's epochs and every value of every
     row (not only epochs and sigmas: two logs with the same epochs differ in their values),
     and every option that changes the answer."""
-    import hashlib
-
     h = hashlib.sha256()
     h.update(str(np.datetime64(p.epoch0, "ns")).encode())
     h.update(np.ascontiguousarray(p.t_s, dtype=float).tobytes())
@@ -383,12 +380,6 @@ def _fingerprint(p: Pass, options: SmootherOptions, inc: IncrementalOptions, met
 
 
 def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_est, rejected_rows):
-    import io
-
-    from fgnav.io.atomic import atomic_writer
-
-    import os
-
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)  # e.g. inside --out
     buf = io.BytesIO()
     np.savez(buf, format=CHECKPOINT_FORMAT, fingerprint=fingerprint, k_next=k_next,
@@ -407,9 +398,6 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     Fills ``online_x``, ``online_P``, ``latency`` up to the saved epoch; returns
     ``(k_next, x_est, rejected_rows)``.
     """
-    import io
-    import os
-
     N = len(online_x)
 
     def bad(what):

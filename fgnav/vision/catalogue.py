@@ -16,8 +16,12 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.time import parse_utc
 
 __all__ = ["Catalogue", "DATA_DIR", "DEFAULT_CATALOGUE_PATH", "load_catalogue", "radec_to_unit",
            "unit_to_radec", "decimal_year", "merge_close_stars"]
@@ -45,8 +49,6 @@ def unit_to_radec(u) -> tuple[np.ndarray, np.ndarray]:
 
 def decimal_year(t) -> float:
     """A ``numpy.datetime64`` / ISO string (UTC) -> Julian-year epoch (J2000.0 = 2000.0)."""
-    from fgnav.time import parse_utc
-
     t64 = parse_utc(t) if isinstance(t, str) else np.datetime64(t, "ns")  # 23:59:60 too
     days = (t64 - np.datetime64("2000-01-01T12:00:00", "ns")) / np.timedelta64(1, "D")
     return 2000.0 + float(days) / 365.25
@@ -123,10 +125,6 @@ def merge_close_stars(cat: Catalogue, radius_rad: float) -> Catalogue:
     components of a close double, which a camera sees as one blob) into one entry per
     group: direction = flux-weighted mean (the photocentre), ``V = -2.5 log10(sum 10^(-0.4 V_i))``,
     HR number and RA/Dec order of the brightest member. Other stars are unchanged."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     pairs = cKDTree(cat.u_eci).query_pairs(2.0 * np.sin(radius_rad / 2.0), output_type="ndarray")
     if len(pairs) == 0:
         return cat

@@ -43,6 +43,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import median_filter
 
 from fgnav.errors import UserError
 from fgnav.vision.camera import PinholeCamera
@@ -203,7 +204,6 @@ def extract_limb_points(image: np.ndarray, *, valid_mask: np.ndarray | None = No
     W = int(half_window_px)
     j = np.arange(-W, W + 2, dtype=np.float64) - 0.5          # samples; midpoints at -W..W
     jm = np.arange(-W, W + 1, dtype=np.float64)
-    from scipy.ndimage import median_filter
 
     for _ in range(3):
         prof = _sample_profiles(img, p, n, tc[:, None] + j[None, :])

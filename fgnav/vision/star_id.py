@@ -43,7 +43,7 @@ import json
 import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from pathlib import Path
 
@@ -378,7 +378,6 @@ def refine_attitude(R0: np.ndarray, cam: PinholeCamera, uv_meas: np.ndarray, u_e
             break
     cam2 = cam.with_focal_px(f)
     if fit_k1:
-        from dataclasses import replace
         cam2 = replace(cam2, k1=float(k1))
     uv, Ht, Hf, Hk = star_pixel_model(R, f, k1, u_eci, cam.cx, cam.cy)
     J = np.concatenate([Ht, Hf[:, :, None], Hk[:, :, None]], axis=2)[:, :, cols].reshape(-1, sum(cols))

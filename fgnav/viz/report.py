@@ -23,9 +23,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.atomic import atomic_write_text, atomic_writer
+from fgnav.io.oem import read_oem
+from fgnav.io.outputs import commit_outputs
+from fgnav.io.summary import read_summary
+from fgnav.time import format_utc
+from fgnav.viz.rerun_log import error_and_sigma
 
 RTN_NAMES = ("R (radial)", "T (along-track)", "N (cross-track)")
 _H = 1.0 / 3600.0
@@ -100,8 +107,6 @@ def states_at(t_query_s, t_s, x_eci) -> np.ndarray:
     position with the velocity as derivative, and a cubic spline of velocity. NaN outside
     the table.
     """
-    from scipy.interpolate import CubicHermiteSpline, CubicSpline
-
     t_s = np.asarray(t_s, float)
     x_eci = np.asarray(x_eci, float)
     tq = np.asarray(t_query_s, float)
@@ -128,9 +133,6 @@ def _find_truth(result_dir: Path, truth_path) -> Path | None:
 
 def load_result(result_dir, truth_path=None) -> ResultData:
     """Read a result directory (see module doc). ``truth_path`` overrides the summary's."""
-    from fgnav.io.oem import read_oem
-    from fgnav.io.summary import read_summary
-
     d = Path(result_dir)
     if not d.is_dir():
         raise UserError(f"{d}: not a result directory")
@@ -176,8 +178,6 @@ def _figure(figsize):
 
 
 def _rtn_err_sigma(x_eci, P_eci, truth_x_eci):
-    from fgnav.viz.rerun_log import error_and_sigma
-
     P = P_eci if P_eci is not None else np.full((len(x_eci), 6, 6), np.nan)
     return error_and_sigma(x_eci, P, truth_x_eci, frame="rtn")
 
@@ -313,8 +313,6 @@ def plot_latency(t_s, latency_s, *, title="Per-epoch update latency"):
 # Writing
 # --------------------------------------------------------------------------------------
 def _save(fig, path: Path, dpi=110):
-    from fgnav.io.atomic import atomic_writer
-
     with atomic_writer(path, "wb") as f:
         fig.savefig(f, format="png", dpi=dpi)
 
@@ -370,11 +368,8 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
         images[name] = out / f"{name}.png"
         _save(fig, images[name])
 
-    from fgnav.io.atomic import atomic_write_text
-
     method = data.summary.get("method", "?")
     title = title or f"fgnav report — {method}"
-    from fgnav.time import format_utc
 
     e0 = format_utc(data.epoch0)[:-4] + "Z"  # ms; leap seconds print as 23:59:60
     span_h = (data.t_s[-1] - data.t_s[0]) * _H if len(data.t_s) else 0.0
@@ -413,7 +408,6 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
         h += [f"<h2>{esc(captions[name])}</h2>", f"<img src='{esc(p.name)}' alt='{esc(captions[name])}'>"]
     h.append("</body></html>")
     atomic_write_text(out / "report.html", "\n".join(h) + "\n")
-    from fgnav.io.outputs import commit_outputs  # drop a previous report's other plots
 
     commit_outputs(out, None, [p.name for p in images.values()] + ["report.md", "report.html"],
                    "report", replaces=("report",))

@@ -30,8 +30,13 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2 as chi2_dist
 
 from factors.constants import R_EARTH_M
+from fgnav.errors import UserError
+from fgnav.orbit import rtn_frame
+from fgnav.time import format_utc
 
 #: WGS-84 flattening, for the drawn Earth only (the physics uses ``J2``).
 _F_WGS84 = 1.0 / 298.257223563
@@ -53,8 +58,6 @@ def rtn_rotations(x_eci: np.ndarray) -> np.ndarray:
 
     R = r/|r|, N = (r x v)/|r x v|, T = N x R. ``x_eci`` is (N, 6) or (6,).
     """
-    from fgnav.orbit import rtn_frame
-
     with np.errstate(invalid="ignore", divide="ignore"):   # NaN rows (gaps) stay NaN
         return rtn_frame(np.atleast_2d(np.asarray(x_eci, dtype=float)))
 
@@ -122,8 +125,6 @@ def covariance_ellipsoids(P_pos_m2: np.ndarray, k_sigma: float = 3.0):
     The k-sigma ellipsoid ``{d : d^T P^-1 d = k^2}`` has semi-axes ``k sqrt(lambda_i)`` along
     the eigenvectors of ``P``; the quaternion rotates the ellipsoid frame into ECI.
     """
-    from scipy.spatial.transform import Rotation
-
     P = 0.5 * (P_pos_m2 + np.swapaxes(P_pos_m2, 1, 2))
     lam, V = np.linalg.eigh(P)
     det = np.linalg.det(V)
@@ -308,8 +309,6 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
         raise ValueError(f"solution shapes: t_s {t_s.shape}, x_eci {x.shape}, P_eci {P.shape}")
     truth = None if truth_x_eci is None else np.asarray(truth_x_eci, float)
     if truth is not None and truth.shape != (n, 6):
-        from fgnav.errors import UserError
-
         raise UserError(f"truth states must be ({n}, 6) at the solution epochs, got {truth.shape}")
     k = float(sigma_scale)
     ks = f"{k:g}".replace(".", "p")
@@ -348,8 +347,6 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
 def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid_every,
              magnification, residual_t_s, rkinds, has_latency):
     """Log every entity of ``log_solution``; returns (entity paths, magnification)."""
-    from scipy.stats import chi2 as chi2_dist
-
     n = len(t_s)
     entities: list[str] = []
 
@@ -490,8 +487,6 @@ def _safe(name: str) -> str:
 
 
 def _about_text(solution, has_truth, k, mag) -> str:
-    from fgnav.time import format_utc
-
     return "\n".join([
         f"# fgnav — {solution.method}",
         f"- epoch0 (t_s = 0): {format_utc(solution.epoch0)[:-4]}Z",  # ms, leap-second aware
