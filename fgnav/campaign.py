@@ -338,7 +338,7 @@ def _task_seed000_table5(params):
     import numpy as np
 
     from factors.constants import DEG, R_LIMB_SEED_M
-    from fgnav.analysis.seed000 import direct_position_error_mc, table5
+    from fgnav.analysis.limb_method_study import direct_position_error_mc, table5
 
     alt, ang = float(params["alt_km"]), float(params["angle_error_deg"])
     rows = [r for r in table5(alts_km=(alt,)) if abs(r["angle_error_deg"] - ang) < 1e-12]
@@ -755,7 +755,7 @@ def _report_seed000_table5(study, rows, out):
     table = sorted(({k: r.get(k) for k in ("alt_km", "angle_error_deg") + TASK_COLUMNS["seed000-table5"]}
                     for r in rows), key=lambda r: (r["alt_km"], r["angle_error_deg"]))
     notes = [f"Study `{study.name}`: {study.description}",
-             "Seed 000 table 5 via fgnav.analysis.seed000.table5 (definitions in its docstring); "
+             "Seed 000 table 5 via fgnav.analysis.limb_method_study.table5 (definitions in its docstring); "
              "ours_mc_km: Monte Carlo of r = -(R/sin rho) u with the same errors (2000 draws)."]
     files = _write_table(out, table, "Seed 000 table 5: direct positioning error", notes)
     fig, ax = _figure(1)

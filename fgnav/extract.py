@@ -30,7 +30,7 @@ Per epoch:
    ``(B u, rho)`` on the tangent plane of the first one.
 3. rows (``rows="eci"``, default): ``earth_direction`` ``u_eci = R_eci_from_body u_body``
    with covariance ``R ([u]x P_att [u]x^T + C_u) R^T`` (``R Exp(phi) u = R (u - [u]x phi)``;
-   cf. :mod:`fgnav.sem`); the log carries one isotropic sigma per direction row: the
+   cf. :mod:`fgnav.sun_earth_moon`); the log carries one isotropic sigma per direction row: the
    square root of the largest eigenvalue of its 2x2 tangent-plane covariance (conservative).
    ``limb_radius`` ``(rho, R_limb)`` with ``sigma_rho`` (attitude-free). With
    ``rows="body"``: ``earth_direction_body`` (largest eigenvalue of ``C_u``) and

@@ -28,7 +28,7 @@ from fgnav.io.summary import write_summary
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import Pass, build_pass, check_observable
 from fgnav.orbit import truth_at
-from fgnav.sem import preprocess_log
+from fgnav.sun_earth_moon import preprocess_log
 from fgnav.solution import Solution
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from fgnav.solvers.batch import smooth_batch

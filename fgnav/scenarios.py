@@ -59,7 +59,7 @@ class SensorSpec:
     vmag_max: float = 6.0                  # faintest star used
     azimuths_deg: tuple = (0.0, 120.0, 240.0)  # head boresights about nadir, from velocity
     boresight_tangent_km: float = 35.0     # tangent height of the ray at the field centre
-    # body-frame directions (seed 001; fgnav.simulate.sem_sim): body = LVLH
+    # body-frame directions (seed 001; fgnav.simulate.body_directions): body = LVLH
     min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
 
 

@@ -17,7 +17,7 @@ from factors.refraction import (REFRACTION_VALID_BAND_M, apparent_tangent_height
                                 refraction_angle_rad, refraction_residual, refraction_sigma_m)
 from fgnav.analysis.direct_fix import (cone_axis, cone_fix_candidates, refraction_direct_fix,
                                        refraction_direct_fixes)
-from fgnav.analysis.schemes import MADAN_POSITION_M, refraction_study
+from fgnav.analysis.scheme_studies import MADAN_POSITION_M, refraction_study
 from fgnav.graph import linearize_refraction, refraction_sigma
 from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario

@@ -47,7 +47,7 @@ def test_gto_transfer_never_in_band_and_leo_always():
 
 
 def test_seed000_table5_study(tmp_path):
-    """Seed 000 table 5 via fgnav.analysis.seed000 (one command, table beside the seed's values)."""
+    """Seed 000 table 5 via fgnav.analysis.limb_method_study (one command, table beside the seed's values)."""
     out = tmp_path / "t5"
     assert main(["campaign", "seed000-table5", "--out", str(out), "--workers", "1", "--quiet"]) == 0
     rows = _table(out)

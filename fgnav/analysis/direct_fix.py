@@ -25,7 +25,7 @@ candidate closest to a reference position (e.g. the a-priori orbit: the seed's "
 redundant points with the previous orbit") is kept. With more than three stars in view the
 triple of smallest position DOP at the reference is used.
 
-Seed 001's direct fix, ``r = -(R_e + H) C_b^i L_we``, is :mod:`fgnav.sem`; here
+Seed 001's direct fix, ``r = -(R_e + H) C_b^i L_we``, is :mod:`fgnav.sun_earth_moon`; here
 :func:`sem_direct_fixes` runs it over a log.
 """
 
@@ -39,7 +39,7 @@ import numpy as np
 from factors.constants import R_EARTH_M
 from factors.refraction import (refraction_residual, refraction_sigma_m,
                                 tangent_height_from_refraction_m)
-from fgnav.sem import preprocess_log
+from fgnav.sun_earth_moon import preprocess_log
 
 __all__ = ["cone_axis", "cone_fix_candidates", "refine_refraction_fix", "refraction_direct_fix",
            "DirectFixes", "refraction_direct_fixes", "sem_direct_fixes"]
@@ -215,6 +215,6 @@ def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
 
 def sem_direct_fixes(log, first="sun"):
     """Seed 001 direct fixes ``r = -(R_e + H) C_b^i L_we`` of a raw Sun/Earth/Moon log
-    (:func:`fgnav.sem.preprocess_log`); ``k`` indexes the fix epochs themselves."""
+    (:func:`fgnav.sun_earth_moon.preprocess_log`); ``k`` indexes the fix epochs themselves."""
     _, ep = preprocess_log(log, first=first)
     return DirectFixes(np.arange(len(ep.t_s)), ep.t_s, ep.r_fix_eci_m, ep.P_fix_m2)

@@ -72,7 +72,7 @@ def _no_prior(log) -> dict:
 
     try:
         if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
-            from fgnav.sem import preprocess_log
+            from fgnav.sun_earth_moon import preprocess_log
             log = preprocess_log(log)[0]
         p = build_pass(log)
     except UserError as exc:

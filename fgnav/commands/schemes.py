@@ -23,24 +23,24 @@ def run(args) -> int:
     import json
 
     from fgnav.errors import UserError
-    from fgnav.analysis import schemes
+    from fgnav.analysis import scheme_studies
 
     if args.duration_h is not None and not args.duration_h > 0:
         raise UserError(f"--duration-h must be > 0 (h), got {args.duration_h}")
     if args.process_noise is not None and not args.process_noise > 0:
         raise UserError(f"--process-noise must be > 0 (m^2/s^3), got {args.process_noise}")
     if args.scheme == "refraction":
-        rows = schemes.refraction_study(args.seed, duration_h=args.duration_h,
-                                        q_m2_s3=args.process_noise)
+        rows = scheme_studies.refraction_study(args.seed, duration_h=args.duration_h,
+                                               q_m2_s3=args.process_noise)
         if args.json:
             print(json.dumps({"scheme": "refraction", "seed": args.seed, "rows": rows}))
         else:
-            print(schemes.format_refraction_table(rows))
+            print(scheme_studies.format_refraction_table(rows))
         return 0
     kw = {} if args.process_noise is None else {"q_m2_s3": args.process_noise}
-    r = schemes.sem_study(args.seed, duration_h=args.duration_h, **kw)
+    r = scheme_studies.sem_study(args.seed, duration_h=args.duration_h, **kw)
     if args.json:
         print(json.dumps({"scheme": "sun-earth-moon", **r}))
     else:
-        print(schemes.format_sem_table(r))
+        print(scheme_studies.format_sem_table(r))
     return 0

@@ -24,7 +24,7 @@ from fgnav.errors import UserError
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.noise import perturb_directions
 from fgnav.simulate.refraction_sim import simulate_refraction_rows
-from fgnav.simulate.sem_sim import simulate_body_direction_rows
+from fgnav.simulate.body_directions import simulate_body_direction_rows
 from fgnav.time import j2000_seconds, parse_utc
 
 

@@ -1,6 +1,6 @@
 """Starlight-refraction sensor simulation (seed 004 = CN104236546B, claim 1 steps 2-4).
 
-Attitude plan (step 2): the body is Earth pointing (LVLH, ``fgnav.simulate.sem_sim``); the
+Attitude plan (step 2): the body is Earth pointing (LVLH, ``fgnav.simulate.body_directions``); the
 refraction sensor has one or more heads (``spec.azimuths_deg``, measured about nadir from
 the body x axis ~ velocity towards body y), each a square field ``spec.fov_deg`` wide whose
 centre ray grazes the Earth at tangent height ``spec.boresight_tangent_km``: the centre is
@@ -37,7 +37,7 @@ import numpy as np
 from factors.constants import ARCSEC, DEG, R_EARTH_M
 from factors.geometry import so3_exp, so3_log
 from factors.refraction import REFRACTION_VALID_BAND_M, refraction_model
-from fgnav.simulate.sem_sim import lvlh_R_eci_from_body
+from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",

@@ -9,7 +9,7 @@ kind ``altitude``). The body is three-axis stabilized, Earth pointing: body = LV
 
 Directions are geometric, spacecraft -> body, so the Moon's parallax (up to
 ``asin(|r|/|r_moon|)`` ~ 1.0 deg in LEO) and the Sun's (~9 arcsec) are in the data; the
-preprocessing (``fgnav.sem``) removes them with the seed's triangle. Noise: the true unit
+preprocessing (``fgnav.sun_earth_moon``) removes them with the seed's triangle. Noise: the true unit
 vector rotated by isotropic tangent-plane noise (``noise.perturb_directions``),
 ``sigma_deg`` 1σ per axis. Visibility: the Sun is not seen when the Earth's disc (radius
 ``R_e``) hides it (eclipse); the Moon likewise, and not closer than

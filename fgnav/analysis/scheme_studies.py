@@ -8,7 +8,7 @@ batch smoother. Reference: MADAN, 100 m (1σ) (seed 001's heritage list).
 
 Sun/Earth/Moon (seed 001, built-in scenario ``leo-sun-earth-moon``): the direct
 (geometric) fixes ``r = -(R_e + H) C_b^i L_we``, the EKF and the smoother on the
-preprocessed log (:func:`fgnav.sem.preprocess_log`), beside the seed's figures (direct
+preprocessed log (:func:`fgnav.sun_earth_moon.preprocess_log`), beside the seed's figures (direct
 2,218 m; EKF 170.1 m / 0.2798 m/s).
 
 Metrics against the truth of the independent DOP853 integrator: RMS of the position /
@@ -36,7 +36,7 @@ from fgnav.analysis.direct_fix import refraction_direct_fixes, sem_direct_fixes
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
-from fgnav.sem import preprocess_log
+from fgnav.sun_earth_moon import preprocess_log
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions

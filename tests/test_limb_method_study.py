@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from factors.constants import DEG
-from fgnav.analysis.seed000 import (TABLE3_CASES, TABLE3_SEED, TABLE5_SEED, direct_position_error_mc,
+from fgnav.analysis.limb_method_study import (TABLE3_CASES, TABLE3_SEED, TABLE5_SEED, direct_position_error_mc,
                                     table3, table5)
 
 ORDER = ["full circle", "asymmetric 2/3 arc", "asymmetric 1/2 arc", "asymmetric 1/3 arc"]

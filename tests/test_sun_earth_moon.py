@@ -12,14 +12,14 @@ import pytest
 from factors.constants import DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp
-from fgnav.analysis.schemes import SEM_SEED_FIGURES, format_sem_table, sem_study
+from fgnav.analysis.scheme_studies import SEM_SEED_FIGURES, format_sem_table, sem_study
 from fgnav.errors import UserError
 from fgnav.orbit import state_to_elements
 from fgnav.scenarios import load_scenario
-from fgnav.sem import earth_relative_body_vector, preprocess_log, sem_epochs
+from fgnav.sun_earth_moon import earth_relative_body_vector, preprocess_log, sem_epochs
 from fgnav.simulate.noise import perturb_directions
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.simulate.sem_sim import lvlh_R_eci_from_body, occulted_by_earth
+from fgnav.simulate.body_directions import lvlh_R_eci_from_body, occulted_by_earth
 from fgnav.time import j2000_seconds, parse_utc
 
 T0_J2000 = float(j2000_seconds(parse_utc("2025-03-06T12:00:00Z")))
