@@ -5,7 +5,7 @@ The single source of constants: ``factors`` needs them and never imports ``fgnav
 """
 
 __all__ = [
-    "MU_EARTH_M3_S2", "R_EARTH_M", "J2_EARTH", "R_LIMB_SEED_M", "MU_SUN_M3_S2",
+    "MU_EARTH_M3_S2", "R_EARTH_M", "J2_EARTH", "R_LIMB_UV_M", "MU_SUN_M3_S2",
     "MU_MOON_M3_S2", "AU_M", "C_LIGHT_M_S", "DEG", "ARCSEC", "OMEGA_EARTH_RAD_S",
 ]
 
@@ -15,7 +15,7 @@ R_EARTH_M = 6378137.0
 """Earth equatorial radius (WGS-84 / EGM2008), m."""
 J2_EARTH = 1.08262668e-3
 """Earth J2 zonal harmonic (EGM2008), dimensionless."""
-R_LIMB_SEED_M = 6375.0e3
+R_LIMB_UV_M = 6375.0e3
 """Limb radius used by the seeds for the UV horizon (seed 000/002), m: a parameter, not R_e."""
 MU_SUN_M3_S2 = 1.32712440018e20
 MU_MOON_M3_S2 = 4.9028e12

@@ -2,7 +2,7 @@
 
 ``sin(rho) = R_limb / |r|``: the angular radius of the limb sphere seen from the spacecraft
 gives the range to the Earth centre (seed 000: ``r = R / sin(rho)``, R = 6,375 km for the UV
-limb, ``factors.constants.R_LIMB_SEED_M``). Its information on ``|r|`` falls with altitude.
+limb, ``factors.constants.R_LIMB_UV_M``). Its information on ``|r|`` falls with altitude.
 """
 
 from __future__ import annotations

@@ -337,7 +337,7 @@ def _task_visibility(params):
 def _task_seed000_table5(params):
     import numpy as np
 
-    from factors.constants import DEG, R_LIMB_SEED_M
+    from factors.constants import DEG, R_LIMB_UV_M
     from fgnav.analysis.limb_method_study import direct_position_error_mc, table5
 
     alt, ang = float(params["alt_km"]), float(params["angle_error_deg"])
@@ -346,7 +346,7 @@ def _task_seed000_table5(params):
         rows = table5(alts_km=(alt,), angle_errors_deg=(ang,))
     r = dict(rows[0])
     rng = np.random.default_rng(int(params["seed"]))
-    r_m = R_LIMB_SEED_M + alt * 1e3
+    r_m = R_LIMB_UV_M + alt * 1e3
     r["ours_mc_km"] = direct_position_error_mc(r_m, ang * DEG, ang * DEG / 2.0, rng) / 1e3
     return {k: r.get(k) for k in TASK_COLUMNS["seed000-table5"]}, {}
 

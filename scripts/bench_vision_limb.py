@@ -22,7 +22,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     from fgnav.simulate.limb_render import LimbRadiance, render_limb, scene_from_altitude
-    from fgnav.vision.camera import SEED000_LIMB_CAMERA as cam
+    from fgnav.vision.camera import CONFOCAL_LIMB_CAMERA as cam
     from fgnav.vision.horizon import horizon_christian_robinson, horizon_ellipse
     from fgnav.vision.limb import extract_limb_points, ransac_limb
 

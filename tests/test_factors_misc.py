@@ -56,7 +56,7 @@ def test_altitude_factor_linearizes_like_numpy(rng):
     check_linearization(f, values, [A_[0]], b[0])
 
 
-def test_seed001_direct_fix_from_altimeter_and_triad(rng):
+def test_ins_cns_lecture_direct_fix_from_altimeter_and_triad(rng):
     """Seed 001's direct fix r = -(R_e + H) C_b^i L_we^b (TRIAD attitude from Sun and Moon)
     reproduces the position exactly from noise-free measurements, and its residuals vanish."""
     r = random_positions_m(rng, 1, R_EARTH_M + 400e3, R_EARTH_M + 600e3)[0]

@@ -44,7 +44,7 @@ def star_for_tangent_height(r, h_m, gamma_rad, r_earth_m=R_EARTH_M, a_m=A_OBL_M,
     return -np.cos(t)[:, None] * rhat + np.sin(t)[:, None] * e
 
 
-def test_seed004_formula_at_band_heights():
+def test_li_patent_formula_at_band_heights():
     for h_km in (20.0, 30.0, 40.0, 50.0):
         expected_arcsec = 2350.1074 * math.exp(-0.10326788 * h_km)
         got = refraction_angle_rad(h_km * 1e3)
@@ -121,7 +121,7 @@ def test_jacobian_at_random_geometry(rng):
     check_jacobians(refraction_residual, (r, s, g), (H_r, None, None), ("vector", None, None))
 
 
-def test_seed004_error_budget_monte_carlo(rng):
+def test_li_patent_error_budget_monte_carlo(rng):
     """Seed 004 claim 1 step 4: gamma error uniform on [-D, D], atmosphere-model error added
     to the tangent height. Simulated as a real atmosphere equal to the model shifted in
     height by the model error (so the inverse model returns h + dh_model), the residual at

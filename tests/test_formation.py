@@ -16,7 +16,7 @@ from fgnav.cli import main
 from fgnav.errors import UserError
 from fgnav.formation.single_epoch import solve_single_epoch
 from fgnav.formation.study import (
-    SEED003, conditioning_study, coverage_monte_carlo, covariance_change, seed003_truth,
+    FORMATION_REFERENCE, conditioning_study, coverage_monte_carlo, covariance_change, formation_reference_truth,
 )
 
 
@@ -25,7 +25,7 @@ def study():
     return conditioning_study(runs=5000, seed=0, sigma_m=0.01)
 
 
-def test_seed003_rcond(study):
+def test_xing_rcond(study):
     """seed 003: rcond(A^T A) = 1.09e-7 (Cartesian) vs 2.5e-2 (spherical), m and rad."""
     c, s = study["cartesian"], study["spherical"]
     assert 1.0e-7 < c["rcond"] < 1.2e-7 and 1.0e-7 < c["rcond_1norm"] < 1.2e-7
@@ -36,7 +36,7 @@ def test_seed003_rcond(study):
     assert c["cond"] == pytest.approx(1 / c["rcond"])
 
 
-def test_seed003_sigmas(study):
+def test_xing_sigmas(study):
     """seed 003: sigma_R = 0.41 cm, sigma_az = sigma_el = 0.01 rad, clock 1.22 cm."""
     sR, saz, sel, sc = study["spherical"]["sigmas_epoch1"]
     assert sR == pytest.approx(0.0041, abs=0.0001)
@@ -64,7 +64,7 @@ def test_covariance_two_epochs(study):
 def test_solutions_agree_between_parameterizations():
     """Same data, same minimum: the parameterization changes the tangent space, not the fix."""
     rng = np.random.default_rng(5)
-    r, cdt, M21 = seed003_truth(2)
+    r, cdt, M21 = formation_reference_truth(2)
     z = predict_ranges(r, cdt, M21) + 0.01 * rng.standard_normal(6)
     a = solve_single_epoch(z, M21, "cartesian")
     b = solve_single_epoch(z, M21, "spherical")
@@ -119,6 +119,6 @@ def test_unknown_param_is_user_error():
 
 
 def test_seed_geometry_constants():
-    assert SEED003["R_m"] == (999.922, 999.891)
-    r, cdt, M21 = seed003_truth(1)
+    assert FORMATION_REFERENCE["R_m"] == (999.922, 999.891)
+    r, cdt, M21 = formation_reference_truth(1)
     assert np.allclose(r, [999.922, 0, 0]) and cdt == 0 and np.array_equal(M21, np.eye(3))

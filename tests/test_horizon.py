@@ -4,7 +4,7 @@ points, analytic Jacobians vs central differences, covariance vs Monte Carlo sca
 import numpy as np
 import pytest
 
-from factors.constants import R_LIMB_SEED_M
+from factors.constants import R_LIMB_UV_M
 from factors.geometry import tangent_basis
 from factors.testing import numerical_jacobian
 from fgnav.errors import UserError
@@ -16,7 +16,7 @@ from fgnav.vision.limb import LimbPoints, cone_point_gain
 CAM = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_px=2048, height_px=2048)
 
 
-def limb_points(c_cam_m, r_limb_m=R_LIMB_SEED_M, n=400, arc=(0.0, 2 * np.pi), cam=CAM):
+def limb_points(c_cam_m, r_limb_m=R_LIMB_UV_M, n=400, arc=(0.0, 2 * np.pi), cam=CAM):
     """Exact limb points: rays on the cone of half-angle rho about c, projected; outward
     image normals from the projected cone (independent of the estimators)."""
     c = np.asarray(c_cam_m, float)
@@ -32,7 +32,7 @@ def limb_points(c_cam_m, r_limb_m=R_LIMB_SEED_M, n=400, arc=(0.0, 2 * np.pi), ca
     return LimbPoints(uv, nrm, np.ones(n), np.ones(n, bool)), u, rho
 
 
-C_OFFAXIS = np.array([0.35, -0.2, 1.0]) / np.linalg.norm([0.35, -0.2, 1.0]) * (R_LIMB_SEED_M + 12_000e3)
+C_OFFAXIS = np.array([0.35, -0.2, 1.0]) / np.linalg.norm([0.35, -0.2, 1.0]) * (R_LIMB_UV_M + 12_000e3)
 
 
 @pytest.mark.parametrize("method", ["ellipse", "christian-robinson"])

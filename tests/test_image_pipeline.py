@@ -57,12 +57,12 @@ def test_frames_index_attitude_plan(pass_dir):
     Earth's centre (checked against the truth position, independently of the renderer)."""
     from fgnav.extract import read_frames_index
     from fgnav.vision.attitude import matrix_from_quat
-    from fgnav.vision.sensor import seed000_limb_subapertures
+    from fgnav.vision.sensor import confocal_limb_subapertures
 
     rows = _frames_rows(pass_dir)
     assert sum(r["camera"] == "star" for r in rows) == 31
     assert sum(r["camera"] == "limb0" for r in rows) == 31
-    b0 = seed000_limb_subapertures()[0].boresight_body
+    b0 = confocal_limb_subapertures()[0].boresight_body
     for r in rows:
         R = matrix_from_quat([float(r[f"truth_q_eci_from_body_{c}"]) for c in "wxyz"])
         pos = np.array([float(r[f"truth_r_eci_{c}_m"]) for c in "xyz"])

@@ -48,7 +48,7 @@ def test_observability_matrix_matches_central_differences():
     np.testing.assert_allclose(M, fd, rtol=1e-5, atol=1e-6 * np.abs(M).max())
 
 
-def test_seed002_table4_rank_six_at_every_period():
+def test_pan_yao_table4_rank_six_at_every_period():
     """Seed 002 table 4: the system is observable (rank 6) at T = 0.1, 1, 10, 100 s."""
     for T in (0.1, 1.0, 10.0, 100.0):
         assert analyze_observability(observability_matrix(X0, T, 6)).rank == 6

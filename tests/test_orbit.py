@@ -20,7 +20,7 @@ X_GTO = np.array([6509244.371304875, 0.0, 3713244.835519765,
                   -3737.397235776740, 0.0, 8790.602460568101])
 # The seed's r0/v0 are consistent with GM = 3.986005e14 (a comes out 26,332,438.2 m, the
 # stated 26,332,437.9 m to 0.3 m); with the EGM2008 GM, a is 23 m larger.
-MU_SEED_002 = 3.986005e14
+MU_PAN_YAO_M3_S2 = 3.986005e14
 LEO_ELEMENTS = (R_EARTH_M + 504e3, 0.0011, 97 * DEG, 77 * DEG, 55 * DEG, 10 * DEG)  # seed 001
 
 
@@ -28,14 +28,14 @@ def _wrap(a):
     return (a + math.pi) % (2 * math.pi) - math.pi
 
 
-def test_seed_002_elements_reproduce_r0_v0():
+def test_pan_yao_elements_reproduce_r0_v0():
     """Seed 002: a = 26,332,437.9 m, e = 0.72, i = 90 deg, RAAN = 0, argp = 13.75 deg.
 
     The stated M = 1.89 deg does NOT reproduce the stated r0/v0 (76 km off); r0/v0 encode
     M = 1.82195 deg (nu = 15.953 deg). With that M the elements give r0 to 0.08 m and v0 to
     0.13 mm/s (the residue is the rounding of a to 0.1 m).
     """
-    el = state_to_elements(X_GTO, MU_SEED_002)
+    el = state_to_elements(X_GTO, MU_PAN_YAO_M3_S2)
     assert abs(el.a_m - 26332437.9) < 1.0
     assert abs(el.e - 0.72) < 1e-6
     assert abs(el.i_rad - 90 * DEG) < 1e-12 and abs(_wrap(el.raan_rad)) < 1e-12
@@ -43,7 +43,7 @@ def test_seed_002_elements_reproduce_r0_v0():
     M = true_to_mean_anomaly(el.nu_rad, el.e)
     assert M / DEG == pytest.approx(1.82195, abs=1e-4)
     x = elements_to_state(26332437.9, 0.72, 90 * DEG, 0.0, 13.75 * DEG,
-                          mean_to_true_anomaly(M, 0.72), MU_SEED_002)
+                          mean_to_true_anomaly(M, 0.72), MU_PAN_YAO_M3_S2)
     assert np.linalg.norm(x[:3] - X_GTO[:3]) < 1.0
     assert np.linalg.norm(x[3:] - X_GTO[3:]) < 1e-3
 

@@ -86,7 +86,7 @@ def test_rotation_convention():
     assert np.allclose(d[0], [0, 0, -1]) and np.allclose(d[3], [0, 0, 1])
 
 
-def test_seed003_printed_design_matrix():
+def test_xing_printed_design_matrix():
     """Seed 003 prints A (Cartesian) and A' (spherical) at its epoch-1 estimate
     (R = 999.917 m, az = -0.00519 rad, el = 0.014 rad, M21 = I); ours match to its rounding."""
     A_seed = np.array([[.9999, -.005, .0129, 1], [.9999, -.004, .0129, 1],

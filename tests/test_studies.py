@@ -23,7 +23,7 @@ def _table(out: Path) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-def test_seed002_visibility_band():
+def test_pan_yao_visibility_band():
     """Seed 002 eq. 1 (sec. 1.2): a 120-160 deg ring sees the whole Earth for 98.3-985.6 km,
     and 1,000-36,000 km needs a 17-120 deg ring."""
     lo, hi = visibility_band_m()
@@ -46,7 +46,7 @@ def test_gto_transfer_never_in_band_and_leo_always():
         assert visible_fraction(x[:, :3]) == expected
 
 
-def test_seed000_table5_study(tmp_path):
+def test_wu_table5_study(tmp_path):
     """Seed 000 table 5 via fgnav.analysis.limb_method_study (one command, table beside the seed's values)."""
     out = tmp_path / "t5"
     assert main(["campaign", "seed000-table5", "--out", str(out), "--workers", "1", "--quiet"]) == 0
@@ -59,7 +59,7 @@ def test_seed000_table5_study(tmp_path):
         assert float(r["ours_mc_km"]) == pytest.approx(float(r["ours_with_rho_km"]), rel=0.05)
 
 
-def test_seed002_observability_study(tmp_path):
+def test_pan_yao_observability_study(tmp_path):
     """Seed 002 table 4: rank 6 at every sample period (seed column beside ours)."""
     out = tmp_path / "obs"
     assert main(["campaign", "seed002-observability", "--out", str(out), "--workers", "1", "--quiet"]) == 0
@@ -86,7 +86,7 @@ def test_gto_nees_study_smoother_consistent(tmp_path):
 
 
 @pytest.mark.slow
-def test_seed002_table2_noise_study(tmp_path):
+def test_pan_yao_table2_noise_study(tmp_path):
     """Seed 002 table 2: errors grow with the noise; the smoother beats the EKF's RMS."""
     out = tmp_path / "noise"
     run_campaign(load_study("seed002-noise"), out, workers=2)
@@ -102,7 +102,7 @@ def test_seed002_table2_noise_study(tmp_path):
 
 
 @pytest.mark.slow
-def test_seed002_table3_period_study(tmp_path):
+def test_pan_yao_table3_period_study(tmp_path):
     """Seed 002 table 3: the shorter the sample period, the smaller the error."""
     out = tmp_path / "period"
     run_campaign(load_study("seed002-period"), out, workers=2)
@@ -114,7 +114,7 @@ def test_seed002_table3_period_study(tmp_path):
 
 
 @pytest.mark.slow
-def test_seed002_visibility_study(tmp_path):
+def test_pan_yao_visibility_study(tmp_path):
     out = tmp_path / "vis"
     run_campaign(load_study("seed002-visibility"), out, workers=2)
     runs = read_runs(out)

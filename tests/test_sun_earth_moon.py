@@ -12,7 +12,7 @@ import pytest
 from factors.constants import DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp
-from fgnav.analysis.scheme_studies import SEM_SEED_FIGURES, format_sem_table, sem_study
+from fgnav.analysis.scheme_studies import SEM_SOURCE_FIGURES, format_sem_table, sem_study
 from fgnav.errors import UserError
 from fgnav.orbit import state_to_elements
 from fgnav.scenarios import load_scenario
@@ -132,12 +132,12 @@ def test_visibility_and_preprocessing():
                                        sim.log.xyz[keep], sim.log.sigma[keep]))
 
 
-def test_seed001_table_direct_ekf_smoother():
+def test_ins_cns_lecture_table_direct_ekf_smoother():
     """leo-sun-earth-moon, 12 h: direct fixes near the seed's 2,218 m (and at their own
     predicted 1σ), the EKF near or below 170.1 m / 0.28 m/s once converged, the smoother
     clearly below the EKF; all three in one table."""
     r = sem_study(seed=0)
-    s = SEM_SEED_FIGURES
+    s = SEM_SOURCE_FIGURES
     assert 0.6 * s["direct_m"] < r["fix_rms_m"] < 1.4 * s["direct_m"]
     assert r["fix_rms_m"] == pytest.approx(r["fix_sigma_rms_m"], rel=0.1)
     assert r["ekf_position_rms_settled_m"] < 1.2 * s["ekf_position_m"]
@@ -151,12 +151,12 @@ def test_seed001_table_direct_ekf_smoother():
 
 
 @pytest.mark.slow
-def test_seed001_monte_carlo():
+def test_ins_cns_lecture_monte_carlo():
     """Five passes: the ordering direct >> EKF > smoother holds in each; mean figures."""
     rows = [sem_study(seed=k) for k in range(5)]
     for r in rows:
         assert r["fix_rms_m"] > r["ekf_position_rms_settled_m"] > r["batch_position_rms_m"]
     ekf = np.sqrt(np.mean([r["ekf_position_rms_settled_m"] ** 2 for r in rows]))
     sm = np.sqrt(np.mean([r["batch_position_rms_m"] ** 2 for r in rows]))
-    assert ekf < 1.2 * SEM_SEED_FIGURES["ekf_position_m"]
+    assert ekf < 1.2 * SEM_SOURCE_FIGURES["ekf_position_m"]
     assert sm < 0.6 * ekf

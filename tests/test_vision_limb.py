@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from factors.constants import R_LIMB_SEED_M
+from factors.constants import R_LIMB_UV_M
 from fgnav.cli import main
 from fgnav.errors import UserError
 from fgnav.simulate.limb_render import (LimbRadiance, LimbScene, _radiance_e, render_limb,
@@ -15,11 +15,11 @@ from fgnav.vision.horizon import horizon_christian_robinson, horizon_ellipse
 from fgnav.vision.horizon import estimate_horizon
 from fgnav.vision.limb import (EDGE_LOCATOR_VAR_PX2, LimbPoints, edge_curvature_bias_px,
                                extract_limb_points, ransac_limb)
-from fgnav.vision.sensor import (SEED000_LIMB_TILT_RAD, SEED000_SUBAPERTURE_CAMERA,
+from fgnav.vision.sensor import (CONFOCAL_LIMB_TILT_RAD, CONFOCAL_SUBAPERTURE_CAMERA,
                                  earth_apparent_diameter_deg, limb_half_angle_rad,
-                                 seed000_limb_subapertures)
+                                 confocal_limb_subapertures)
 
-CAM = SEED000_SUBAPERTURE_CAMERA
+CAM = CONFOCAL_SUBAPERTURE_CAMERA
 
 
 def test_radiance_gradient_centroid_on_limb_surface():
@@ -65,7 +65,7 @@ def test_extraction_recovers_truth_high_snr():
     assert np.linalg.norm(el.centre_px - frame.centre_px) < tol_el
     for fix in (cr, el):
         assert abs(fix.rho_rad - scene.rho_rad) * CAM.f_px < 0.02
-        assert fix.range_m == pytest.approx(R_LIMB_SEED_M + 20_000e3, rel=2e-4)
+        assert fix.range_m == pytest.approx(R_LIMB_UV_M + 20_000e3, rel=2e-4)
 
 
 def test_partial_arc_points_stay_on_visible_arc():
@@ -110,16 +110,16 @@ def test_ellipsoid_render_and_cr_with_shape_matrix():
     assert np.linalg.norm(sph.r_cam_m + scene.c_cam_m) > np.linalg.norm(fix.r_cam_m + scene.c_cam_m)
 
 
-def test_seed000_tables_1_and_2_geometry():
+def test_wu_tables_1_and_2_geometry():
     """Seed 000 table 1 (Earth apparent diameter, R = 6,375 km, d = 100 km) and table 2
     (limb angle from a sub-aperture boresight tilted 23.75°)."""
     alts = [4000, 8000, 10000, 16000, 20000, 36000]
     np.testing.assert_allclose(earth_apparent_diameter_deg(alts),
                                [77.232, 53.543, 46.584, 33.642, 28.422, 17.579], atol=1e-3)
-    lens = np.degrees(limb_half_angle_rad(np.array(alts) * 1e3, layer_m=100e3) - SEED000_LIMB_TILT_RAD)
+    lens = np.degrees(limb_half_angle_rad(np.array(alts) * 1e3, layer_m=100e3) - CONFOCAL_LIMB_TILT_RAD)
     np.testing.assert_allclose(lens, [14.866, 3.0215, -0.458, -6.929, -9.539, -14.9605], atol=2e-3)
     assert np.all(np.abs(lens) <= 30.5 / 2)               # every altitude inside the ±15.25° field
-    subs = seed000_limb_subapertures()
+    subs = confocal_limb_subapertures()
     assert len(subs) == 4
     for s in subs:
         np.testing.assert_allclose(s.R_body_from_cam.T @ s.R_body_from_cam, np.eye(3), atol=1e-12)
@@ -153,16 +153,16 @@ def test_cli_limb_errors(tmp_path, capsys):
     assert "error" in capsys.readouterr().err
 
 
-GEO_ALT_M = 42_164e3 - R_LIMB_SEED_M
+GEO_ALT_M = 42_164e3 - R_LIMB_UV_M
 """Geostationary radius minus the limb sphere: R_px = f tan(rho) = 250 px on CAM."""
 
 
 def _geo_render(psf_px, off_px, noisy_seed=None):
     from dataclasses import replace
 
-    from fgnav.simulate.limb_render import SEED000_DETECTOR
+    from fgnav.simulate.limb_render import CONFOCAL_DETECTOR
 
-    det = replace(SEED000_DETECTOR, psf_sigma_px=psf_px)
+    det = replace(CONFOCAL_DETECTOR, psf_sigma_px=psf_px)
     scene = scene_from_altitude(GEO_ALT_M, CAM.pixel_to_ray(np.array([CAM.cx, CAM.cy]) + off_px))
     kw = dict(radiance=LimbRadiance(signal_e=5000.0), detector=det, field_radius_px=445.0)
     if noisy_seed is None:

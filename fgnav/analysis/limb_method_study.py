@@ -34,16 +34,16 @@ from dataclasses import replace
 
 import numpy as np
 
-from factors.constants import DEG, R_LIMB_SEED_M
+from factors.constants import DEG, R_LIMB_UV_M
 from factors.direction import sphere_log
 from factors.geometry import tangent_basis
 from fgnav.errors import UserError
 from fgnav.simulate.limb_render import (
-    LimbRadiance, SEED000_DETECTOR, add_detector_noise, render_limb_ideal, scene_from_altitude,
+    LimbRadiance, CONFOCAL_DETECTOR, add_detector_noise, render_limb_ideal, scene_from_altitude,
 )
 from fgnav.vision.horizon import estimate_horizon
 from fgnav.vision.limb import extract_limb_points, ransac_limb
-from fgnav.vision.sensor import SEED000_SUBAPERTURE_CAMERA
+from fgnav.vision.sensor import CONFOCAL_SUBAPERTURE_CAMERA
 
 __all__ = [
     "TABLE3_SEED", "TABLE3_CASES", "TABLE3_SIGNAL_E", "TABLE5_SEED", "TABLE5_ANGLE_ERRORS_DEG",
@@ -93,8 +93,8 @@ def table3_frame_fixes(case: str, n_runs: int, rng: np.random.Generator, *,
     """
     if case not in TABLE3_CASES:
         raise UserError(f"unknown table-3 case {case!r}; expected one of {list(TABLE3_CASES)}")
-    cam = SEED000_SUBAPERTURE_CAMERA
-    det = replace(SEED000_DETECTOR, psf_sigma_px=psf_sigma_px)
+    cam = CONFOCAL_SUBAPERTURE_CAMERA
+    det = replace(CONFOCAL_DETECTOR, psf_sigma_px=psf_sigma_px)
     scene = scene_from_altitude(alt_m, [0.0, 0.0, 1.0])
     ideal = render_limb_ideal(cam, scene, radiance=LimbRadiance(signal_e=signal_e), detector=det,
                               arcs_deg=TABLE3_CASES[case], field_radius_px=cam.width_px / 2.0)
@@ -109,7 +109,7 @@ def table3_frame_fixes(case: str, n_runs: int, rng: np.random.Generator, *,
             continue
         for m in methods:
             try:
-                out[m].append(estimate_horizon(pts, cam, m, R_LIMB_SEED_M))
+                out[m].append(estimate_horizon(pts, cam, m, R_LIMB_UV_M))
             except UserError:
                 out[m].append(None)
     truth = {"u_cam": scene.u_cam, "rho_rad": scene.rho_rad, "centre_px": ideal.centre_px,
@@ -182,7 +182,7 @@ def table3(n_runs: int = 500, seed: int = 0, *, cases=None, signal_e: float = TA
 
 def direct_position_error_mc(r_m: float, dtheta_rad: float, sigma_rho_rad: float,
                              rng: np.random.Generator, n: int = 2000,
-                             r_limb_m: float = R_LIMB_SEED_M) -> float:
+                             r_limb_m: float = R_LIMB_UV_M) -> float:
     """RMS of ``|r_hat - r|`` (m) by simulation: ``r_hat = -(R/sin(rho + drho)) u_hat`` with
     ``u_hat`` rotated by exactly ``dtheta_rad`` about a random axis normal to ``u`` and
     ``drho ~ N(0, sigma_rho_rad)``. Independent check of :func:`table5`'s closed forms."""
@@ -198,7 +198,7 @@ def direct_position_error_mc(r_m: float, dtheta_rad: float, sigma_rho_rad: float
 
 
 def table5(alts_km=tuple(TABLE5_SEED), angle_errors_deg=TABLE5_ANGLE_ERRORS_DEG,
-           r_limb_m: float = R_LIMB_SEED_M) -> list[dict]:
+           r_limb_m: float = R_LIMB_UV_M) -> list[dict]:
     """Seed 000 table 5 regenerated (module doc for the definitions). One row per
     (altitude, angle error): alt_km, angle_error_deg, seed_km, ours_direction_km,
     ours_with_rho_km, lower_bound_km (= |r| sin(dtheta), the distance from the true position

@@ -42,13 +42,13 @@ from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
-__all__ = ["SEM_Q_M2_S3", "SEM_SEED_FIGURES", "MADAN_POSITION_M", "refraction_study",
+__all__ = ["SEM_Q_M2_S3", "SEM_SOURCE_FIGURES", "MADAN_POSITION_M", "refraction_study",
            "sem_study", "format_refraction_table", "format_sem_table"]
 
 SEM_Q_M2_S3 = 1e-9
 """Process noise of the Sun/Earth/Moon estimators, m^2/s^3 (module docstring)."""
 
-SEM_SEED_FIGURES = {"direct_m": 2218.0, "ekf_position_m": 170.1429, "ekf_velocity_mps": 0.2798}
+SEM_SOURCE_FIGURES = {"direct_m": 2218.0, "ekf_position_m": 170.1429, "ekf_velocity_mps": 0.2798}
 """Seed 001's results: direct fixes 2,218 m; EKF 170.1429 m, 0.2798 m/s."""
 
 MADAN_POSITION_M = 100.0
@@ -140,7 +140,7 @@ def sem_study(seed=0, *, scenario="leo-sun-earth-moon", duration_h=None, q_m2_s3
     for method, m in est.items():
         for k, v in m.items():
             out[f"{method}_{k}"] = v
-    out["seed_figures"] = dict(SEM_SEED_FIGURES)
+    out["seed_figures"] = dict(SEM_SOURCE_FIGURES)
     return out
 
 

@@ -29,10 +29,10 @@ from fgnav.formation.smoother import (
     nees_of, scenario_dict, simulate_formation, solve_batch, solve_isam2,
 )
 
-__all__ = ["SEED003", "seed003_truth", "conditioning_study", "coverage_monte_carlo",
+__all__ = ["FORMATION_REFERENCE", "formation_reference_truth", "conditioning_study", "coverage_monte_carlo",
            "covariance_change"]
 
-SEED003 = {
+FORMATION_REFERENCE = {
     "R_m": (999.922, 999.891),          # Table 1, true range at epochs 1 and 2
     "az_rad": 0.0, "el_rad": 0.0, "cdt_m": 0.0,
     "rpy_rad": (0.0, 0.0, 0.0),
@@ -44,11 +44,11 @@ SEED003 = {
 }
 
 
-def seed003_truth(epoch):
+def formation_reference_truth(epoch):
     """True ``(r_m (3,), cdt_m, M21 (3, 3))`` of seed 003 at epoch 1 or 2."""
-    R = SEED003["R_m"][epoch - 1]
-    r, _ = spherical_to_cartesian(np.array([R, SEED003["az_rad"], SEED003["el_rad"]]))
-    return r, SEED003["cdt_m"], np.eye(3)
+    R = FORMATION_REFERENCE["R_m"][epoch - 1]
+    r, _ = spherical_to_cartesian(np.array([R, FORMATION_REFERENCE["az_rad"], FORMATION_REFERENCE["el_rad"]]))
+    return r, FORMATION_REFERENCE["cdt_m"], np.eye(3)
 
 
 def covariance_change(P1, P2):
@@ -73,16 +73,16 @@ def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
     Returns ``(fraction, errors (runs,), sigmas (runs,))``.
     """
     rng = np.random.default_rng(seed)
-    r, cdt, M21 = seed003_truth(1)
+    r, cdt, M21 = formation_reference_truth(1)
     clean = predict_ranges(r, cdt, M21)
     z = clean + sigma_m * rng.standard_normal((runs, clean.size))
-    x0 = np.tile(np.asarray(SEED003["x0_cart_m"]), (runs, 1))
+    x0 = np.tile(np.asarray(FORMATION_REFERENCE["x0_cart_m"]), (runs, 1))
     x, _, conv = solve_single_epoch_many(z, M21, param, x0)
     if param == "cartesian":
         s = to_param(from_param(x[:, :3], param), "spherical")
     else:
         s = x[:, :3]
-    err = s[:, 0] - SEED003["R_m"][0]
+    err = s[:, 0] - FORMATION_REFERENCE["R_m"][0]
     # sigma_R at each estimate (spherical design matrix)
     sig = np.empty(runs)
     for i in range(runs):
@@ -104,13 +104,13 @@ def conditioning_study(runs=5000, seed=0, sigma_m=0.01):
     out = {}
     noise = [sigma_m * rng.standard_normal(6) for _ in (1, 2)]
     for param in PARAMS:
-        r, cdt, M21 = seed003_truth(1)
+        r, cdt, M21 = formation_reference_truth(1)
         cd = conditioning(design_matrix(np.r_[to_param(r, param), cdt], M21, param))
         sols = []
         for ep in (1, 2):
-            r, cdt, M21 = seed003_truth(ep)
+            r, cdt, M21 = formation_reference_truth(ep)
             z = predict_ranges(r, cdt, M21) + noise[ep - 1]
-            sols.append(solve_single_epoch(z, M21, param, np.asarray(SEED003["x0_cart_m"]),
+            sols.append(solve_single_epoch(z, M21, param, np.asarray(FORMATION_REFERENCE["x0_cart_m"]),
                                            sigma_m=sigma_m))
         rel, fro = covariance_change(sols[0].covariance, sols[1].covariance)
         out[param] = {
@@ -139,12 +139,12 @@ def conditioning_study(runs=5000, seed=0, sigma_m=0.01):
     out["seed"] = int(seed)
     out["sigma_code_m"] = sigma_m
     out["rcond_ratio_spherical_over_cartesian"] = out["spherical"]["rcond"] / out["cartesian"]["rcond"]
-    out["geometry"] = {"R_true_m": list(SEED003["R_m"]), "az_rad": 0.0, "el_rad": 0.0,
+    out["geometry"] = {"R_true_m": list(FORMATION_REFERENCE["R_m"]), "az_rad": 0.0, "el_rad": 0.0,
                        "M21": "identity (roll = pitch = yaw = 0)",
                        "initial_guess": "R = 1992 m, az = el = 0, c dt = 0",
                        "units": "x, y, z, R, c dt in m; az, el in rad; rcond = "
                                 "lambda_min/lambda_max of A^T A (A unwhitened)"}
-    out["seed003_reported"] = SEED003["reported"]
+    out["seed003_reported"] = FORMATION_REFERENCE["reported"]
     return out
 
 

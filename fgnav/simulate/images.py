@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from factors.constants import DEG, R_LIMB_SEED_M
+from factors.constants import DEG, R_LIMB_UV_M
 from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.io.log_csv import log_from_arrays
@@ -49,7 +49,7 @@ from fgnav.time import add_seconds, format_utc, seconds_since
 from fgnav.vision.attitude import quat_from_matrix
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.catalogue import decimal_year, load_catalogue
-from fgnav.vision.sensor import seed000_limb_subapertures
+from fgnav.vision.sensor import confocal_limb_subapertures
 
 __all__ = ["ImageConfig", "FrameRecord", "FRAME_COLUMNS", "STAR_FIELD_1024_CAMERA",
            "earth_pointing_attitude", "limb_in_field", "frame_epochs", "render_pass_frames",
@@ -165,7 +165,7 @@ def _r_limb_of(scenario, cfg: ImageConfig) -> float:
     for s in scenario.sensors:
         if s.kind == "limb_radius":
             return float(s.r_limb_km) * 1e3
-    return float(R_LIMB_SEED_M)
+    return float(R_LIMB_UV_M)
 
 
 def write_frames_index(path, records: list[FrameRecord], comments=()) -> None:
@@ -194,7 +194,7 @@ def render_pass_frames(sim, out_dir, *, seed: int = 0, config: ImageConfig = Ima
     import cv2
 
     cfg = config
-    subs = seed000_limb_subapertures()
+    subs = confocal_limb_subapertures()
     if not 0 <= cfg.point_limb < len(subs):
         raise UserError(f"point_limb must be in 0..{len(subs) - 1}, got {cfg.point_limb}")
     t = frame_epochs(sim.scenario, cfg.period_s)

@@ -29,12 +29,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factors.constants import R_EARTH_M, R_LIMB_SEED_M
+from factors.constants import R_EARTH_M, R_LIMB_UV_M
 from fgnav.errors import UserError
 from fgnav.vision.camera import PinholeCamera
 
 __all__ = [
-    "DetectorModel", "LimbRadiance", "LimbScene", "RenderedLimb", "SEED000_DETECTOR",
+    "DetectorModel", "LimbRadiance", "LimbScene", "RenderedLimb", "CONFOCAL_DETECTOR",
     "render_limb_ideal", "add_detector_noise", "render_limb", "scene_from_altitude",
     "WGS84_F",
 ]
@@ -60,7 +60,7 @@ class DetectorModel:
     dark_e: float = 0.0
 
 
-SEED000_DETECTOR = DetectorModel()
+CONFOCAL_DETECTOR = DetectorModel()
 """Seed 000, sec. 3.2: 90 ke- peak, > 96 dB dynamic range (read noise 1.43 e-), 16 bit."""
 
 
@@ -83,7 +83,7 @@ class LimbScene:
     """
 
     c_cam_m: np.ndarray
-    r_limb_m: float = R_LIMB_SEED_M
+    r_limb_m: float = R_LIMB_UV_M
     ellipsoid: bool = False
     limb_height_m: float = 0.0
     R_cam_from_ecef: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -113,7 +113,7 @@ class LimbScene:
         return float(np.arcsin(self.axes_m[0] / np.linalg.norm(self.c_cam_m)))
 
 
-def scene_from_altitude(alt_m: float, u_cam, r_limb_m: float = R_LIMB_SEED_M) -> LimbScene:
+def scene_from_altitude(alt_m: float, u_cam, r_limb_m: float = R_LIMB_UV_M) -> LimbScene:
     """Sphere scene at altitude ``alt_m`` above the limb sphere, Earth centre along ``u_cam``."""
     u = np.asarray(u_cam, float)
     u = u / np.linalg.norm(u)
@@ -192,7 +192,7 @@ def _arc_mask(camera: PinholeCamera, centre_px: np.ndarray, arcs_deg) -> np.ndar
 
 def render_limb_ideal(camera: PinholeCamera, scene: LimbScene, *,
                       radiance: LimbRadiance = LimbRadiance(),
-                      detector: DetectorModel = SEED000_DETECTOR,
+                      detector: DetectorModel = CONFOCAL_DETECTOR,
                       arcs_deg=None, field_radius_px: float | None = None,
                       supersample: int = 4) -> RenderedLimb:
     """Noiseless limb image (e-, float32) with anti-aliasing, PSF and masks.

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factors.constants import R_LIMB_SEED_M
+from factors.constants import R_LIMB_UV_M
 from factors.geometry import tangent_basis
 from fgnav.errors import UserError
 from fgnav.vision.camera import PinholeCamera
@@ -224,7 +224,7 @@ def conic_point_sensitivity(aux, normals_xy):
     return -AtA_inv_At * gamma[None, :], gamma, np.hypot(gx, gy) / sc
 
 
-def horizon_ellipse(points: LimbPoints, camera: PinholeCamera, r_limb_m: float = R_LIMB_SEED_M) -> HorizonFix:
+def horizon_ellipse(points: LimbPoints, camera: PinholeCamera, r_limb_m: float = R_LIMB_UV_M) -> HorizonFix:
     """Seed 000 ellipse-fit horizon fix from (inlier) limb points (see module doc)."""
     pts = points.inliers() if not np.all(points.inlier) else points
     xy, _ = _focal_plane(camera, pts.uv_px)
@@ -279,7 +279,7 @@ def cr_jacobians(n_vec: np.ndarray, U: np.ndarray):
 
 
 def horizon_christian_robinson(points: LimbPoints, camera: PinholeCamera,
-                               r_limb_m: float = R_LIMB_SEED_M, U: np.ndarray | None = None,
+                               r_limb_m: float = R_LIMB_UV_M, U: np.ndarray | None = None,
                                reweight: bool = True) -> HorizonFix:
     """Christian–Robinson horizon fix (module doc).
 
@@ -337,7 +337,7 @@ def _ray_derivative(s, vnorm, normal_uv, f_px):
 
 
 def estimate_horizon(points: LimbPoints, camera: PinholeCamera, method: str = "christian-robinson",
-                     r_limb_m: float = R_LIMB_SEED_M, *, psf_sigma_px: float | None = None) -> HorizonFix:
+                     r_limb_m: float = R_LIMB_UV_M, *, psf_sigma_px: float | None = None) -> HorizonFix:
     """Dispatch on ``method`` (one of :data:`METHODS`).
 
     psf_sigma_px : optics PSF sigma (px) of the frame, or None (no correction). When given
@@ -360,7 +360,7 @@ def estimate_horizon(points: LimbPoints, camera: PinholeCamera, method: str = "c
 
 
 def correct_edge_curvature(points: LimbPoints, camera: PinholeCamera, fix: HorizonFix,
-                           psf_sigma_px: float, r_limb_m: float = R_LIMB_SEED_M) -> HorizonFix:
+                           psf_sigma_px: float, r_limb_m: float = R_LIMB_UV_M) -> HorizonFix:
     """Christian–Robinson refit with the limb points moved outward by the edge locator's
     curvature bias :func:`fgnav.vision.limb.edge_curvature_bias_px` (``(psf_sigma_px^2 +
     0.917) / (2 R_px)`` px), ``R_px = f_px tan(rho)`` the image limb radius of the first

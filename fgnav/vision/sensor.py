@@ -24,30 +24,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.constants import DEG, R_LIMB_SEED_M
-from fgnav.vision.camera import SEED000_STAR_CAMERA, PinholeCamera
+from factors.constants import DEG, R_LIMB_UV_M
+from fgnav.vision.camera import CONFOCAL_STAR_CAMERA, PinholeCamera
 
 __all__ = [
-    "SEED000_SUBAPERTURE_CAMERA", "SEED000_STAR_FIELD_CAMERA", "SEED000_LIMB_TILT_RAD",
-    "SEED000_LIMB_FOV_RAD", "LimbSubAperture", "seed000_limb_subapertures",
-    "limb_half_angle_rad", "earth_apparent_diameter_deg", "SEED000_LIMB_LAYER_M",
+    "CONFOCAL_SUBAPERTURE_CAMERA", "CONFOCAL_STAR_FIELD_CAMERA", "CONFOCAL_LIMB_TILT_RAD",
+    "CONFOCAL_LIMB_FOV_RAD", "LimbSubAperture", "confocal_limb_subapertures",
+    "limb_half_angle_rad", "earth_apparent_diameter_deg", "CONFOCAL_LIMB_LAYER_M",
 ]
 
-SEED000_LIMB_FOV_RAD = 30.5 * DEG
+CONFOCAL_LIMB_FOV_RAD = 30.5 * DEG
 """Full field of one limb sub-aperture (rad)."""
-SEED000_SUBAPERTURE_CAMERA = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_px=891, height_px=891)
+CONFOCAL_SUBAPERTURE_CAMERA = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_px=891, height_px=891)
 """One limb sub-aperture on its own: f = 18 mm, 11 µm, image circle Φ9.8 mm (891 px) in a
 891x891 window, principal point at its centre (seed eq. 15: f' = 4.9 / tan(15.25°))."""
-SEED000_STAR_FIELD_CAMERA = SEED000_STAR_CAMERA
+CONFOCAL_STAR_FIELD_CAMERA = CONFOCAL_STAR_CAMERA
 """Centre star field: f = 50 mm, 11 µm pixels (the central Φ7 mm of the detector)."""
-SEED000_LIMB_LAYER_M = (0.0, 100.0e3)
+CONFOCAL_LIMB_LAYER_M = (0.0, 100.0e3)
 """UV limb layer heights considered by the seed (d = 0-100 km)."""
-SEED000_LIMB_TILT_RAD = 0.25 * (17.0 + 78.0) * DEG
+CONFOCAL_LIMB_TILT_RAD = 0.25 * (17.0 + 78.0) * DEG
 """Boresight tilt of each limb sub-aperture from the nadir (rad): 23.75°, the middle of the
 seed's planned Φ17°–Φ78° limb field (its table 2 "lens field" = omega - 23.75°)."""
 
 
-def limb_half_angle_rad(alt_m, r_limb_m: float = R_LIMB_SEED_M, layer_m: float = 0.0):
+def limb_half_angle_rad(alt_m, r_limb_m: float = R_LIMB_UV_M, layer_m: float = 0.0):
     """Seed eq. 14: ``omega = asin((R + d) / (R + H))`` (rad); alt_m = H above R."""
     return np.arcsin((r_limb_m + layer_m) / (r_limb_m + np.asarray(alt_m, float)))
 
@@ -78,7 +78,7 @@ def _rot_to(z_axis: np.ndarray, x_hint: np.ndarray) -> np.ndarray:
     return np.column_stack([x, y, z])
 
 
-def seed000_limb_subapertures(tilt_rad: float = SEED000_LIMB_TILT_RAD) -> list[LimbSubAperture]:
+def confocal_limb_subapertures(tilt_rad: float = CONFOCAL_LIMB_TILT_RAD) -> list[LimbSubAperture]:
     """The four limb sub-apertures (module doc): boresight = nadir (-z_body) tilted by
     ``tilt_rad`` towards azimuth 45° + 90° k; camera x axis along the tilt azimuth."""
     out = []
@@ -86,5 +86,5 @@ def seed000_limb_subapertures(tilt_rad: float = SEED000_LIMB_TILT_RAD) -> list[L
         az = (45.0 + 90.0 * k) * DEG
         h = np.array([np.cos(az), np.sin(az), 0.0])
         bore = np.cos(tilt_rad) * np.array([0.0, 0.0, -1.0]) + np.sin(tilt_rad) * h
-        out.append(LimbSubAperture(f"limb{k}", SEED000_SUBAPERTURE_CAMERA, _rot_to(bore, h)))
+        out.append(LimbSubAperture(f"limb{k}", CONFOCAL_SUBAPERTURE_CAMERA, _rot_to(bore, h)))
     return out
