@@ -1,9 +1,9 @@
-"""Altimeter (seed 001: "satellite altimeter gives the height above the Earth surface H",
+"""Altimeter (the INS/CNS lecture: "satellite altimeter gives the height above the Earth surface H",
 1 km 3-sigma; direct fix ``r = -(R_e + H) C_b^i L_we^b``).
 
 Spherical Earth: the predicted altitude is ``h = |r| - r_ref`` with a reference radius
-``r_ref`` (R_e = 6,378,137 m in seed 001's direct fix). Oblateness is not modelled: the WGS-84
-ellipsoid's radius falls from R_e at the equator to R_e - 21.4 km at the poles, so for an
+``r_ref`` (R_e = 6,378,137 m in the INS/CNS lecture's direct fix). Oblateness is not modelled: the
+WGS-84 ellipsoid's radius falls from R_e at the equator to R_e - 21.4 km at the poles, so for an
 altimeter that reports height above the ellipsoid the caller supplies a latitude-dependent
 ``r_ref`` (it may vary per epoch).
 """
@@ -49,7 +49,7 @@ def _altitude(key_x, h, r_ref, values):
 
 def make_altitude_factor(key_x, h_meas_m, r_ref_m, sigma_m):
     """CustomFactor on a state key ``[r; v]``: error (1,) m, Jacobian (1, 6); sigma in m
-    (seed 001: 1 km 3-sigma, i.e. ``sigma_m = 333.3``)."""
+    (the INS/CNS lecture: 1 km 3-sigma, i.e. ``sigma_m = 333.3``)."""
     h = np.array([float(h_meas_m)])
     rr = np.array([float(r_ref_m)])
     return custom_factor([key_x], sigma_m, functools.partial(_altitude, key_x, h, rr), dim=1)

@@ -1,6 +1,6 @@
 """Attitude measurements: a star-tracker / TRIAD attitude as a ``Rot3`` prior.
 
-SPEC "Measurement models" 2 and seed 001 ("定姿计算：双矢量定姿", the two-vector
+The INS/CNS lecture ("定姿计算：双矢量定姿", the two-vector
 attitude from the Sun and Moon directions). Attitudes are ``R_eci_from_body`` (body -> ECI);
 perturbations are on the right, ``R <- R Exp(w)``, ``w`` in the body frame, rad.
 """
@@ -72,7 +72,7 @@ def _triad_frame(v1, v2, what):
 
 
 def triad(v1_body, v2_body, v1_ref, v2_ref):
-    """Two-vector (TRIAD) attitude, seed 001: ``C_b^i = P_N Q_M^T``.
+    """Two-vector (TRIAD) attitude, the INS/CNS lecture: ``C_b^i = P_N Q_M^T``.
 
     ``N1 = v1_ref/|v1_ref|``, ``N2 = (v1_ref x v2_ref)/|v1_ref x v2_ref|``,
     ``N3 = N1 x N2``; ``M1..M3`` likewise from the body vectors; ``P_N = [N1 N2 N3]``,

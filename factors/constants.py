@@ -16,7 +16,7 @@ R_EARTH_M = 6378137.0
 J2_EARTH = 1.08262668e-3
 """Earth J2 zonal harmonic (EGM2008), dimensionless."""
 R_LIMB_UV_M = 6375.0e3
-"""Limb radius used by the seeds for the UV horizon (seed 000/002), m: a parameter, not R_e."""
+"""Limb radius of the UV horizon (Wu et al.; Pan & Yao 2017), m: a parameter, not R_e."""
 MU_SUN_M3_S2 = 1.32712440018e20
 MU_MOON_M3_S2 = 4.9028e12
 AU_M = 1.495978707e11

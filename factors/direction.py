@@ -1,6 +1,6 @@
 """Direction measurements: geocentric unit vector, body directions to a target, stars.
 
-SPEC "Measurement models" 1 and 2. Every direction residual is the logarithm map of the
+Every direction residual is the logarithm map of the
 unit sphere at the measured direction, written in the tangent basis
 ``B = tangent_basis(u_meas)`` (2x3, rows ``b1, b2`` orthonormal and orthogonal to
 ``u_meas``; ``(b1, b2, u_meas)`` right-handed):
@@ -162,7 +162,7 @@ def sphere_log(u_meas, u_pred, B=None):
 def earth_direction_residual(r_eci_m, u_meas_eci, B=None):
     """Geocentric direction (spacecraft -> Earth centre) measured in ECI.
 
-    ``u_pred = -r/|r|`` (SPEC 1), ``e = Log_{u_meas}(u_pred)`` (:func:`sphere_log`),
+    ``u_pred = -r/|r|``, ``e = Log_{u_meas}(u_pred)`` (:func:`sphere_log`),
     ``H_r = -J_u (I - u u^T)/|r|`` with ``u = r/|r|``.
 
     Parameters

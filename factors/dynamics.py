@@ -38,15 +38,15 @@ factor sees consistent residuals and Jacobians. With third bodies on, the Sun an
 positions are evaluated once per sub-step at its midpoint time t + h/2 and held over the
 stages (the Moon moves ~5 km, 1e-5 of its distance, in a 5 s sub-step).
 
-Default sub-step: ``MotionModel.max_step_s = 5 s``. On the seed-002 transfer orbit
-(perigee altitude ~995 km, the hardest of the seed scenarios for a fixed step), one hour
-from the seed's initial state (just after perigee) gives these RK4 errors against the
+Default sub-step: ``MotionModel.max_step_s = 5 s``. On the Pan & Yao 2017 transfer orbit
+(perigee altitude ~995 km, the hardest of the reference scenarios for a fixed step), one hour
+from Pan & Yao 2017's initial state (just after perigee) gives these RK4 errors against the
 independent DOP853 integrator (``fgnav.orbit.integrate_truth``, rtol 1e-12), position /
 velocity: 5 s: ~0.24 mm / 0.09 um/s; 10 s: 3.8 mm / 1.4 um/s; 30 s: 0.31 m / 0.12 mm/s;
 60 s: 5.2 m / 2 mm/s (global error ~ h^4). 5 s is the largest round step meeting the
 < 1 mm and < 1 um/s per hour budget (tested in tests/test_dynamics.py). Epoch spacings of
-0.1-5 s use a single sub-step, so the budget costs nothing at the seeds' sampling rates.
-On the seed-001 LEO (504 km) 5 s sub-steps give 0.75 mm / 0.75 um/s per hour.
+0.1-5 s use a single sub-step, so the budget costs nothing at the source studies' sampling rates.
+On the INS/CNS lecture LEO (504 km) 5 s sub-steps give 0.75 mm / 0.75 um/s per hour.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ class MotionModel:
 
     mu: Earth GM, m^3/s^2; j2: J2 (0 switches it off); re: J2 reference radius, m;
     third_body: add Sun and Moon point masses (``factors.ephemeris`` positions);
-    max_step_s: largest RK4 sub-step, s (5 s: < 1 mm per hour on the seed-002 transfer
+    max_step_s: largest RK4 sub-step, s (5 s: < 1 mm per hour on the Pan & Yao 2017 transfer
     orbit, see the module docstring); mu_sun / mu_moon: GM of the third bodies, m^3/s^2.
     """
 

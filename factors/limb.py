@@ -1,7 +1,7 @@
-"""Limb angular radius (apparent Earth half-angle), SPEC "Measurement models" 3.
+"""Limb angular radius (apparent Earth half-angle).
 
 ``sin(rho) = R_limb / |r|``: the angular radius of the limb sphere seen from the spacecraft
-gives the range to the Earth centre (seed 000: ``r = R / sin(rho)``, R = 6,375 km for the UV
+gives the range to the Earth centre (Wu et al.: ``r = R / sin(rho)``, R = 6,375 km for the UV
 limb, ``factors.constants.R_LIMB_UV_M``). Its information on ``|r|`` falls with altitude.
 """
 

@@ -2,8 +2,8 @@
 
 f is the RK4 propagator of ``factors.dynamics`` (two-body + J2, optional Sun/Moon), its
 Jacobian the exact discrete state-transition matrix Phi; w ~ N(0, Q) is the
-white-acceleration process noise (``factors.dynamics.process_noise``; SPEC "Motion priors").
-States are ECI [r (m); v (m/s)] on ``gtsam`` Vector6 keys.
+white-acceleration process noise (``factors.dynamics.process_noise``; Bar-Shalom, Li & Kirubarajan
+2001, eq. 6.2.2-12). States are ECI [r (m); v (m/s)] on ``gtsam`` Vector6 keys.
 
 Residual (unwhitened, SI)::
 

@@ -1,28 +1,28 @@
 """Inter-satellite pseudorange (and carrier phase) between two formation satellites.
 
-Measurement model (SPEC.md "Inter-satellite pseudorange"; seed 003, eq. (1), NASA ST-3
+Measurement model (Xing et al., eq. (1), NASA ST-3
 Autonomous Formation Flyer). Two 1 m cubes, each with one transmit antenna ``a_i0`` and
 three receive antennas ``a_ij`` (j = 1, 2, 3) on one face, in its own body frame (m)::
 
     rho_1j = |r + M21 a_20 - a_1j| + c dt      (sat 2 transmits, sat 1 antenna j receives)
     rho_2j = |-r + a_10 - M21 a_2j| - c dt     (sat 1 transmits, sat 2 antenna j receives)
 
-``r`` (m): position of sat 2's centre of mass in sat 1's body frame (the seed's
-"constellation frame"); ``M21`` = the seed's ``M_BC``, the rotation taking sat-2 body
+``r`` (m): position of sat 2's centre of mass in sat 1's body frame (Xing et al.'s
+"constellation frame"); ``M21`` = Xing et al.'s ``M_BC``, the rotation taking sat-2 body
 vectors to sat-1 body vectors (``M_BC = (M_CB)^-1``, ``M_CB = Rx(roll) Ry(pitch) Rz(yaw)``);
 ``c dt`` (m) the relative clock bias (receiver-1 clock minus receiver-2 clock, times c).
 Since ``|-r + a_10 - M21 a_2j| = |r + M21 a_2j - a_10|``, all six links are written
 ``rho_l = |r + d_l| + s_l c dt`` with the known offsets ``d_l`` (sat-1 body, m) and clock
-signs ``s_l = +1, +1, +1, -1, -1, -1`` (:func:`link_offsets`). The seed's linearized rows
+signs ``s_l = +1, +1, +1, -1, -1, -1`` (:func:`link_offsets`). Xing et al.'s linearized rows
 (its eqs. (2)-(3): line-of-sight unit vector, then +1 / -1) agree with this sign
 convention; no discrepancy was found.
 
 Two parameterizations of ``r``, one model, two tangent spaces:
 - Cartesian ``(x, y, z)`` (m);
 - spherical ``(R, az, el)`` (m, rad, rad): ``r = R [cos el cos az, cos el sin az, sin el]``
-  (seed 003 section 2; ``az`` about body z from +x, ``el`` from the x-y plane).
+  (Xing et al. section 2; ``az`` about body z from +x, ``el`` from the x-y plane).
 
-Carrier phase (optional, 10 um in seed 003's ref. [1]): ``phi_l = |r + d_l| + s_l c dt + N_l``
+Carrier phase (optional, 10 um in Xing et al.'s ref. [1]): ``phi_l = |r + d_l| + s_l c dt + N_l``
 with a float ambiguity ``N_l`` (m) per link, constant while the link stays locked.
 
 Residuals follow the contract of CONTRIBUTING.md: unwhitened error ``e = h(x) - z`` (m) and
@@ -45,13 +45,13 @@ __all__ = [
 ]
 
 ANTENNA_TX_BODY_M = np.array([0.5, 0.5, -0.5])
-"""Transmit antenna a_i0 in each satellite's body frame, m (seed 003, same on both)."""
+"""Transmit antenna a_i0 in each satellite's body frame, m (Xing et al., same on both)."""
 ANTENNA_RX_BODY_M = np.array([[0.5, 0.5, 0.5], [0.5, -0.5, 0.5], [0.5, -0.5, -0.5]])
-"""Receive antennas a_i1, a_i2, a_i3 in each satellite's body frame, m (seed 003)."""
+"""Receive antennas a_i1, a_i2, a_i3 in each satellite's body frame, m (Xing et al.)."""
 N_LINKS = 6
 """Pseudoranges per epoch: sat 1 receives on 3 antennas, sat 2 on 3."""
 CLOCK_SIGNS = np.array([1.0, 1.0, 1.0, -1.0, -1.0, -1.0])
-"""Sign of c dt in each link (seed 003 eq. (1))."""
+"""Sign of c dt in each link (Xing et al. eq. (1))."""
 
 
 def _rx(a):
@@ -163,7 +163,7 @@ def predict_ranges(r_m, cdt_m, M21):
 
 
 def pseudorange_residual(r_m, cdt_m, rho_meas_m, M21):
-    """Pseudorange residual with ``r`` Cartesian (seed 003 eqs. (1)-(3)).
+    """Pseudorange residual with ``r`` Cartesian (Xing et al. eqs. (1)-(3)).
 
     Parameters
     ----------
@@ -192,7 +192,7 @@ def pseudorange_residual_spherical(s, cdt_m, rho_meas_m, M21):
     """Pseudorange residual with ``r`` spherical ``(R m, az rad, el rad)``.
 
     Same model as :func:`pseudorange_residual` through ``r = r(s)``; chain rule
-    ``de/ds = u_l^T J(s)`` (seed 003 section 2, its matrix A').
+    ``de/ds = u_l^T J(s)`` (Xing et al. section 2, its matrix A').
 
     Returns ``e (N, 6)``, ``H_s (N, 6, 3)`` (m/m, m/rad, m/rad), ``H_c (N, 6, 1)``.
     """

@@ -1,6 +1,6 @@
-"""Starlight refraction: indirect horizon sensing (SPEC "Measurement models" 4, seed 004).
+"""Starlight refraction: indirect horizon sensing (Li et al. 2017).
 
-Seed 004 (CN104236546B, claim 1, step 4): the refraction angle of a star whose light
+Li et al. 2017 (CN104236546B, claim 1, step 4): the refraction angle of a star whose light
 grazes the atmosphere at tangent height h is ``gamma = 2350.1074 exp(-0.10326788 h)``
 (arcsec, h in km); the simulated measurement adds a refraction-angle error (uniform in the
 sensor's accuracy band) to gamma, inverts to a tangent height h', then adds the
@@ -21,7 +21,7 @@ surface. For a star towards the limb ``r.s < 0``.
 
 Models (``model=``), both of the form ``gamma(h) = gamma_ref exp(-(h - h_ref)/H)``:
 
-- ``"exponential-seed004"``: seed 004's fit, ``gamma_ref`` = 2350.1074 arcsec at
+- ``"exponential-seed004"``: Li et al. 2017's fit, ``gamma_ref`` = 2350.1074 arcsec at
   ``h_ref = 0``, ``H = 1/0.10326788 km = 9.6835 km``.
 - ``"exponential-density"``: from the physics of an exponential atmosphere: the bending
   of a ray with tangent radius ``R_t`` is ``gamma = (n(h) - 1) sqrt(2 pi R_t / H_rho)`` with
@@ -31,7 +31,7 @@ Models (``model=``), both of the form ``gamma(h) = gamma_ref exp(-(h - h_ref)/H)
   (``H_rho`` ~ 6.69 km). ``R_t`` is held at ``R_e + h_ref`` (its variation over the band
   changes gamma by < 0.25 %), which keeps the model exponential and its inverse exact.
   The two models differ by up to a factor 4 at 50 km: the choice of model *is* the
-  atmosphere-model error the seed talks about.
+  atmosphere-model error Li et al. 2017 describe.
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ __all__ = [
 ]
 
 REFRACTION_VALID_BAND_M = (20e3, 50e3)
-"""Tangent heights (m) where the refraction models are valid (seed 004: ~20–50 km)."""
+"""Tangent heights (m) where the refraction models are valid (Li et al. 2017: ~20–50 km)."""
 
 GLADSTONE_DALE_M3_KG = 2.25e-4
 """Gladstone–Dale constant of air at ~0.7 um, m^3/kg: n - 1 = k rho."""
@@ -123,7 +123,7 @@ def refraction_model(model="exponential-seed004"):
 def refraction_angle_rad(h_m, model="exponential-seed004"):
     """Refraction angle (rad) of starlight with tangent height ``h_m`` (m).
 
-    Seed 004: ``gamma = 2350.1074 exp(-0.10326788 h_km)`` arcsec. Valid in
+    Li et al. 2017: ``gamma = 2350.1074 exp(-0.10326788 h_km)`` arcsec. Valid in
     :data:`REFRACTION_VALID_BAND_M`; evaluated (not clipped) outside it.
     """
     return refraction_model(model).gamma_rad(h_m)
@@ -195,13 +195,13 @@ def refraction_sigma_m(gamma_rad, sigma_gamma_rad, sigma_model_m, model="exponen
                        los_range_m=0.0):
     """Standard deviation (m) of the refraction residual from its two error sources.
 
-    ``sigma = sqrt((de/dgamma * sigma_gamma)^2 + sigma_model^2)``, seed 004 step 4: the
+    ``sigma = sqrt((de/dgamma * sigma_gamma)^2 + sigma_model^2)``, Li et al. 2017 step 4: the
     refraction-angle measurement error (``sigma_gamma_rad``, 1-sigma; a uniform error on
     ``[-D, D]`` has ``D/sqrt(3)``) mapped through ``|dh/dgamma| = H/gamma`` of the inverse
     model, and the atmosphere-model error on the tangent height (``sigma_model_m``). Either
     may be 0 (but not both).
 
-    ``los_range_m`` (optional, default 0 = the seed's treatment): ``|r.s|``, to include the
+    ``los_range_m`` (optional, default 0 = Li et al. 2017's treatment): ``|r.s|``, to include the
     geometric term of the residual, ``d h_a/d gamma = |r.s| sec^2(gamma)``, so that
     ``de/dgamma = |r.s| sec^2(gamma) + H/gamma`` (about +13 % from 500 km altitude at a
     30 km tangent height).

@@ -21,13 +21,14 @@ Per epoch:
    its centre of curvature; ``s_loc^2`` = :data:`fgnav.vision.limb.EDGE_LOCATOR_VAR_PX2`);
    with the calibrated ``psf_sigma_px`` of the frame, the points are moved outward by that
    amount (``R_px = f_px tan(rho)`` from a first fit) and refitted
-   (``estimate_horizon(..., psf_sigma_px=...)``, :func:`fgnav.vision.horizon.correct_edge_curvature`). Measured on noise-free seed-000
-   renders at GEO (R_px = 250): bias -0.0040 px (PSF 1 px) vs -0.0038 predicted; without
-   it the Christian-Robinson limb radius of a GEO pass is biased by ~1.9 of its per-frame
-   sigma (range +0.7 km). Applied to ``christian-robinson`` only: the ``ellipse`` method's
-   algebraic conic fit has an outward bias of about the same size (measured on the same
-   pass: mean rho error -0.06 sigma without the correction, +0.89 with it). Several limb frames at one epoch are fused by information weighting of
-   ``(B u, rho)`` on the tangent plane of the first one.
+   (``estimate_horizon(..., psf_sigma_px=...)``,
+   :func:`fgnav.vision.horizon.correct_edge_curvature`). Measured on noise-free Wu et al. renders at
+   GEO (R_px = 250): bias -0.0040 px (PSF 1 px) vs -0.0038 predicted; without it the
+   Christian-Robinson limb radius of a GEO pass is biased by ~1.9 of its per-frame sigma (range +0.7
+   km). Applied to ``christian-robinson`` only: the ``ellipse`` method's algebraic conic fit has an
+   outward bias of about the same size (measured on the same pass: mean rho error -0.06 sigma
+   without the correction, +0.89 with it). Several limb frames at one epoch are fused by information
+   weighting of ``(B u, rho)`` on the tangent plane of the first one.
 3. rows (``rows="eci"``, default): ``earth_direction`` ``u_eci = R_eci_from_body u_body``
    with covariance ``R ([u]x P_att [u]x^T + C_u) R^T`` (``R Exp(phi) u = R (u - [u]x phi)``;
    cf. :mod:`fgnav.sun_earth_moon`); the log carries one isotropic sigma per direction row: the

@@ -73,7 +73,8 @@ def refraction_sigma(fam, X=None) -> np.ndarray:
     both terms, ``de/dgamma = |r.s| sec^2(gamma) + H/gamma``: with the states ``X`` (N, 6)
     the line-of-sight range ``|r.s|`` is taken at ``X`` (the Monte Carlo of
     tests/test_factors_refraction.py matches only with it; +13 % on the angle term in LEO).
-    Without ``X`` (single-factor route, no state at hand) the seed's ``H/gamma`` alone is used.
+    Without ``X`` (single-factor route, no state at hand) Li et al. 2017's ``H/gamma`` alone is
+    used.
     """
     los = 0.0
     if X is not None:

@@ -490,7 +490,7 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> In
     k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - 0.5 * (t_dir[0] + t_dir[-1])))])
     t_ref = float(p.t_s[k_ref])
     sp = _subpass(p, k_sub)
-    # RK4 sub-steps of up to 20 s: ~0.1 m per hour on the seed-002 transfer orbit and a
+    # RK4 sub-steps of up to 20 s: ~0.1 m per hour on the Pan & Yao 2017 transfer orbit and a
     # LEO (error ~ h^4 from the 5 s figures in factors.dynamics), far below the IOD's sigma.
     fit_model = replace(model, max_step_s=max(model.max_step_s, 20.0))
 

@@ -4,7 +4,7 @@ A :class:`MeasurementLog` (one row per CSV line) becomes a :class:`Pass`: the so
 epochs ``t_s`` (one state per epoch) and, per measurement family, arrays indexed by the
 epoch index ``k``. Body-frame directions are rotated into ECI with the attitude measured at
 the same epoch (``u_eci = R_eci_from_body u_body``), their variance increased by the
-attitude's (the "known attitude" route of SPEC measurement model 2).
+attitude's (a body-frame direction with a known attitude).
 """
 
 from __future__ import annotations

@@ -253,7 +253,8 @@ def read_measurements(path: str | Path):
         return read_tdm(path)
     log = read_log(path)
     if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
-        # Seed 001's scheme: TRIAD attitude from the Sun and Moon, Earth direction to ECI.
+        # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
+        # ECI.
         log = preprocess_log(log)[0]
     return log
 

@@ -51,7 +51,7 @@ class SensorSpec:
     sigma_m: float | None = None
     period_s: float | None = None
     r_limb_km: float = 6375.0
-    # refraction sensor (seed 004; fgnav.simulate.refraction_sim): heads grazing the limb
+    # refraction sensor (Li et al. 2017; fgnav.simulate.refraction_sim): heads grazing the limb
     gamma_halfwidth_arcsec: float = 1.0    # refraction-angle error, uniform on [-D, D]
     sigma_model_m: float = 100.0           # atmosphere-model error on the tangent height, 1σ
     star_sigma_arcsec: float = 3.0         # centroid 1σ of an unrefracted star (attitude)
@@ -59,7 +59,7 @@ class SensorSpec:
     vmag_max: float = 6.0                  # faintest star used
     azimuths_deg: tuple = (0.0, 120.0, 240.0)  # head boresights about nadir, from velocity
     boresight_tangent_km: float = 35.0     # tangent height of the ray at the field centre
-    # body-frame directions (seed 001; fgnav.simulate.body_directions): body = LVLH
+    # body-frame directions (the INS/CNS lecture; fgnav.simulate.body_directions): body = LVLH
     min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
 
 

@@ -1,15 +1,15 @@
-"""Sun/Earth/Moon scheme of seed 001: per-epoch attitude and geometric fixes, and the
+"""Sun/Earth/Moon scheme of the INS/CNS lecture: per-epoch attitude and geometric fixes, and the
 preprocessing that turns body-frame directions into ECI Earth directions for the estimators.
 
-Seed 001 ("基于日地月信息的航天器天文导航"), per epoch, with the body-frame unit vectors from
+The INS/CNS lecture ("基于日地月信息的航天器天文导航"), per epoch, with the body-frame unit vectors from
 the spacecraft to the Sun ``L_ws``, the Moon ``L_wm`` and the Earth centre ``L_we`` and the
 altimeter height ``H``:
 
-1. Earth-relative vectors in the body frame (the seed's triangle; removes the parallax,
+1. Earth-relative vectors in the body frame (the lecture's triangle; removes the parallax,
    ~1 deg for the Moon in LEO): ``r_we = (R_e + H) L_we``, ``r_em = r_wm - r_we`` with
    ``|r_wm|`` from ``|r_em| = |r_em^i|`` (ephemeris): ``d_wm^2 - 2 d_wm d_we cos(alpha)
    + d_we^2 = D^2``, ``alpha = acos(L_wm . L_we)``, the root
-   ``d_wm = d_we cos(alpha) + sqrt(D^2 - d_we^2 sin^2(alpha))`` (the seed's law of sines,
+   ``d_wm = d_we cos(alpha) + sqrt(D^2 - d_we^2 sin^2(alpha))`` (the lecture's law of sines,
    solved directly); the same for the Sun (:func:`earth_relative_body_vector`).
 2. Two-vector attitude (TRIAD): ``C_b^i = P_N Q_M^T`` from (``r_em``, ``r_es``) in body and
    ECI (``factors.attitude.triad``). The seed takes the Moon first; the first vector is
@@ -47,7 +47,7 @@ __all__ = ["SemEpochs", "earth_relative_body_vector", "sem_epochs", "preprocess_
 
 @dataclass
 class SemEpochs:
-    """Per-epoch products of the seed-001 geometry (epochs with Sun, Moon, Earth and H).
+    """Per-epoch products of the INS/CNS lecture geometry (epochs with Sun, Moon, Earth and H).
 
     ``t_s`` (M,) s from the log's epoch0; ``R_eci_from_body`` (M,3,3) TRIAD attitude;
     ``P_att_rad2`` (M,3,3) its covariance (body frame, right perturbation);
@@ -73,7 +73,7 @@ def earth_relative_body_vector(L_w_target_body, L_we_body, d_we_m, d_target_m):
     ``L_w_target_body``, ``L_we_body`` (N,3) unit vectors spacecraft -> target and ->
     Earth centre (body); ``d_we_m`` (N,) spacecraft-Earth distance ``R_e + H``, m;
     ``d_target_m`` (N,) Earth-target distance from the ephemeris, m. Returns (N,3), m
-    (seed 001 triangle, module docstring step 1).
+    (the INS/CNS lecture triangle, module docstring step 1).
     """
     Lt = np.asarray(L_w_target_body, dtype=float)
     Le = np.asarray(L_we_body, dtype=float)
@@ -89,7 +89,7 @@ def earth_relative_body_vector(L_w_target_body, L_we_body, d_we_m, d_target_m):
 
 def sem_epochs(t_s, t0_j2000_s, L_ws_body, L_wm_body, L_we_body, h_m, *, sigma_sun_rad,
                sigma_moon_rad, sigma_earth_rad, sigma_h_m, r_ref_m=R_EARTH_M, first="sun"):
-    """The seed-001 geometry at epochs ``t_s`` (M,) (s from an epoch ``t0_j2000_s`` s after
+    """The INS/CNS lecture geometry at epochs ``t_s`` (M,) (s from an epoch ``t0_j2000_s`` s after
     J2000): TRIAD attitude, ECI Earth direction with its covariance, direct fix.
 
     Directions (M,3) unit, body frame, spacecraft -> Sun / Moon / Earth centre; ``h_m`` (M,)
@@ -130,7 +130,7 @@ def _rows(log, kind):
 
 
 def preprocess_log(log, *, first="sun"):
-    """Seed-001 preprocessing of a raw log (kinds ``sun_direction_body``,
+    """Preprocessing (the INS/CNS lecture's scheme) of a raw log (kinds ``sun_direction_body``,
     ``moon_direction_body``, ``earth_direction_body``, ``altitude``, priors).
 
     Returns ``(log_eci, epochs)``: a :class:`~fgnav.io.log_csv.MeasurementLog` with the

@@ -1,11 +1,11 @@
 #!/usr/bin/env python
-"""Speed benchmarks of issue 3: batch, fixed-lag, iSAM2, EKF, cold start. Prints ONE JSON object.
+"""Speed benchmarks: batch, fixed-lag, iSAM2, EKF, cold start. Prints ONE JSON object.
 
     python scripts/bench.py [--quick] [--repeat 3] [--cases batch_4h,ekf_numba_4h,...]
                             [--isam2-hours 4] [--seed 0] [--out bench.json]
 
 Every case runs in a fresh Python subprocess (``--worker``), so its peak RSS is the case's own,
-imports included; the pass (seed-002 ``gto-transfer`` at 1 Hz, direction only) is simulated
+imports included; the pass (Pan & Yao 2017 ``gto-transfer`` at 1 Hz, direction only) is simulated
 once by the parent and handed to the workers as a pickle. Per case the JSON gives: epochs,
 wall seconds (the whole subprocess: interpreter, imports, loading, solving), solver seconds
 (the estimator call alone), epochs per second (epochs / solver seconds), per-epoch latency
@@ -58,7 +58,7 @@ QUICK_CASES = {
     "fixed_lag_4h": ("fixed-lag", 0.15),
     "isam2_4h": ("isam2", 0.05),
 }
-TARGETS = {  # issue 3
+TARGETS = {  # the speed targets the project set itself
     "ekf_numba_4h": {"step_s_max": 10e-6},
     "batch_4h": {"solver_s_max": 1.5, "epochs_per_s_min": 10_000, "peak_rss_mb_max": 400},
     "batch_24h": {"solver_s_max": 10.0, "peak_rss_mb_max": 1536},
@@ -297,7 +297,7 @@ def main(argv=None) -> int:
         ap.error(f"unknown case(s) {sorted(unknown)}; choose from {sorted(cases)} and cold_start")
     repeat = args.repeat or (1 if args.quick else 3)
     result: dict = {"mode": "quick" if args.quick else "full", "repeat": repeat, "seed": args.seed,
-                    "scenario": "gto-transfer (seed 002), earth_direction 0.01 deg at 1 Hz",
+                    "scenario": "gto-transfer (Pan & Yao 2017), earth_direction 0.01 deg at 1 Hz",
                     "machine": machine(), "cases": {}}
     with tempfile.TemporaryDirectory(prefix="fgnav-bench-") as td:
         tmp = Path(td)

@@ -18,7 +18,7 @@ import numpy as np
 
 
 def synthetic_pass(n, dt_s, seed):
-    """Seed-002-like transfer orbit, RTN-diagonal covariance, estimate = truth + draw."""
+    """The transfer orbit of Pan & Yao 2017, RTN-diagonal covariance, estimate = truth + draw."""
     from fgnav.solution import Solution
     from fgnav.viz.rerun_log import rtn_rotations
 

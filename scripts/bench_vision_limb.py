@@ -1,6 +1,6 @@
 """Benchmark: limb extraction + RANSAC + horizon fits on a 2048x2048 frame (JSON on stdout).
 
-Target (issue 6): extraction and fit of a 2048x2048 frame < 50 ms. Frame: seed-000 limb
+Target: extraction and fit of a 2048x2048 frame < 50 ms. Frame: Wu et al. limb
 optics (f = 18 mm, 11 µm) on the full detector, Earth centre on the boresight at 8,000 km
 (limb radius ~826 px), limb signal 2,000 e-, seed detector noise.
 

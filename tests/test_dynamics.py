@@ -13,10 +13,11 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.testing import check_jacobians, random_positions_m
 from fgnav.orbit import elements_to_state, integrate_truth
 
-# Seed 002 (SPEC "Reference scenarios"): the gto-transfer initial state, ECI, m and m/s.
+# Pan & Yao 2017, sec. 3.1: the gto-transfer initial state, ECI, m and m/s.
 X_GTO = np.array([6509244.371304875, 0.0, 3713244.835519765,
                   -3737.397235776740, 0.0, 8790.602460568101])
-# Seed 001 (SPEC): LEO a = R_e + 504 km, e = 0.0011, i = 97 deg, RAAN = 77, argp = 55, nu = 10 deg.
+# The INS/CNS lecture: LEO a = R_e + 504 km, e = 0.0011, i = 97 deg, RAAN = 77, argp = 55, nu = 10
+# deg.
 X_LEO = elements_to_state(R_EARTH_M + 504e3, 0.0011, 97 * DEG, 77 * DEG, 55 * DEG, 10 * DEG)
 T_2010 = 3.156e8  # s since J2000 (~2010), for the Sun/Moon positions
 
@@ -91,7 +92,8 @@ def test_propagate_zero_dt_is_identity():
 
 
 def test_one_hour_gto_against_truth_long_step_and_chain():
-    """Seed-002 transfer orbit, 1 h from the seed state: RK4 (default 5 s sub-steps) vs DOP853."""
+    """Pan & Yao 2017's transfer orbit, 1 h from its initial state: RK4 (default 5 s sub-steps) vs
+    DOP853."""
     model = MotionModel()
     truth = integrate_truth(X_GTO, np.array([600.0, 3600.0]))
     # one long dt, 720 sub-steps

@@ -33,7 +33,7 @@ def test_zero_at_truth_and_jacobian(rng):
 
 
 def test_wu_apparent_diameter():
-    """SPEC "Image processing" (seed 000): Earth apparent diameter 77.232 deg at 4,000 km and
+    """Wu et al.: Earth apparent diameter 77.232 deg at 4,000 km and
     17.579 deg at 36,000 km with omega = arcsin((R + d)/(R + H)), R = 6,375 km, d = 100 km."""
     r_limb = R_LIMB_UV_M + 100e3
     for alt_m, diameter_deg in ((4000e3, 77.232), (36000e3, 17.579)):

@@ -38,7 +38,7 @@ def test_altitude_zero_at_truth_and_jacobian(rng):
     e, H_r = altitude_residual(r, h, R_EARTH_M)
     assert e.shape == (N, 1) and H_r.shape == (N, 1, 3)
     np.testing.assert_allclose(e, 0.0, atol=1e-8)
-    h_meas = h + 333.0 * rng.normal(size=N)  # seed 001: 1 km 3-sigma
+    h_meas = h + 333.0 * rng.normal(size=N)  # the INS/CNS lecture: 1 km 3-sigma
     e, H_r = altitude_residual(r, h_meas, np.full(N, R_EARTH_M))
     np.testing.assert_allclose(e[:, 0], h - h_meas, atol=1e-7)
     check_jacobians(altitude_residual, (r, h_meas, np.full(N, R_EARTH_M)), (H_r, None, None),

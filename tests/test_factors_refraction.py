@@ -1,6 +1,7 @@
-"""Starlight refraction (factors.refraction): seed 004's model, geometry, noise budget, adapter.
+"""Starlight refraction (factors.refraction): Li et al. 2017's model, geometry, noise budget,
+adapter.
 
-Seed 004 = CN104236546B (SPEC "Starlight refraction"): gamma = 2350.1074 exp(-0.10326788 h)
+Li et al. 2017 (patent CN104236546B): gamma = 2350.1074 exp(-0.10326788 h)
 arcsec, h in km; claim 1 step 4 builds the measured tangent height from a uniform
 refraction-angle error and an atmosphere-model error on the height.
 """

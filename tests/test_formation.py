@@ -1,6 +1,6 @@
 """Single-epoch formation solution and the Cartesian-vs-spherical conditioning study.
 
-Reproduces seed 003 (Xing et al., ST-3 AFF pseudorange positioning), Table 1 geometry and its
+Reproduces Xing et al. (Xing et al., ST-3 AFF pseudorange positioning), Table 1 geometry and its
 section-3 figures: rcond(A^T A) 1.09e-7 (Cartesian) vs 2.5e-2 (spherical), sigma_R 0.41 cm,
 clock 1.22 cm, az/el 0.01 rad at 1 cm noise, covariance stable (spherical) vs unstable
 (Cartesian) between two epochs, and 67.5 % (120 runs) of R errors within +-1 sigma.
@@ -26,10 +26,10 @@ def study():
 
 
 def test_xing_rcond(study):
-    """seed 003: rcond(A^T A) = 1.09e-7 (Cartesian) vs 2.5e-2 (spherical), m and rad."""
+    """Xing et al.: rcond(A^T A) = 1.09e-7 (Cartesian) vs 2.5e-2 (spherical), m and rad."""
     c, s = study["cartesian"], study["spherical"]
     assert 1.0e-7 < c["rcond"] < 1.2e-7 and 1.0e-7 < c["rcond_1norm"] < 1.2e-7
-    # the seed's 2.5e-2 lies between our 1-norm (2.04e-2) and 2-norm (2.94e-2) figures
+    # Xing et al.'s 2.5e-2 lies between our 1-norm (2.04e-2) and 2-norm (2.94e-2) figures
     assert s["rcond_1norm"] < 2.5e-2 < s["rcond"]
     assert 1.9e-2 < s["rcond_1norm"] and s["rcond"] < 3.1e-2
     assert s["rcond"] / c["rcond"] > 1e4
@@ -37,19 +37,19 @@ def test_xing_rcond(study):
 
 
 def test_xing_sigmas(study):
-    """seed 003: sigma_R = 0.41 cm, sigma_az = sigma_el = 0.01 rad, clock 1.22 cm."""
+    """Xing et al.: sigma_R = 0.41 cm, sigma_az = sigma_el = 0.01 rad, clock 1.22 cm."""
     sR, saz, sel, sc = study["spherical"]["sigmas_epoch1"]
     assert sR == pytest.approx(0.0041, abs=0.0001)
     assert sc == pytest.approx(0.0122, abs=0.0001)
     assert saz == pytest.approx(0.01, rel=0.01) and sel == pytest.approx(0.01, rel=0.01)
-    # the cofactor (A'^T A')^-1 the seed prints for both epochs
+    # the cofactor (A'^T A')^-1 Xing et al. print for both epochs
     Q = np.array(study["spherical"]["covariance"]["cofactor_epoch1"])
     Q_seed = np.array([[1 / 6, 0, 0, 0], [0, 1, -0.5, -1], [0, -0.5, 1, 1], [0, -1, 1, 1.5]])
     assert np.abs(Q - Q_seed).max() < 1e-3
 
 
 def test_covariance_two_epochs(study):
-    """Spherical covariance stable between the two epochs, Cartesian not (seed 003 Table 1).
+    """Spherical covariance stable between the two epochs, Cartesian not (Xing et al. Table 1).
 
     The Cartesian x-row moves by many of its own sigmas because the 10 m x 4 mm error
     ellipsoid turns with the estimated direction (0.01 rad between epochs)."""

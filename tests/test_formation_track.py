@@ -121,7 +121,7 @@ def test_isam2_single_threshold_starves_spherical(short_case):
 
 
 def test_isam2_cholesky_refuses():
-    """GTSAM-NOTES: Cholesky throws on this ill-conditioned chain; QR is required."""
+    """GTSAM's Cholesky elimination throws on this ill-conditioned chain; QR is required."""
     sc = FormationScenario(duration_s=30.0, step_s=10.0)
     sim = simulate_formation(sc, np.random.default_rng(1))
     with pytest.raises(RuntimeError, match="Indeterminant|Indeterminate"):

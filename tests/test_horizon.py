@@ -1,4 +1,4 @@
-"""Horizon estimators (seed 000 ellipse fit, Christian–Robinson): exactness on ideal limb
+"""Horizon estimators (Wu et al. ellipse fit, Christian–Robinson): exactness on ideal limb
 points, analytic Jacobians vs central differences, covariance vs Monte Carlo scatter."""
 
 import numpy as np
@@ -51,7 +51,7 @@ def test_exact_on_ideal_limb(method):
 
 
 def test_ellipse_sign_convention_and_geometry():
-    """The seed's eqs. 3-8 on the virtual image plane: u_cam = [xe, ye, f]/norm points to the
+    """Wu et al.'s eqs. 3-8 on the virtual image plane: u_cam = [xe, ye, f]/norm points to the
     pixel where the Earth centre projects (OpenCV axes, no minus signs)."""
     pts, u, rho = limb_points(C_OFFAXIS)
     fix = horizon_ellipse(pts, CAM)

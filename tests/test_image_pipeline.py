@@ -1,7 +1,7 @@
-"""Image pipeline end to end (issue 6 part 5): `fgnav simulate --images` -> `fgnav extract`
+"""Image pipeline end to end : `fgnav simulate --images` -> `fgnav extract`
 -> `fgnav smooth`, compared with the smoother fed ideal measurements of the same noise.
 
-Pass: built-in ``geo-limb`` (GEO, seed 000 sensor: the whole limb in one 30.5° UV
+Pass: built-in ``geo-limb`` (GEO, Wu et al. sensor: the whole limb in one 30.5° UV
 sub-aperture, 12.85° star field), 1 h, one epoch every 120 s, seed 3. Truth from the
 independent DOP853 integrator (truth.oem).
 """
@@ -97,7 +97,7 @@ def test_per_frame_covariances_are_honest(pass_dir, extraction):
     assert 0.3 < np.mean(z_att) < 3 + 4 * np.sqrt(6 / n)
     assert 0.3 < np.mean(z_dir) < 2 + 4 * np.sqrt(4 / n)
     assert abs(np.mean(z_rho)) < 4 / np.sqrt(n) and 0.4 < np.std(z_rho) < 1.5
-    # the direction sigma is ~1 arcsec (attitude roll dominates), rho ~0.3 arcsec (seed 000
+    # the direction sigma is ~1 arcsec (attitude roll dominates), rho ~0.3 arcsec (Wu et al.
     # full-circle class: 0.007 deg 2-sigma for the ellipse fit)
     assert np.degrees(np.median([e.sigma_dir_rad for e in extraction.epochs])) < 5e-4
 
@@ -243,7 +243,7 @@ def test_frames_index_errors(tmp_path, pass_dir):
 
 
 def test_attitude_csv_round_trips_and_its_covariance_is_credible(pass_dir, tmp_path):
-    """fgnav extract --attitude-out: the star-derived attitude per epoch (issue 5 part 3),
+    """fgnav extract --attitude-out: the star-derived attitude per epoch,
     read back and compared with the true attitude of each star frame."""
     import gtsam
 

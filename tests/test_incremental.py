@@ -1,8 +1,7 @@
-"""The incremental solvers' speed settings keep their answers (issue 3, "the accuracy
-unchanged by the speed work"): iSAM2 with the partial relinearization check and 1 km / 1 m/s
-thresholds ends at the batch solution, the fixed-lag smoother's block read-out reports
-covariances between the filtered and the fully smoothed ones, and the paused garbage
-collector comes back."""
+"""The incremental solvers' speed settings keep their answers: iSAM2 with the partial
+relinearization check and 1 km / 1 m/s thresholds ends at the batch solution, the fixed-lag
+smoother's block read-out reports covariances between the filtered and the fully smoothed ones, and
+the paused garbage collector comes back."""
 
 import gc
 

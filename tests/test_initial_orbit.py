@@ -38,7 +38,8 @@ def _pass(name, seed, **kw):
     sim = simulate_pass(load_scenario(name).with_options(**kw), seed=seed)
     log = sim.log
     if len(log.select("sun_direction_body")):
-        from fgnav.sun_earth_moon import preprocess_log  # seed 001 LEO: TRIAD attitude, ECI directions
+        # the INS/CNS lecture's LEO: TRIAD attitude, ECI directions
+        from fgnav.sun_earth_moon import preprocess_log
         log = preprocess_log(log)[0]
     return sim, build_pass(log)
 

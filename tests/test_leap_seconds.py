@@ -86,7 +86,8 @@ def test_tdm_epochs_in_the_leap_second(tmp_path):
 
 
 def _leap_scenario(epoch: str) -> str:
-    """The built-in gto-transfer scenario (seed 002 orbit, direction only), 1 h from ``epoch``."""
+    """The built-in gto-transfer scenario (Pan & Yao 2017 orbit, direction only), 1 h from
+    ``epoch``."""
     from fgnav.paths import data_dir
 
     text = (data_dir() / "scenarios" / "gto-transfer.toml").read_text()

@@ -22,7 +22,7 @@ def _check_table3(rows, factor):
         el = rows[(case, "ellipse")]
         sx, sy, sa = TABLE3_SEED[case]
         assert el["n_ok"] >= 0.9 * el["n_runs"]
-        # seed 000, table 3: same magnitude within a factor of two (ellipse fit)
+        # Wu et al., table 3: same magnitude within a factor of two (ellipse fit)
         assert 1 / factor < el["angle_2sigma_deg"] / sa < factor, (case, el["angle_2sigma_deg"], sa)
         assert 1 / factor < np.hypot(el["sigma_x_px"], el["sigma_y_px"]) / np.hypot(sx, sy) < factor, case
     # same ordering: full < 2/3 < 1/2 < 1/3, symmetric arcs comparable to the full circle
@@ -38,13 +38,13 @@ def _check_table3(rows, factor):
 
 
 def test_table3_reduced(t3_reduced):
-    """Seed 000, table 3, 30 rendered frames per case (the seed uses 500)."""
+    """Wu et al., table 3, 30 rendered frames per case (they use 500)."""
     _check_table3(t3_reduced, factor=2.0)
 
 
 @pytest.mark.slow
 def test_table3_full():
-    """Seed 000, table 3 with the seed's 500 fits per case."""
+    """Wu et al., table 3 with their 500 fits per case."""
     rows = {(r["case"], r["method"]): r for r in table3(n_runs=500, seed=1)}
     _check_table3(rows, factor=2.0)
 
@@ -82,8 +82,8 @@ def test_table5_closed_forms_match_simulation():
 
 
 def test_table5_against_seed():
-    """Seed 000, table 5: at 4,000 km the seed's 0.005-0.010° entries are |r| * dtheta (within
-    5 %); the 0.001° row is ~1.15 |r| dtheta at every altitude; above 4,000 km the seed's
+    """Wu et al., table 5: at 4,000 km Wu et al.'s 0.005-0.010° entries are |r| * dtheta (within
+    5 %); the 0.001° row is ~1.15 |r| dtheta at every altitude; above 4,000 km Wu et al.'s
     0.005-0.010° entries fall below |r| sin(dtheta), the distance from the true position to
     the erroneous line of sight, so no range estimate could reach them."""
     rows = {(r["alt_km"], r["angle_error_deg"]): r for r in table5()}

@@ -1,4 +1,4 @@
-"""Nothing lost (issue 4): outputs replaced as a set or not at all; iSAM2 checkpoint/resume."""
+"""Nothing lost: outputs replaced as a set or not at all; iSAM2 checkpoint/resume."""
 
 import os
 import signal

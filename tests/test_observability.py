@@ -1,4 +1,4 @@
-"""Observability matrix (seed 002 eq. 9, table 4) and information eigen-directions."""
+"""Observability matrix (Pan & Yao 2017 eq. 9, table 4) and information eigen-directions."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from fgnav.analysis.observability import (analyze_observability, describe_direct
                                           window_information)
 from fgnav.scenarios import load_scenario
 
-X0 = np.array(load_scenario("gto-transfer").x0_eci)   # seed 002's initial state
+X0 = np.array(load_scenario("gto-transfer").x0_eci)   # Pan & Yao 2017's initial state
 
 
 def _direction_after(x0, t, u_ref):
@@ -57,7 +57,7 @@ def test_pan_yao_table4_rank_six_at_every_period():
 
 
 def test_condition_vs_period_and_fixed_window_information():
-    """What we find for seed 002 table 4 (differences explained in the study's notes): cond(M)
+    """What we find for Pan & Yao 2017 table 4 (differences explained in the study's notes): cond(M)
     of eq. 9 with 6 blocks *falls* with T (the blocks become alike as Phi -> I); over a fixed
     window the weakest direction's 1-sigma grows with T (shorter periods observe better)."""
     periods = (0.1, 1.0, 10.0, 100.0)

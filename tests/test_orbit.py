@@ -15,13 +15,14 @@ from fgnav.orbit import (
     mean_to_true_anomaly, rtn_frame, state_to_elements, true_to_mean_anomaly, truth_acceleration,
 )
 
-# Seed 002 (SPEC "Reference scenarios"): r0, v0 of the transfer orbit, ECI, m and m/s.
+# Pan & Yao 2017, sec. 3.1: r0, v0 of the transfer orbit, ECI, m and m/s.
 X_GTO = np.array([6509244.371304875, 0.0, 3713244.835519765,
                   -3737.397235776740, 0.0, 8790.602460568101])
-# The seed's r0/v0 are consistent with GM = 3.986005e14 (a comes out 26,332,438.2 m, the
+# Pan & Yao 2017's r0/v0 are consistent with GM = 3.986005e14 (a comes out 26,332,438.2 m, the
 # stated 26,332,437.9 m to 0.3 m); with the EGM2008 GM, a is 23 m larger.
 MU_PAN_YAO_M3_S2 = 3.986005e14
-LEO_ELEMENTS = (R_EARTH_M + 504e3, 0.0011, 97 * DEG, 77 * DEG, 55 * DEG, 10 * DEG)  # seed 001
+# the INS/CNS lecture's LEO
+LEO_ELEMENTS = (R_EARTH_M + 504e3, 0.0011, 97 * DEG, 77 * DEG, 55 * DEG, 10 * DEG)
 
 
 def _wrap(a):
@@ -89,7 +90,7 @@ def test_bad_elements_raise_user_error():
 
 def test_truth_matches_analytic_kepler_on_gto():
     """Two-body truth (j2=False) vs the closed-form Kepler solution over 12 h (one orbit plus,
-    through perigee) on the seed-002 transfer orbit."""
+    through perigee) on the Pan & Yao 2017 transfer orbit."""
     t = np.linspace(0.0, 12 * 3600.0, 25)
     truth = integrate_truth(X_GTO, t, j2=False)
     el = state_to_elements(X_GTO)
@@ -104,7 +105,8 @@ def test_truth_matches_analytic_kepler_on_gto():
 
 
 def test_truth_j2_raan_drift_matches_secular_theory():
-    """Seed-001 sun-synchronous-like LEO: RAAN drifts at -3/2 n J2 (Re/p)^2 cos i (~0.93 deg/day)."""
+    """The INS/CNS lecture's sun-synchronous-like LEO: RAAN drifts at -3/2 n J2 (Re/p)^2 cos i
+    (~0.93 deg/day)."""
     a, e, i = LEO_ELEMENTS[:3]
     x0 = elements_to_state(*LEO_ELEMENTS)
     x1 = integrate_truth(x0, np.array([86400.0]))[0]

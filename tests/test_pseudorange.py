@@ -1,4 +1,4 @@
-"""Inter-satellite pseudorange / carrier-phase model (factors.pseudorange; seed 003 eq. (1))."""
+"""Inter-satellite pseudorange / carrier-phase model (factors.pseudorange; Xing et al. eq. (1))."""
 
 import numpy as np
 import pytest

@@ -1,7 +1,7 @@
-"""Starlight-refraction scheme (seed 004 = CN104236546B; issue 8): simulation, the three-star
+"""Starlight-refraction scheme (Li et al. 2017, patent CN104236546B): simulation, the three-star
 cone fix (claim 1 step 5), the sigma used by the graph, and the error budget by source.
 
-Figures: MADAN 100 m (1σ) (seed 001's heritage list, SPEC "Seed 001").
+Figures: MADAN 100 m (1σ) (the INS/CNS lecture's heritage list).
 """
 
 import dataclasses
@@ -94,7 +94,7 @@ def test_simulated_rows_geometry_and_determinism(short_sim):
 
 def test_simulated_noise_matches_graph_sigma(short_sim):
     """Whitened residuals at truth (linearize_refraction with the line-of-sight term) have
-    unit variance: the seed's uniform angle error and the model error are what the graph
+    unit variance: Li et al. 2017's uniform angle error and the model error are what the graph
     assumes."""
     p = build_pass(short_sim.log)
     x = short_sim.x_true[np.searchsorted(short_sim.t_s, p.t_s)]
@@ -103,7 +103,7 @@ def test_simulated_noise_matches_graph_sigma(short_sim):
     assert len(b) > 2000
     assert np.var(b) == pytest.approx(1.0, abs=0.12)  # sampling 1σ ~ 0.035
     assert abs(np.mean(b)) < 0.1
-    # the sigma includes |r.s| sec^2(gamma): larger than the seed's H/gamma-only value
+    # the sigma includes |r.s| sec^2(gamma): larger than Li et al. 2017's H/gamma-only value
     los = np.abs(np.sum(x[fam.k, :3] * fam.values["s_eci"], axis=1))
     np.testing.assert_allclose(refraction_sigma(fam, x), refraction_sigma_m(
         fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"], los_range_m=los))

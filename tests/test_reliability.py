@@ -1,4 +1,4 @@
-"""Sensor faults and numerical trouble (issue 4): outliers, gating, gaps, unobservable logs."""
+"""Sensor faults and numerical trouble: outliers, gating, gaps, unobservable logs."""
 
 import numpy as np
 import pytest
@@ -93,7 +93,7 @@ def _truth_at(sim, t_s):
 
 
 def test_a_one_hour_gap_is_bridged_by_the_smoother_with_nees_in_band():
-    """A 4-hour pass with a 1-hour gap in the middle (issue 4). The smoother fills the gap
+    """A 4-hour pass with a 1-hour gap in the middle. The smoother fills the gap
     with state epochs. With the near-deterministic motion model (q = 1e-12) the smoothed
     covariance is that of the whole orbit: losing a quarter of the data widens it by about
     sqrt(4/3) everywhere rather than locally (the online covariance grows in the gap and

@@ -1,4 +1,4 @@
-"""Built-in studies: seed 002 tables 2-4 and visibility bound, seed 000 table 5, NEES study.
+"""Built-in studies: Pan & Yao 2017 tables 2-4 and visibility bound, Wu et al. table 5, NEES study.
 
 The quick studies run in the default suite; the Monte Carlo ones are ``slow``
 (``pytest -m slow tests/test_studies.py``, or ``fgnav campaign NAME --out DIR``).
@@ -47,7 +47,8 @@ def test_gto_transfer_never_in_band_and_leo_always():
 
 
 def test_wu_table5_study(tmp_path):
-    """Seed 000 table 5 via fgnav.analysis.limb_method_study (one command, table beside the seed's values)."""
+    """Wu et al.'s table 5 via fgnav.analysis.limb_method_study (one command, the table beside
+    theirs)."""
     out = tmp_path / "t5"
     assert main(["campaign", "seed000-table5", "--out", str(out), "--workers", "1", "--quiet"]) == 0
     rows = _table(out)

@@ -1,7 +1,7 @@
-"""Sun/Earth/Moon scheme (seed 001; issue 8): the seed's triangle (Moon parallax), TRIAD
-attitude, direct fix with covariance, preprocessing, and the seed's comparison table.
+"""Sun/Earth/Moon scheme (the INS/CNS lecture): the lecture's triangle (Moon parallax), TRIAD
+attitude, direct fix with covariance, preprocessing, and the lecture's comparison table.
 
-Seed 001 figures (SPEC "Seed 001"): direct fixes 2,218 m; EKF 170.1429 m / 0.2798 m/s.
+The INS/CNS lecture's figures: direct fixes 2,218 m; EKF 170.1429 m / 0.2798 m/s.
 """
 
 import math
@@ -79,8 +79,9 @@ def test_noise_free_attitude_and_fix_are_exact():
 
 
 def test_direct_fix_covariance_matches_monte_carlo():
-    """The folded covariance (altimeter + Earth sensor + TRIAD attitude through the seed's
-    triangle) against 20,000 noisy realizations at one geometry, seed-001 sensor noise."""
+    """The folded covariance (altimeter + Earth sensor + TRIAD attitude through the lecture's
+    triangle) against 20,000 noisy realizations at one geometry, the INS/CNS lecture sensor
+    noise."""
     n = 20000
     rng = np.random.default_rng(1)
     t, r, R, rs, rm, Ls, Lm, Le = _geometry(1, seed=5)
@@ -133,7 +134,7 @@ def test_visibility_and_preprocessing():
 
 
 def test_ins_cns_lecture_table_direct_ekf_smoother():
-    """leo-sun-earth-moon, 12 h: direct fixes near the seed's 2,218 m (and at their own
+    """leo-sun-earth-moon, 12 h: direct fixes near the lecture's 2,218 m (and at their own
     predicted 1σ), the EKF near or below 170.1 m / 0.28 m/s once converged, the smoother
     clearly below the EKF; all three in one table."""
     r = sem_study(seed=0)

@@ -1,4 +1,4 @@
-"""Limb renderer, limb-point extraction, RANSAC, seed-000 sensor geometry, `fgnav limb`."""
+"""Limb renderer, limb-point extraction, RANSAC, Wu et al. sensor geometry, `fgnav limb`."""
 
 import json
 
@@ -56,10 +56,10 @@ def test_extraction_recovers_truth_high_snr():
     pts, cr, el = _fit(frame, CAM)
     assert pts.inlier.sum() > 400
     assert np.linalg.norm(cr.centre_px - frame.centre_px) < 0.02
-    # The seed's eqs. 4-5 scale only the major-axis component of the ellipse centre (by
+    # Wu et al.'s eqs. 4-5 scale only the major-axis component of the ellipse centre (by
     # ~cos^2 rho); near the boresight the ellipse is almost a circle, phi is ill-defined,
     # and up to (sec^2 rho - 1) * offset of the centre offset is misplaced: a property of
-    # the seed's method, not of the extraction (CR above has no such term).
+    # Wu et al.'s method, not of the extraction (CR above has no such term).
     offset = np.linalg.norm(frame.centre_px - [CAM.cx, CAM.cy])
     tol_el = 0.02 + (1 / np.cos(scene.rho_rad) ** 2 - 1) * offset
     assert np.linalg.norm(el.centre_px - frame.centre_px) < tol_el

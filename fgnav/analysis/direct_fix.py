@@ -1,11 +1,11 @@
 """Direct (single-epoch, geometric) position fixes: the classical baselines beside the smoother.
 
-Seed 004 (CN104236546B, claim 1 step 5): position from three refracted stars.
+Li et al. 2017 (CN104236546B, claim 1 step 5): position from three refracted stars.
 51) The three catalogue directions ``s_i`` are generators of a cone with apex at the
     spacecraft; its axis ``c`` (``O_b E``) is the normal of the plane through the three unit
     vectors, ``c = (s2 - s1) x (s3 - s1)/|.|`` (sign: ``c . s_i > 0``), half-angle
     ``eta = acos(c . s1)``.
-52) Frame ``F_d``: ``Z_d = c`` and ``X_d, Y_d`` completing it (the seed's rotations
+52) Frame ``F_d``: ``Z_d = c`` and ``X_d, Y_d`` completing it (Li et al. 2017's rotations
     ``R_Y(delta_c - 90 deg) R_Z(-alpha_c)``; any completion gives the same fix); star ``i``
     has azimuth ``alpha_i`` in ``F_d``.
 53) Unknowns ``zeta, xi, alpha``: ``zeta^2 + xi^2 - 2 zeta xi cos(alpha - alpha_i) = a_i^2``,
@@ -21,12 +21,12 @@ when the Earth centre lies on the cone axis (``zeta = 0``) and a first-order
 approximation otherwise; ``d_i`` itself is ``R_e + h_i - |r.s_i| tan(gamma_i)`` in the
 refraction model. The closed form is therefore refined by Gauss-Newton on the refraction
 residuals of ``factors.refraction`` (3 equations, 3 unknowns), from each candidate; the
-candidate closest to a reference position (e.g. the a-priori orbit: the seed's "remove the
+candidate closest to a reference position (e.g. the a-priori orbit: Li et al. 2017's "remove the
 redundant points with the previous orbit") is kept. With more than three stars in view the
 triple of smallest position DOP at the reference is used.
 
-Seed 001's direct fix, ``r = -(R_e + H) C_b^i L_we``, is :mod:`fgnav.sun_earth_moon`; here
-:func:`sem_direct_fixes` runs it over a log.
+The INS/CNS lecture's direct fix, ``r = -(R_e + H) C_b^i L_we``, is :mod:`fgnav.sun_earth_moon`;
+here :func:`sem_direct_fixes` runs it over a log.
 """
 
 from __future__ import annotations

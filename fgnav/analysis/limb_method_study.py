@@ -1,25 +1,25 @@
 """Seed 000 studies: table 3 (limb completeness vs centre accuracy) and table 5 (direct
 positioning error vs altitude and geocentric-vector angle error).
 
-Table 3 (seed 000, sec. 4.1). Monte Carlo on rendered limb frames
-(:mod:`fgnav.simulate.limb_render`) through one seed-000 sub-aperture (f = 18 mm, 11 µm,
+Table 3 (Wu et al., sec. 4.1). Monte Carlo on rendered limb frames
+(:mod:`fgnav.simulate.limb_render`) through one Wu et al. sub-aperture (f = 18 mm, 11 µm,
 Φ9.8 mm = 891 px image circle), Earth centre on the boresight at 20,000 km altitude (the
 whole limb, rho = 14.0°, 408 px, fits in the 30.5° field), seed detector (90 ke- full
 well, 1.43 e- read noise, 16 bit), Gaussian PSF 1 px. Cases: full circle; one arc of
 2/3, 1/2, 1/3 of the limb starting at position angle 15° (from image +u towards +v; the
-seed gives no orientation: this one puts the dominant error axes where the seed's x/y
+seed gives no orientation: this one puts the dominant error axes where Wu et al.'s x/y
 split has them); four symmetric 75° arcs centred on the diagonals (the four
 sub-apertures of fig. 9). The seed does not state its image
 noise; the limb signal is the one calibrated parameter (:data:`TABLE3_SIGNAL_E` = 5 e-
 per pixel, i.e. a very faint / short-exposure UV limb, SNR ~2 per pixel), chosen so that
-the ellipse fit on the full circle gives the seed's ~0.08 px scatter. The arcs are
-then predictions. Statistics as in the seed (sec. 4.3: the mean of the runs is taken as
+the ellipse fit on the full circle gives Wu et al.'s ~0.08 px scatter. The arcs are
+then predictions. Statistics as in Wu et al. (sec. 4.3: the mean of the runs is taken as
 the reference): centre scatter (std, px) of the Earth-centre image point and the
 "geocentric vector angle error (2 sigma)" = 2 * RMS angle between each estimate and the
 mean direction (deg). The angle RMS about the truth, the mean predicted 1-sigma, and
 normalized-error variances (covariance credibility) are reported beside.
 
-Table 5 (seed 000, sec. 4.3). Definition of "direct positioning error" used here: the
+Table 5 (Wu et al., sec. 4.3). Definition of "direct positioning error" used here: the
 position is ``r = -(R/sin rho) u`` (seed eq. 12); with the true range and ``u`` off by the
 angle error ``dtheta`` the error is ``|r_hat - r| = 2 |r| sin(dtheta/2) ~ |r| dtheta``
 (``ours_direction_km``). Adding the range error from the limb radius, with a 1-sigma rho

@@ -1,6 +1,6 @@
-"""Observability of the linearized orbit system over a window (seed 002, sec. 3.3).
+"""Observability of the linearized orbit system over a window (Pan & Yao 2017, sec. 3.3).
 
-Seed 002 treats the nonlinear time-varying system as piecewise linear time-invariant
+Pan & Yao 2017 treats the nonlinear time-varying system as piecewise linear time-invariant
 and forms the observability matrix (seed eq. 9)
 
     M = [H_0; H_1 Phi(t_1, t_0); ...; H_{n-1} Phi(t_{n-1}, t_0)],   t_j = t_0 + j T,
@@ -53,7 +53,7 @@ def observability_matrix(x0_eci, period_s: float, n_samples: int = 6, model=None
                          t0_j2000_s: float = 0.0) -> np.ndarray:
     """Seed 002 eq. 9 for geocentric-direction measurements: (2 n, 6), rad per SI state unit.
 
-    ``x0_eci`` (6,) [m, m/s] is the linearization point (the seed uses its initial state),
+    ``x0_eci`` (6,) [m, m/s] is the linearization point (Pan & Yao 2017 use the initial state),
     ``period_s`` the sample period T, ``n_samples`` the number of blocks.
     """
     if period_s <= 0 or n_samples < 1:

@@ -1,18 +1,19 @@
-"""The two celestial-navigation schemes of issue 8 as studies: one table each.
+"""Studies of two celestial-navigation schemes, starlight refraction and Sun/Earth/Moon:
+one table each.
 
-Starlight refraction (seed 004, built-in scenario ``refraction-leo``): the error budget of
+Starlight refraction (Li et al. 2017, built-in scenario ``refraction-leo``): the error budget of
 the patent, split by source -- the refraction-angle error alone, the atmosphere-model error
-alone, both -- for the classical direct fix (three refracted stars, seed 004 step 5,
-:func:`fgnav.analysis.direct_fix.refraction_direct_fix`), the EKF (seed 004 step 6) and the
-batch smoother. Reference: MADAN, 100 m (1σ) (seed 001's heritage list).
+alone, both -- for the classical direct fix (three refracted stars, Li et al. 2017 step 5,
+:func:`fgnav.analysis.direct_fix.refraction_direct_fix`), the EKF (Li et al. 2017 step 6) and the
+batch smoother. Reference: MADAN, 100 m (1σ) (the INS/CNS lecture's heritage list).
 
-Sun/Earth/Moon (seed 001, built-in scenario ``leo-sun-earth-moon``): the direct
+Sun/Earth/Moon (the INS/CNS lecture, built-in scenario ``leo-sun-earth-moon``): the direct
 (geometric) fixes ``r = -(R_e + H) C_b^i L_we``, the EKF and the smoother on the
-preprocessed log (:func:`fgnav.sun_earth_moon.preprocess_log`), beside the seed's figures (direct
-2,218 m; EKF 170.1 m / 0.2798 m/s).
+preprocessed log (:func:`fgnav.sun_earth_moon.preprocess_log`), beside the INS/CNS lecture's figures
+(direct 2,218 m; EKF 170.1 m / 0.2798 m/s).
 
 Metrics against the truth of the independent DOP853 integrator: RMS of the position /
-velocity error norm over the pass, and for the EKF also after ``settle_s`` (the seed's
+velocity error norm over the pass, and for the EKF also after ``settle_s`` (the INS/CNS lecture's
 figures are the filter's converged level; the initial 10 km / 10 m/s transient would
 otherwise dominate). Direct fixes: RMS and median of the error norm over the epochs where
 a fix exists, and the RMS of the predicted 1σ (trace of the fix covariance).
@@ -52,7 +53,7 @@ SEM_SOURCE_FIGURES = {"direct_m": 2218.0, "ekf_position_m": 170.1429, "ekf_veloc
 """Seed 001's results: direct fixes 2,218 m; EKF 170.1429 m, 0.2798 m/s."""
 
 MADAN_POSITION_M = 100.0
-"""MADAN (starlight refraction) orbit accuracy, 1σ, m (seed 001's heritage list)."""
+"""MADAN (starlight refraction) orbit accuracy, 1σ, m (the INS/CNS lecture's heritage list)."""
 
 
 def _estimate(p, x_true_at, options, settle_s):
@@ -158,16 +159,16 @@ def format_refraction_table(rows) -> str:
             f"{r['batch_position_rms_m']:>9.1f} {r['batch_velocity_rms_mps']:>10.4f} "
             f"{r['batch_sigma_position_rms_m']:>9.1f} {r['batch_nees_mean']:>6.2f}")
     lines.append(f"\nRMS over the pass (EKF*: after the first {rows[0]['settle_s']:.0f} s); direct fixes: three "
-                 f"refracted stars (seed 004 step 5), best-DOP triple; σ pred: the smoother's RMS "
-                 f"1σ (the budget). MADAN: "
+                 f"refracted stars (Li et al. 2017 step 5), best-DOP triple; "
+                 f"σ pred: the smoother's RMS 1σ (the budget). MADAN: "
                  f"{MADAN_POSITION_M:.0f} m (1σ).")
     return "\n".join(lines)
 
 
 def format_sem_table(r) -> str:
-    """The Sun/Earth/Moon comparison (ours vs seed 001) as text."""
+    """The Sun/Earth/Moon comparison (ours vs the INS/CNS lecture) as text."""
     s = r["seed_figures"]
-    head = f"{'estimator':<28} {'position m':>11} {'velocity m/s':>13} {'seed 001':>16}"
+    head = f"{'estimator':<28} {'position m':>11} {'velocity m/s':>13} {'INS/CNS lecture':>16}"
     lines = [head, "-" * len(head),
              f"{'direct fix (TRIAD + H)':<28} {r['fix_rms_m']:>11.1f} {'-':>13} "
              f"{s['direct_m']:>11.0f} m",

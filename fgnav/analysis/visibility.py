@@ -8,7 +8,7 @@ when ``theta1 <= rho <= theta2``, i.e. (seed eq. 1)
 
     R / sin(theta2) - R <= h <= R / sin(theta1) - R,       h = r - R.
 
-The seed's band (98.3, 985.6) km is reproduced with R = 6,371 km (the mean Earth radius);
+Pan & Yao 2017's band (98.3, 985.6) km is reproduced with R = 6,371 km (the mean Earth radius);
 R = 6,375 km (its limb radius elsewhere) gives (98.3, 986.2) km.
 """
 
@@ -23,7 +23,7 @@ from fgnav.orbit import elements_to_state
 from fgnav.scenarios import Scenario, SensorSpec, load_scenario
 
 R_SEED_VISIBILITY_M = 6_371_000.0
-"""Earth radius that reproduces seed 002's printed band (98.3-985.6 km)."""
+"""Earth radius that reproduces Pan & Yao 2017's printed band (98.3-985.6 km)."""
 SEED_BAND_KM = (98.3, 985.6)
 SEED_RING_DEG = (120.0, 160.0)
 
@@ -51,7 +51,7 @@ def ring_sees_limb(r_eci_m, ring_deg=SEED_RING_DEG, r_earth_m: float = R_SEED_VI
 
 
 def ring_needed_deg(h_min_m: float, h_max_m: float, r_earth_m: float = R_SEED_VISIBILITY_M) -> tuple[float, float]:
-    """Full ring angles (deg) needed to see the whole limb from h_min to h_max (m): the seed's
+    """Full ring angles (deg) needed to see the whole limb from h_min to h_max (m): Pan & Yao 2017's
     17-120 deg for 1,000-36,000 km."""
     lo = 2.0 * limb_half_angle_rad(r_earth_m + h_max_m, r_earth_m) / DEG
     hi = 2.0 * limb_half_angle_rad(r_earth_m + h_min_m, r_earth_m) / DEG
@@ -68,7 +68,7 @@ VISIBILITY_ORBITS = {
     "leo-500": (500.0, 500.0, 97.0, 2.0),
     "heo-300x3000": (300.0, 3000.0, 63.4, 4.0),
 }
-"""Orbits of the visibility study besides ``gto-transfer`` (seed 002's own orbit, whose
+"""Orbits of the visibility study besides ``gto-transfer`` (Pan & Yao 2017's own orbit, whose
 perigee, ~995 km, is just above the band: the ring never sees the whole limb)."""
 
 

@@ -1,4 +1,4 @@
-"""``fgnav demo``: simulate the seed-002 orbit-transfer pass, estimate it, print the table."""
+"""``fgnav demo``: simulate the Pan & Yao 2017 orbit-transfer pass, estimate it, print the table."""
 
 from fgnav.commands import _types as T
 
@@ -7,9 +7,9 @@ def register(sub):
     from fgnav.commands.smooth import add_solver_options
 
     p = sub.add_parser("demo", help="simulate gto-transfer, smooth it, print the accuracy table",
-                       description="Simulate the built-in gto-transfer scenario (seed 002: e = 0.72, "
-                                   "geocentric direction 0.01 deg, 4 h), estimate it with the batch "
-                                   "smoother, iSAM2 and the EKF, and print accuracy against truth.")
+                       description="Simulate the built-in gto-transfer scenario (Pan & Yao 2017: "
+                                   "e = 0.72, geocentric direction 0.01 deg, 4 h), estimate it with the "
+                                   "batch smoother, iSAM2 and the EKF, and print accuracy against truth.")
     p.add_argument("--scenario", default="gto-transfer", help="built-in name or scenario .toml")
     p.add_argument("--step-s", type=T.pos("s"), default=10.0, help="measurement period (s, default 10)")
     p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's)")
@@ -81,6 +81,6 @@ def run(args) -> int:
           f"{crb['crb_final_position_m']:>12.1f} {crb['crb_final_velocity_mps']:>13.4f}")
     print("\nRMS over the pass against truth from an independent DOP853 integrator; NEES is the "
           "mean over epochs (6 expected);\nthe EKF row is the filtered (causal) estimate, the "
-          "smoothers use all the data. Seed 002's EKF ended at 1.23 km / 0.17 m/s (10 Hz).\n"
+          "smoothers use all the data. Pan & Yao 2017's EKF ended at 1.23 km / 0.17 m/s (10 Hz).\n"
           "integrity: the verdict from the data alone (summary.json 'integrity'; README, Integrity).")
     return 0

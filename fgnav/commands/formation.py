@@ -1,7 +1,7 @@
-"""``fgnav formation``: inter-satellite pseudorange relative navigation (seed 003).
+"""``fgnav formation``: inter-satellite pseudorange relative navigation (Xing et al.).
 
 Subcommands:
-- ``conditioning``: Cartesian vs spherical conditioning on seed 003's geometry (rcond of
+- ``conditioning``: Cartesian vs spherical conditioning on Xing et al.'s geometry (rcond of
   A^T A, covariance at two epochs, Monte Carlo 1-sigma coverage of the range).
 - ``track``: time-series case (CW relative orbit of 1 km), batch or iSAM2 smoother; writes
   ``DIR/trajectory.csv`` and ``DIR/summary.json`` (and a Rerun recording when asked).
@@ -18,7 +18,7 @@ MAX_TRACK_EPOCHS = 1000
 
 def register(subparsers):
     p = subparsers.add_parser("formation", help="formation relative navigation from "
-                              "inter-satellite pseudoranges (seed 003)",
+                              "inter-satellite pseudoranges (Xing et al.)",
                               description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="formation_command", metavar="SUBCOMMAND")
 
@@ -28,7 +28,7 @@ def register(subparsers):
                    help="Monte Carlo runs for the 1-sigma coverage of R (default 5000)")
     c.add_argument("--seed", type=T.seed, default=0, help="random seed (default 0)")
     c.add_argument("--sigma-cm", type=T.pos("cm"), default=1.0,
-                   help="pseudorange noise, 1 sigma, cm (default 1 cm, seed 003)")
+                   help="pseudorange noise, 1 sigma, cm (default 1 cm, Xing et al.)")
     c.set_defaults(func=run_conditioning)
 
     t = sub.add_parser("track", help="time-series relative navigation on a 1 km CW orbit")

@@ -19,7 +19,7 @@ correction is made. The ellipse method is never corrected: its conic fit has an 
 bias of about the same size that already cancels the locator's.
 
 --json prints one object with the keys:
-  method            "ellipse" (seed 000 conic fit) or "christian-robinson"
+  method            "ellipse" (Wu et al. conic fit) or "christian-robinson"
   u_cam             unit vector camera -> Earth centre, camera frame [3]
   rho_rad           apparent angular radius of the limb sphere (rad)
   range_m           distance to the Earth's centre, R_limb / sin(rho) (m)
@@ -52,7 +52,7 @@ def register(subparsers) -> None:
     p.add_argument("--method", choices=("ellipse", "christian-robinson"), default="christian-robinson",
                    help="horizon estimator (default: christian-robinson)")
     p.add_argument("--r-limb-km", type=T.pos("km"), default=6375.0,
-                   help="limb sphere radius (km; default 6375, the seed's UV limb)")
+                   help="limb sphere radius (km; default 6375, the UV limb of Wu et al.)")
     p.add_argument("--psf-px", type=float, default=None,  # checked in run metavar="SIGMA",
                    help="optics PSF 1-sigma (px): correct the christian-robinson edge-curvature "
                         "bias (see above; default: unknown, no correction)")

@@ -1,4 +1,5 @@
-"""``fgnav schemes``: the seed-004 refraction budget and the seed-001 Sun/Earth/Moon table."""
+"""``fgnav schemes``: the Li et al. 2017 refraction budget and the INS/CNS lecture Sun/Earth/Moon
+table."""
 
 from fgnav.commands import _types as T
 
@@ -6,9 +7,10 @@ from fgnav.commands import _types as T
 def register(sub):
     p = sub.add_parser("schemes", help="starlight-refraction / Sun-Earth-Moon scheme tables",
                        description="Simulate a built-in scheme and print its table against truth: "
-                                   "'refraction' (seed 004, refraction-leo: error budget by source, "
-                                   "direct three-star fix, EKF, smoother) or 'sun-earth-moon' "
-                                   "(seed 001, leo-sun-earth-moon: direct fix, EKF, smoother).")
+                                   "'refraction' (Li et al. 2017, refraction-leo: error budget by "
+                                   "source, direct three-star fix, EKF, smoother) or "
+                                   "'sun-earth-moon' (the INS/CNS lecture, leo-sun-earth-moon: direct "
+                                   "fix, EKF, smoother).")
     p.add_argument("scheme", choices=["refraction", "sun-earth-moon"])
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed (default 0)")
     p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's)")

@@ -28,8 +28,8 @@ def register(sub):
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
-                        "seed 000 sensor, Earth-pointing plan) into DIR/frames/ with the index "
-                        "DIR/frames.csv (input of `fgnav extract`)")
+                        "Wu et al.'s confocal sensor, Earth-pointing plan) into DIR/frames/ with "
+                        "the index DIR/frames.csv (input of `fgnav extract`)")
     p.add_argument("--image-period-s", type=T.pos("s"),
                    help="image period (s, > 0; default the measurement period)")
     p.set_defaults(func=run)

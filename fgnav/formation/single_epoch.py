@@ -1,14 +1,14 @@
 """Single-epoch relative position + clock from six inter-satellite pseudoranges.
 
 Gauss–Newton least squares for the 4 unknowns ``(r, c dt)`` with ``r`` Cartesian
-``(x, y, z)`` m or spherical ``(R m, az rad, el rad)`` (seed 003 sections 1.4 and 2, its
+``(x, y, z)`` m or spherical ``(R m, az rad, el rad)`` (Xing et al. sections 1.4 and 2, its
 ``L = A X + V``). Reported with the normal matrix ``A^T A`` of the *unwhitened* design
 matrix ``A`` (rows ``de/dx``; unit m/m for x, y, z, R, c dt and m/rad for az, el, exactly the
-seed's A and A'), its condition numbers, the cofactor ``(A^T A)^-1`` and the covariance
+Xing et al.'s A and A'), its condition numbers, the cofactor ``(A^T A)^-1`` and the covariance
 ``sigma^2 (A^T A)^-1`` (m^2, rad^2, m rad).
 
 Note on units: ``rcond(A^T A)`` depends on the units of the unknowns. Here metres for
-positions, range and clock, radians for angles (the seed's choice, reproducing its
+positions, range and clock, radians for angles (Xing et al.'s choice, reproducing its
 numbers). With angles in degrees the spherical columns shrink by pi/180 and rcond changes.
 """
 
@@ -109,7 +109,7 @@ def solve_single_epoch(rho_meas_m, M21, param="spherical", x0=None, sigma_m=0.01
     rho_meas_m : (6,) pseudoranges, m (link order of ``factors.pseudorange.link_offsets``).
     M21 : (3, 3) sat-2 body -> sat-1 body (known relative attitude).
     param : "cartesian" or "spherical".
-    x0 : (4,) initial Cartesian ``[x, y, z, c dt]`` m; default seed 003's ``R = 1992 m,
+    x0 : (4,) initial Cartesian ``[x, y, z, c dt]`` m; default Xing et al.'s ``R = 1992 m,
         az = el = 0, c dt = 0``.
     sigma_m : pseudorange noise (1 sigma, m) scaling the covariance.
 

@@ -14,7 +14,7 @@ LVLH, Van Loan covariance), a clock random walk ``c_{k+1} - c_k`` (variance ``q_
 and priors from the formation design at epoch 0.
 
 Solvers: batch Gauss–Newton with ``eliminateSequential(ordering, EliminateQR)``
-(GTSAM-NOTES.md: Cholesky refuses ill-conditioned problems) and iSAM2 with QR
+(GTSAM's Cholesky elimination throws on these ill-conditioned problems) and iSAM2 with QR
 factorization. Covariances of the batch solution come from a dense QR of the whitened
 Jacobian at the solution (the problem is small), iSAM2's from ``marginalCovariance``.
 """
@@ -55,8 +55,8 @@ class FormationScenario:
     phase_rad: float = 0.3              # relative-orbit phase at t = 0
     duration_s: float = 600.0
     step_s: float = 10.0
-    sigma_code_m: float = 0.01          # pseudorange noise (seed 003)
-    sigma_carrier_m: float = 1e-5       # carrier-phase noise (seed 003 ref. [1]: 10 um)
+    sigma_code_m: float = 0.01          # pseudorange noise (Xing et al.)
+    sigma_carrier_m: float = 1e-5       # carrier-phase noise (Xing et al. ref. [1]: 10 um)
     carrier: bool = False
     q_m2_s3: float = 1e-11              # white relative-acceleration PSD of the CW factor
     #                                     (covers CW's linearization error, ~2e-7 m/s^2 at 1 km)

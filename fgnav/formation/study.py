@@ -1,15 +1,15 @@
-"""Conditioning study (Cartesian vs spherical) on seed 003's geometry, and the track case.
+"""Conditioning study (Cartesian vs spherical) on Xing et al.'s geometry, and the track case.
 
-Seed 003 geometry, worked out from its Table 1 and printed matrices A, A': sat 2 on sat 1's
+Xing et al. geometry, worked out from its Table 1 and printed matrices A, A': sat 2 on sat 1's
 body +x axis (the antenna-face normal), az = el = 0, true range 999.922 m (epoch 1) and
 999.891 m (epoch 2), relative attitude zero (``M21 = I``, both satellites mount the antennas
-identically), clock 0, Gauss–Newton started from R = 1992 m, az = el = 0 (the seed's
+identically), clock 0, Gauss–Newton started from R = 1992 m, az = el = 0 (Xing et al.'s
 "initial conditions"). Its printed A (rows 0.9999, -0.005, 0.0129, +-1) is the design matrix
-at its epoch-1 *estimate* (az = -0.00519 rad, el = 0.014 rad; the seed's "arc" is radians).
-All covariances here are evaluated at the estimate, as in the seed.
+at its epoch-1 *estimate* (az = -0.00519 rad, el = 0.014 rad; Xing et al.'s "arc" is radians).
+All covariances here are evaluated at the estimate, as in Xing et al.
 
 Units of the unknowns: metres (x, y, z, R, c dt) and radians (az, el). ``rcond`` is
-lambda_min / lambda_max of ``A^T A`` (A unwhitened, the seed's), ``rcond_1norm`` the
+lambda_min / lambda_max of ``A^T A`` (A unwhitened, Xing et al.'s), ``rcond_1norm`` the
 1-norm figure MATLAB's ``rcond`` estimates.
 """
 
@@ -45,7 +45,7 @@ FORMATION_REFERENCE = {
 
 
 def formation_reference_truth(epoch):
-    """True ``(r_m (3,), cdt_m, M21 (3, 3))`` of seed 003 at epoch 1 or 2."""
+    """True ``(r_m (3,), cdt_m, M21 (3, 3))`` of Xing et al. at epoch 1 or 2."""
     R = FORMATION_REFERENCE["R_m"][epoch - 1]
     r, _ = spherical_to_cartesian(np.array([R, FORMATION_REFERENCE["az_rad"], FORMATION_REFERENCE["el_rad"]]))
     return r, FORMATION_REFERENCE["cdt_m"], np.eye(3)
@@ -67,7 +67,7 @@ def covariance_change(P1, P2):
 def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
     """Fraction of Monte Carlo runs whose range error lies within +-sigma_R.
 
-    Seed 003's epoch-1 geometry; each run draws six pseudorange errors N(0, sigma_m^2),
+    Xing et al.'s epoch-1 geometry; each run draws six pseudorange errors N(0, sigma_m^2),
     solves by Gauss–Newton (from R = 1992 m) and compares |R_hat - R_true| with that run's
     sigma_R = sqrt(P_RR) at its estimate (seed: 120 runs, 67.5 %; Gaussian 68.27 %).
     Returns ``(fraction, errors (runs,), sigmas (runs,))``.
@@ -92,11 +92,11 @@ def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
 
 
 def conditioning_study(runs=5000, seed=0, sigma_m=0.01):
-    """The seed-003 conditioning comparison as one JSON-able dict.
+    """The Xing et al. conditioning comparison as one JSON-able dict.
 
     Keys: ``cartesian`` and ``spherical`` (each: ``rcond``, ``cond``, ``rcond_1norm`` at the
     true geometry; ``covariance`` = {``epoch1``, ``epoch2`` (4x4 at each epoch's estimate,
-    m^2 / rad^2), ``cofactor_epoch1/2`` ((A^T A)^-1 as the seed prints it), ``relative_change``,
+    m^2 / rad^2), ``cofactor_epoch1/2`` ((A^T A)^-1 as Xing et al. print it), ``relative_change``,
     ``frobenius_change``}; ``sigmas_epoch1``; ``estimate_epoch1/2``), ``coverage_1sigma``,
     ``runs``, ``seed``, ``geometry`` and ``seed003_reported``.
     """

@@ -1,6 +1,7 @@
-"""Body-frame Sun / Moon / Earth directions of the seed-001 scheme (and the LVLH attitude plan).
+"""Body-frame Sun / Moon / Earth directions of the INS/CNS lecture scheme (and the LVLH attitude
+plan).
 
-Seed 001 ("基于日地月信息的航天器天文导航"): a Sun sensor, a Moon sensor (UV) and a UV Earth
+The INS/CNS lecture ("基于日地月信息的航天器天文导航"): a Sun sensor, a Moon sensor (UV) and a UV Earth
 sensor measure the directions from the spacecraft to the Sun, the Moon and the Earth's
 centre in the body frame; an altimeter measures the height (``fgnav.simulate.pass_sim``,
 kind ``altitude``). The body is three-axis stabilized, Earth pointing: body = LVLH,
@@ -9,8 +10,8 @@ kind ``altitude``). The body is three-axis stabilized, Earth pointing: body = LV
 
 Directions are geometric, spacecraft -> body, so the Moon's parallax (up to
 ``asin(|r|/|r_moon|)`` ~ 1.0 deg in LEO) and the Sun's (~9 arcsec) are in the data; the
-preprocessing (``fgnav.sun_earth_moon``) removes them with the seed's triangle. Noise: the true unit
-vector rotated by isotropic tangent-plane noise (``noise.perturb_directions``),
+preprocessing (``fgnav.sun_earth_moon``) removes them with the INS/CNS lecture's triangle. Noise:
+the true unit vector rotated by isotropic tangent-plane noise (``noise.perturb_directions``),
 ``sigma_deg`` 1σ per axis. Visibility: the Sun is not seen when the Earth's disc (radius
 ``R_e``) hides it (eclipse); the Moon likewise, and not closer than
 ``min_sun_elongation_deg`` to the Sun (stray light). Ephemeris: ``factors.ephemeris``

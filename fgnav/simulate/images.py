@@ -1,6 +1,6 @@
 """Render the sensor frames of a simulated pass: star-field and limb sub-aperture images.
 
-Sensor: seed 000's confocal Earth/star sensor (``fgnav.vision.sensor``). Body frame as
+Sensor: Wu et al.'s confocal Earth/star sensor (``fgnav.vision.sensor``). Body frame as
 there: +z_body = star boresight, the four UV limb sub-apertures tilted 23.75° from -z_body.
 The centre star field is rendered as its own frame (``star``), each limb sub-aperture that
 sees the whole limb as its own frame (``limb0`` .. ``limb3``), all 16-bit PNG.
@@ -56,7 +56,7 @@ __all__ = ["ImageConfig", "FrameRecord", "FRAME_COLUMNS", "STAR_FIELD_1024_CAMER
            "write_frames_index", "ideal_log_like"]
 
 STAR_FIELD_1024_CAMERA = PinholeCamera(focal_mm=50.0, pixel_um=11.0, width_px=1024, height_px=1024)
-"""Seed 000 star optics (f = 50 mm, 11 µm) on a 1024x1024 window: FOV 12.85° (the seed asks
+"""Wu et al.'s star optics (f = 50 mm, 11 µm) on a 1024x1024 window: FOV 12.85° (Wu et al. ask
 >= 8°; the wider window keeps lost-in-space identification reliable with BSC5 to V 6.5)."""
 
 FRAME_COLUMNS = (

@@ -1,6 +1,6 @@
-"""Earth-limb image renderer (UV limb seen through a pinhole camera), seed 000 sensor.
+"""Earth-limb image renderer (UV limb seen through a pinhole camera), Wu et al. sensor.
 
-Geometry. The limb surface is a sphere of radius ``r_limb_m`` (seed 000: 6,375 km) or the
+Geometry. The limb surface is a sphere of radius ``r_limb_m`` (Wu et al.: 6,375 km) or the
 WGS-84 ellipsoid grown by ``limb_height_m`` (polar axis along ECI z). For every pixel ray
 ``s`` (camera frame, OpenCV: x right, y down, z boresight) the *tangent height* ``h`` is the
 height above the limb surface of the ray's closest approach: for the sphere
@@ -9,7 +9,7 @@ the same quantity is taken in the space where the ellipsoid is the unit sphere
 (``x' = U x``, ``A = U^T U`` the shape matrix in the camera frame) and scaled back by the
 local radius. ``h < 0`` means the ray meets the limb layer (the disk).
 
-Radiance (UV 270-300 nm, seed 000 sec. 3.1): uniform disk ``S`` (electrons per pixel per
+Radiance (UV 270-300 nm, Wu et al. sec. 3.1): uniform disk ``S`` (electrons per pixel per
 frame) and an exponential fall-off above it with scale height ``H`` (a few km),
 ``L(h) = S`` for ``h <= -H`` and ``S exp(-(h + H)/H)`` above: the profile is placed so that
 the radiance-gradient centroid, ``int h (-dL/dh) dh / S``, is exactly at ``h = 0`` -- the
@@ -19,7 +19,7 @@ Image formation: analytic radiance at ``supersample^2`` sub-pixel samples in the
 (area anti-aliasing), Gaussian PSF (``psf_sigma_px``), field stop / arc mask, then shot
 (Poisson) + read (Gaussian) noise, ADC gain and bias, 16-bit. Deterministic by seed.
 
-Seed 000 detector (GSENSE400BSI-UV, sec. 3.2): 90 ke- peak signal, dynamic range > 96 dB,
+Wu et al. detector (GSENSE400BSI-UV, sec. 3.2): 90 ke- peak signal, dynamic range > 96 dB,
 so the read noise is ``90,000 / 10^(96/20) = 1.43 e-``; 16-bit ADC spanning the full well.
 """
 
@@ -200,7 +200,7 @@ def render_limb_ideal(camera: PinholeCamera, scene: LimbScene, *,
     arcs_deg : optional list of ``(start, end)`` position angles (deg, about the projected
     Earth centre, measured from +u towards +v) where the limb is visible; elsewhere the
     field is masked (dark). field_radius_px : optional circular field stop about the
-    principal point (the seed's sub-aperture image circle). supersample : sub-samples per
+    principal point (the image circle of Wu et al.'s sub-aperture). supersample : sub-samples per
     axis in the edge band.
     """
     import cv2

@@ -8,7 +8,7 @@ from the estimator's propagator. Noise:
 * limb angular radius: ``rho = arcsin(R_limb/|r|) + sigma n``;
 * altimeter: ``h = |r| - R_ref + sigma n``;
 * prior: ``x_prior = x_true + e``, ``e ~ N(0, diag(sigma^2))`` ("random") or ``e = sigma``
-  per axis ("fixed", the seed's setting).
+  per axis ("fixed", Pan & Yao 2017's setting).
 """
 
 from __future__ import annotations

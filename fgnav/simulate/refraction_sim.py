@@ -1,11 +1,11 @@
-"""Starlight-refraction sensor simulation (seed 004 = CN104236546B, claim 1 steps 2-4).
+"""Starlight-refraction sensor simulation (Li et al. 2017 = CN104236546B, claim 1 steps 2-4).
 
 Attitude plan (step 2): the body is Earth pointing (LVLH, ``fgnav.simulate.body_directions``); the
 refraction sensor has one or more heads (``spec.azimuths_deg``, measured about nadir from
 the body x axis ~ velocity towards body y), each a square field ``spec.fov_deg`` wide whose
 centre ray grazes the Earth at tangent height ``spec.boresight_tangent_km``: the centre is
 ``asin((R_e + h_b)/|r|)`` from nadir, so the lower part of the field sees the Earth, the
-upper part the sky (unrefracted stars, >= 50 deg^2 for fields >= 10 deg as the seed asks),
+upper part the sky (unrefracted stars, >= 50 deg^2 for fields >= 10 deg as Li et al. 2017 ask),
 and the refraction band (20-50 km) crosses the field horizontally.
 
 Stars (step 3): the project's BSC5 catalogue (``fgnav.vision.catalogue``, V <=
@@ -19,8 +19,8 @@ the factor's own geometry (``factors.refraction.apparent_tangent_height_m`` with
 (a scalar root, Newton; ``h - q + R_e`` is increasing since gamma decreases with h), with
 the real atmosphere ``gamma_real(h) = gamma_model(h + dh_model)``, ``dh_model ~ N(0,
 sigma_model_m^2)`` per star: the inverse model then returns ``h + dh_model``, which is the
-seed's "atmosphere-model error added to the tangent height" (step 4). The measured angle is
-``gamma_real(h) + U(-D, D)``, ``D = gamma_halfwidth_arcsec`` (the seed's uniform
+Li et al. 2017's "atmosphere-model error added to the tangent height" (step 4). The measured angle
+is ``gamma_real(h) + U(-D, D)``, ``D = gamma_halfwidth_arcsec`` (Li et al. 2017's uniform
 refraction-angle error). Stars whose ray grazes in the valid band
 (``factors.refraction.REFRACTION_VALID_BAND_M``) give ``refraction`` rows (catalogue
 direction, ECI; ``sigma = D/sqrt(3)``; ``gamma``; ``sigma_model_m``); stars whose straight

@@ -4,16 +4,16 @@ Each iteration linearizes every factor at once (vectorized residuals from ``fact
 motion factor's propagation and STM in numba), hands GTSAM one pre-whitened
 ``JacobianFactor`` per epoch on ``(X_k, X_{k+1})`` — the epoch's measurement rows stacked
 over the motion rows ``W [-Phi_k, I]`` with ``W^T W = Q_k^-1`` — and eliminates the chain in
-time order with ``EliminateQR`` (Cholesky refuses this ill-conditioned problem: see
-GTSAM-NOTES.md). The resulting Bayes net gives the update by back-substitution and every
-marginal covariance by the O(N) recursion of :mod:`fgnav.solvers.chain`.
+time order with ``EliminateQR`` (GTSAM's Cholesky elimination throws on this
+ill-conditioned problem). The resulting Bayes net gives the update by back-substitution and
+every marginal covariance by the O(N) recursion of :mod:`fgnav.solvers.chain`.
 
 GTSAM's own optimizers call Python factors with a copy of all values, which makes them
 O(N^2) on a pass; this loop is O(N) per iteration.
 
 Convergence from a poor first guess uses continuation on the process noise: solve first with
 a loose white-acceleration PSD, then tighten by ``continuation_factor`` per stage down to the
-requested ``q_m2_s3`` (GTSAM-NOTES.md, "Convergence from a poor first guess").
+requested ``q_m2_s3`` (a continuation method: Allgower & Georg 2003).
 """
 
 from __future__ import annotations

@@ -116,7 +116,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     else:
         isam = gtsam.ISAM2(_isam2_params(inc))
     # Holding a Python reference to the internal linearization point spares the copy of all
-    # values on every CustomFactor call during relinearization (GTSAM-NOTES: ~7x latency).
+    # values on every CustomFactor call during relinearization (measured: the copy made the latency
+    # ~7x).
     held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))

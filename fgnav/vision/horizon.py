@@ -1,19 +1,19 @@
-"""Horizon-based fixes from limb points: the seed's ellipse fit and Christian–Robinson.
+"""Horizon-based fixes from limb points: Wu et al.'s ellipse fit and Christian–Robinson.
 
 Both return a :class:`HorizonFix` in the camera frame (OpenCV: x right, y down, z along
 the boresight): unit vector to the Earth's centre ``u_cam``, apparent angular radius
 ``rho_rad`` of the limb sphere, range ``|c| = R / sin(rho)``, the spacecraft position
-relative to the Earth's centre ``r_cam_m = -range * u_cam`` (seed 000 eq. 12 in the camera
+relative to the Earth's centre ``r_cam_m = -range * u_cam`` (Wu et al. eq. 12 in the camera
 frame), and first-order covariances scaled by the a-posteriori point scatter.
 
-(a) Ellipse fit (seed 000, eqs. 1-8; SPEC "Image processing"). Least squares on the conic
+(a) Ellipse fit (Wu et al., eqs. 1-8). Least squares on the conic
 ``P1 x^2 + P2 xy + P3 y^2 + P4 x + P5 y + P6 = 0`` with the Euclidean-invariant
 normalization ``P1 + P3 = 1`` (Gander, Golub & Strebel 1994) on centred, scaled points ->
 centre (xc, yc), semi-axes a >= b, major-axis angle phi; ``[xm; ym] = T(phi) [xc; yc]``
 (eq. 3); ``rho = (atan((a + xm)/f) + atan((a - xm)/f)) / 2``,
 ``eta = (atan((a + xm)/f) - atan((a - xm)/f)) / 2`` (eq. 4); Earth centre ``(f tan eta, ym)``
 (eq. 5) rotated back to ``(xe, ye)`` (eq. 7).
-Sign convention: the seed writes ``u_s = [-xe, -ye, f] / sqrt(xe^2 + ye^2 + f^2)`` (eq. 8)
+Sign convention: Wu et al. write ``u_s = [-xe, -ye, f] / sqrt(xe^2 + ye^2 + f^2)`` (eq. 8)
 because its (xe, ye) are coordinates on the physical detector, where the real image is
 inverted. We work on the virtual (non-inverted) image plane in OpenCV axes,
 ``(x, y) = f_px * (X/Z, Y/Z)`` of the undistorted ray, so the same direction is

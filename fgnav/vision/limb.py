@@ -1,6 +1,6 @@
 """Limb point extraction: coarse disk contour (OpenCV), sub-pixel edges, RANSAC.
 
-Pipeline (seed 000, fig. 11 "limb image processing"; Christian, JSR 2017 for the
+Pipeline (Wu et al., fig. 11 "limb image processing"; Christian, JSR 2017 for the
 sub-pixel step):
 
 1. Coarse: block-average the frame by ``coarse_factor`` (``cv2.resize`` INTER_AREA),

@@ -1,6 +1,6 @@
 """Seed 000 Earth/star confocal-plane sensor: four UV limb sub-apertures + a star field.
 
-Seed 000 sec. 3.3: one 2048x2048 detector with 11 µm pixels shared by a centre star field
+Wu et al. sec. 3.3: one 2048x2048 detector with 11 µm pixels shared by a centre star field
 (f = 50 mm, FOV >= 8°, image circle 7 mm) and four identical UV limb sub-apertures
 (f = 18 mm, FOV 30.5°, image circle Φ9.8 mm = 891 px) spread evenly around it (fig. 9,
 on the diagonals). The star boresight looks away from the Earth; the limb sub-apertures
@@ -10,7 +10,7 @@ look towards it, each boresight tilted from the Earth-pointing axis so that the 
 Tilt: the limb half-angle ``omega = asin((R + d)/(R + H))`` (seed eq. 14, R = 6,375 km,
 d = 0–100 km) spans 8.5°–39°; a sub-aperture whose boresight is tilted by
 ``(8.5° + 39°)/2 = 23.75°`` from the nadir covers it with its +-15.25° half-field. This
-reproduces the seed's table 2 "lens field" column (limb angle from the sub-aperture
+reproduces Wu et al.'s table 2 "lens field" column (limb angle from the sub-aperture
 boresight): omega - 23.75° = 14.87° at 4,000 km and -14.96° at 36,000 km.
 
 Body frame (this module's definition): +z_body = star boresight (away from the Earth),
@@ -41,10 +41,10 @@ CONFOCAL_SUBAPERTURE_CAMERA = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_
 CONFOCAL_STAR_FIELD_CAMERA = CONFOCAL_STAR_CAMERA
 """Centre star field: f = 50 mm, 11 µm pixels (the central Φ7 mm of the detector)."""
 CONFOCAL_LIMB_LAYER_M = (0.0, 100.0e3)
-"""UV limb layer heights considered by the seed (d = 0-100 km)."""
+"""UV limb layer heights considered by Wu et al. (d = 0-100 km)."""
 CONFOCAL_LIMB_TILT_RAD = 0.25 * (17.0 + 78.0) * DEG
 """Boresight tilt of each limb sub-aperture from the nadir (rad): 23.75°, the middle of the
-seed's planned Φ17°–Φ78° limb field (its table 2 "lens field" = omega - 23.75°)."""
+Wu et al.'s planned Φ17°–Φ78° limb field (its table 2 "lens field" = omega - 23.75°)."""
 
 
 def limb_half_angle_rad(alt_m, r_limb_m: float = R_LIMB_UV_M, layer_m: float = 0.0):
