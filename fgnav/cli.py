@@ -7,14 +7,13 @@ import importlib
 import pkgutil
 import sys
 
+import fgnav.commands as commands
 from fgnav import __version__
 from fgnav.errors import UserError
 
 
 def build_parser() -> argparse.ArgumentParser:
     """Build the parser; every module in ``fgnav.commands`` registers one subcommand."""
-    import fgnav.commands as commands
-
     parser = argparse.ArgumentParser(
         prog="fgnav",
         description="Spacecraft celestial navigation by factor-graph smoothing (GTSAM).",

@@ -34,6 +34,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
+from scipy.stats import norm as normal_dist
 
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
@@ -41,7 +43,6 @@ from fgnav.analysis.crb import cumulative_stm
 from fgnav.graph import LINEARIZERS, linearize_all
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
-from scipy.stats import chi2 as chi2_dist
 
 PRIOR_KINDS = ("prior_position", "prior_velocity")
 
@@ -104,8 +105,6 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
     Bonferroni threshold for the number of windows tested (family-wise false-alarm
     probability :data:`RUN_FALSE_ALARM`).
     """
-    from scipy.stats import norm
-
     r = np.asarray(r, dtype=float)
     ok = np.all(np.isfinite(r), axis=1)
     r, t = r[ok], np.asarray(t_s, dtype=float)[ok]
@@ -126,7 +125,7 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
         if abs(z[i, j]) > abs(best[0]):
             best = (float(z[i, j]), int(i), int(w), int(j))
     z, i, w, j = best
-    threshold = float(norm.isf(RUN_FALSE_ALARM / (2.0 * max(n_tests, 1))))
+    threshold = float(normal_dist.isf(RUN_FALSE_ALARM / (2.0 * max(n_tests, 1))))
     return {"z": z, "threshold": threshold, "window": w, "component": j,
             "t_start_s": float(t[i]), "t_end_s": float(t[i + w - 1])}
 

@@ -22,11 +22,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
 from factors.dynamics import process_noise, propagate
 from fgnav.graph import LINEARIZERS
 from fgnav.time import j2000_seconds
-from scipy.stats import chi2
 
 PRIOR_KINDS = ("prior_position", "prior_velocity")
 
