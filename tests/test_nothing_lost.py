@@ -32,12 +32,13 @@ def test_an_interrupt_while_writing_leaves_the_previous_outputs_untouched(tmp_pa
     out = tmp_path / "result"
     assert main(["smooth", str(small_pass / "measurements.csv"), "--out", str(out), "--quiet"]) == 0
     before = _snapshot(out)
-    import fgnav.io.summary as summary
+    import fgnav.pipeline
 
     def interrupted(*a, **k):  # the last file of the set: everything else is already staged
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(summary, "write_summary", interrupted)
+    # patched where write_outputs looks it up (fgnav.pipeline imports it at module level)
+    monkeypatch.setattr(fgnav.pipeline, "write_summary", interrupted)
     rc = main(["smooth", str(small_pass / "measurements.csv"), "--out", str(out), "--quiet",
                "--method", "ekf"])
     assert rc == 130
