@@ -79,8 +79,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
-from scipy.optimize import least_squares
-from scipy.stats import chi2
 
 from factors.constants import MU_EARTH_M3_S2
 from factors.dynamics import MotionModel, propagate
@@ -234,6 +232,8 @@ def _session(t, r_hat, t_near=None, max_turn_rad=2.0):
 
 def _angle_fit(t, theta, mu):
     """(n, e, omega, M0) candidates, best first, fitted to theta(t) (t from t_ref)."""
+    from scipy.optimize import least_squares
+
     span_t = t[-1] - t[0]
     span_th = theta[-1] - theta[0]
     n_bar = max(span_th / span_t, 1e-9)
@@ -574,6 +574,8 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
     prior farther from that data than the data's own span).
     """
+    from scipy.stats import chi2
+
     k0, x_prior = prior_state(p)
     P_prior = prior_covariance(p, k0)
     x_iod, P_iod = propagate_orbit(iod, p, model, t0_j2000_s, k0)

@@ -34,8 +34,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
-from scipy.stats import norm as normal_dist
 
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
@@ -79,6 +77,8 @@ ADVICE = {
 def _chi2_test(chi2: float, dof: int) -> dict:
     """chi2 of ``dof`` whitened components: normalized value and the log10 of its tail
     probability under the chi-square distribution (``-inf`` for an impossible value)."""
+    from scipy.stats import chi2 as chi2_dist
+
     dof = max(int(dof), 1)
     logsf = float(chi2_dist.logsf(chi2, dof)) if math.isfinite(chi2) else -math.inf
     return {"chi2": float(chi2), "dof": dof, "normalized": float(chi2) / dof,
@@ -105,6 +105,8 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
     Bonferroni threshold for the number of windows tested (family-wise false-alarm
     probability :data:`RUN_FALSE_ALARM`).
     """
+    from scipy.stats import norm as normal_dist
+
     r = np.asarray(r, dtype=float)
     ok = np.all(np.isfinite(r), axis=1)
     r, t = r[ok], np.asarray(t_s, dtype=float)[ok]
@@ -384,6 +386,8 @@ def manoeuvre_glr(m: _Mapped) -> dict | None:
     ``C = Phi(t_k, t_0)^-1 [0; I]``: chi-square with 3 degrees of freedom without a
     manoeuvre; the largest over the epochs is tested against the Bonferroni threshold.
     """
+    from scipy.stats import chi2 as chi2_dist
+
     N = m.N
     if N < 8 or len(m.b) < 12:
         return None

@@ -29,8 +29,6 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.interpolate import CubicHermiteSpline
 
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.constants import (
@@ -317,6 +315,8 @@ def integrate_truth(x0, t_s, *, j2=True, third_body=False, drag=None, srp=None,
     solution (j2=False): 0.05 mm after 1 h, 0.26 mm after 4 h, 3.6 mm after 12 h with the
     defaults; rtol=1e-13, atol=1e-8 gives 0.3 mm after 12 h at about the same cost.
     """
+    from scipy.integrate import solve_ivp
+
 
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (6,):
@@ -349,6 +349,8 @@ def integrate_truth(x0, t_s, *, j2=True, third_body=False, drag=None, srp=None,
 def truth_at(t_truth: np.ndarray, x_truth: np.ndarray, t_s: np.ndarray) -> np.ndarray:
     """Truth states at ``t_s``: exact where the epochs coincide, else cubic Hermite
     interpolation of position with velocity (and of velocity, linearly between samples)."""
+    from scipy.interpolate import CubicHermiteSpline
+
     idx = np.searchsorted(t_truth, t_s)
     idx = np.clip(idx, 0, len(t_truth) - 1)
     exact = np.abs(t_truth[idx] - t_s) < 1e-6

@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from fgnav.errors import UserError
 
@@ -62,6 +61,8 @@ class RobustKernel:
 
 def chi2_gate(dim: int, probability: float) -> float:
     """The NIS threshold of a ``dim``-row measurement at the given acceptance probability."""
+    from scipy.stats import chi2
+
     if not 0.0 < probability < 1.0:
         raise UserError(f"gate probability must be in (0, 1), got {probability}")
     return float(chi2.ppf(probability, dim))

@@ -22,7 +22,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
 from factors.dynamics import process_noise, propagate
 from fgnav.graph import LINEARIZERS
@@ -43,6 +42,8 @@ def nees(x_est: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> np.ndarray:
 
 def chi2_band(dof: float, n_runs: int, alpha: float = 0.05) -> tuple[float, float]:
     """Two-sided (1 - alpha) band of the mean of ``n_runs`` independent chi2(dof) values."""
+    from scipy.stats import chi2
+
     n = int(n_runs)
     if n < 1 or dof <= 0:
         raise ValueError(f"chi2_band: need n_runs >= 1 and dof > 0, found {n_runs}, {dof}")

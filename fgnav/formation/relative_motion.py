@@ -17,8 +17,6 @@ rotating frame.
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.linalg import expm
 
 from factors.constants import MU_EARTH_M3_S2, R_EARTH_M
 
@@ -50,6 +48,8 @@ def cw_matrices(n_rad_s, dt_s, q_m2_s3):
     Van Loan: ``expm([[-F, G q G^T], [0, F^T]] dt) = [[., Phi^-1 Q], [0, Phi^T]]``, with
     ``G = [0; I]`` and white acceleration of PSD ``q_m2_s3`` (m^2/s^3) on each axis.
     """
+    from scipy.linalg import expm
+
     F = cw_system(n_rad_s)
     Gq = np.zeros((6, 6))
     Gq[3:, 3:] = q_m2_s3 * np.eye(3)
@@ -107,6 +107,8 @@ def two_body_relative_truth(x_chief_eci, x_rel_lvlh0, t_s, mu=MU_EARTH_M3_S2):
     (rtol 1e-12, atol 1e-6 m) and differenced: ``r_rel = C (r_d - r_c)``,
     ``v_rel = C (v_d - v_c) - omega x r_rel``.
     """
+    from scipy.integrate import solve_ivp
+
     t = np.asarray(t_s, dtype=float)
     xc = np.asarray(x_chief_eci, dtype=float)
     xr = np.asarray(x_rel_lvlh0, dtype=float)

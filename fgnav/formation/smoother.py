@@ -25,7 +25,6 @@ from dataclasses import asdict, dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.linalg import solve_triangular
 
 from factors.adapters import custom_factor
 from factors.geometry import so3_exp
@@ -315,6 +314,8 @@ def _both_coords(res: TrackResult):
 
 def _dense_covariances(graph, values, keys):
     """Per-epoch 7x7 covariance blocks from a dense QR of the whitened Jacobian."""
+    from scipy.linalg import solve_triangular
+
     order = gtsam.Ordering()
     for k in keys:
         order.push_back(k)

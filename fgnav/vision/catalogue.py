@@ -16,9 +16,6 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.time import parse_utc
@@ -125,6 +122,10 @@ def merge_close_stars(cat: Catalogue, radius_rad: float) -> Catalogue:
     components of a close double, which a camera sees as one blob) into one entry per
     group: direction = flux-weighted mean (the photocentre), ``V = -2.5 log10(sum 10^(-0.4 V_i))``,
     HR number and RA/Dec order of the brightest member. Other stars are unchanged."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
     pairs = cKDTree(cat.u_eci).query_pairs(2.0 * np.sin(radius_rad / 2.0), output_type="ndarray")
     if len(pairs) == 0:
         return cat

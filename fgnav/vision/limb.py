@@ -43,7 +43,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.ndimage import median_filter
 
 from fgnav.errors import UserError
 from fgnav.vision.camera import PinholeCamera
@@ -171,6 +170,8 @@ def extract_limb_points(image: np.ndarray, *, valid_mask: np.ndarray | None = No
     the coarse stage. min_contrast_ratio : points whose radiance drop is below this
     fraction of the median drop are rejected (mask corners, stray edges).
     """
+    from scipy.ndimage import median_filter
+
     img = np.ascontiguousarray(image, dtype=np.float32)
     if img.ndim != 2:
         raise UserError(f"limb extraction needs a 2-D single-channel image, got shape {img.shape}")

@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
@@ -107,6 +106,9 @@ def states_at(t_query_s, t_s, x_eci) -> np.ndarray:
     position with the velocity as derivative, and a cubic spline of velocity. NaN outside
     the table.
     """
+    from scipy.interpolate import CubicHermiteSpline
+    from scipy.interpolate import CubicSpline
+
     t_s = np.asarray(t_s, float)
     x_eci = np.asarray(x_eci, float)
     tq = np.asarray(t_query_s, float)

@@ -30,8 +30,6 @@ from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
-from scipy.stats import chi2 as chi2_dist
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
@@ -125,6 +123,8 @@ def covariance_ellipsoids(P_pos_m2: np.ndarray, k_sigma: float = 3.0):
     The k-sigma ellipsoid ``{d : d^T P^-1 d = k^2}`` has semi-axes ``k sqrt(lambda_i)`` along
     the eigenvectors of ``P``; the quaternion rotates the ellipsoid frame into ECI.
     """
+    from scipy.spatial.transform import Rotation
+
     P = 0.5 * (P_pos_m2 + np.swapaxes(P_pos_m2, 1, 2))
     lam, V = np.linalg.eigh(P)
     det = np.linalg.det(V)
@@ -347,6 +347,8 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
 def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid_every,
              magnification, residual_t_s, rkinds, has_latency):
     """Log every entity of ``log_solution``; returns (entity paths, magnification)."""
+    from scipy.stats import chi2 as chi2_dist
+
     n = len(t_s)
     entities: list[str] = []
 
