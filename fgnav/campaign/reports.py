@@ -392,7 +392,8 @@ def report_nees(study, rows, out):
     ax.axhline(float(STATE_DOF), color="k", lw=0.8)
     ax.set(xlabel="epoch index", ylabel=f"ANEES (dof {STATE_DOF})", title=f"{study.name}: {len(rows)} runs")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    if curves:  # no curves saved (save_curves = false): nothing to label
+        ax.legend(fontsize=8)
     files.append(_save_plot(fig, out / "plot.png"))
     return files
 
@@ -421,9 +422,16 @@ REPORTS = {r.name: r for r in (
 
 
 def write_report(study, out_dir) -> list[Path]:
-    """Write table.csv, table.md and plot.png of a finished campaign; return the paths."""
+    """Write table.csv, table.md and plot.png of a finished campaign; return the paths.
+
+    The rows are taken in the study's run order, not in the order the runs finished, so a
+    resumed or parallel campaign reports the same numbers (means summed in the same order)."""
+    from fgnav.campaign.spec import study_runs
+
     out = Path(out_dir)
     rows = [r for r in RunsTable(out / "runs.csv", study.columns()).read() if r["status"] == "ok"]
     if not rows:
         raise UserError(f"{out}: no finished runs to report")
+    order = {s.run_id: i for i, s in enumerate(study_runs(study))}
+    rows.sort(key=lambda r: order.get(r["run_id"], len(order)))
     return REPORTS[study.report].write(study, rows, out)
