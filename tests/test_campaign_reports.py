@@ -69,8 +69,9 @@ def test_noise_bound_from_the_study(tmp_path):
 
 
 def test_nees_band_from_the_study(tmp_path):
-    """100 runs with final NEES 6.4 (ANEES 6.4; chi2(600)/100 has mean 6, sd 0.35): inside the 95 % band of chi2(600)/100, outside
-    the 50 % band; the band edges are the chi-square quantiles (scipy, independent)."""
+    """100 runs with final NEES 6.4: their ANEES 6.4 lies inside the 95 % band of chi2(600)/100
+    (mean 6, sd 0.35) and outside its 50 % band; the band edges are the chi-square quantiles
+    (scipy, independent)."""
     def nees_row(run):
         return {"nees_final": 6.4, "nis_per_dof": 1.0, "position_rms_m": 100.0}
 

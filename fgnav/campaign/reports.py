@@ -150,6 +150,11 @@ def _figure(ncols=1):
 NO_REFERENCE = "No reference figures: the study file has no [reference] table, so the reference columns are empty."
 
 
+def _notes(study, *lines: str) -> list[str]:
+    """The notes above a table: the study, ``lines``, and whether reference figures were given."""
+    return [f"Study `{study.name}`: {study.description}", *lines] + ([NO_REFERENCE] if study.reference is None else [])
+
+
 def _navigate_table(rows, xkey, seed_cols):
     out = []
     for (x, method), g in sorted(_group(rows, (xkey, "method")).items(), key=lambda kv: (kv[0][0], str(kv[0][1]))):
@@ -201,11 +206,8 @@ def report_noise(study, rows, out):
     bound = ("." if ref is None else
              f"; the seed states that noise <= {ref.max_sigma_deg:g} deg keeps errors < {ref.final_position_km:g} km "
              f"and < {ref.final_velocity_mps:g} m/s (bound columns).")
-    notes = [f"Study `{study.name}`: {study.description}",
-             "Seed 002 table 2 (final errors after 4 h): its numbers are not in the source text" + bound,
-             f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds."]
-    if ref is None:
-        notes.append(NO_REFERENCE)
+    notes = _notes(study, "Seed 002 table 2 (final errors after 4 h): its numbers are not in the source text" + bound,
+                   f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
     files = _write_table(out, table, "Seed 002 table 2: direction noise vs navigation error", notes)
     files.append(_plot_navigate(table, "sigma_deg", "direction noise 1-sigma (deg)", "seed 002 table 2",
                                 out / "plot.png",
@@ -217,9 +219,8 @@ def report_period(study, rows, out):
     """Sample period vs navigation error, beside :class:`PeriodReference`'s statement."""
     ref: PeriodReference | None = study.reference
     table = _navigate_table(rows, "step_s", lambda x, r: {"seed_value": None if ref is None else ref.seed_value})
-    notes = [f"Study `{study.name}`: {study.description}",
-             "Seed 002 table 3 (sample period 0.1/1/10/100 s, 500 m / 0.05 m/s initial error, 0.01 deg).",
-             f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds."]
+    notes = _notes(study, "Seed 002 table 3 (sample period 0.1/1/10/100 s, 500 m / 0.05 m/s initial error, 0.01 deg).",
+                   f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
     files = _write_table(out, table, "Seed 002 table 3: sample period vs navigation error", notes)
     files.append(_plot_navigate(table, "step_s", "sample period (s)", "seed 002 table 3", out / "plot.png"))
     return files
@@ -236,13 +237,10 @@ def report_observability(study, rows, out):
                       "window_h": r["window_h"], "window_info_condition": r["window_info_condition"],
                       "weakest_sigma_m": r["weakest_sigma_m"], "weakest_direction": r["weakest_direction"]})
     rank = "" if ref is None else f"rank {ref.rank} at every period and "
-    notes = [f"Study `{study.name}`: {study.description}",
-             f"Seed 002 table 4: {rank}a condition number growing with the period "
-             "(its numbers are not in the source text). condition_raw/scaled: eq. 9 with 6 blocks "
-             "(window 5 T) at the seed's initial state; window_info_*: information of the initial state "
-             "from all samples over a fixed window (1-sigma of the weakest direction, velocity x 1000 s)."]
-    if ref is None:
-        notes.append(NO_REFERENCE)
+    notes = _notes(study, f"Seed 002 table 4: {rank}a condition number growing with the period "
+                   "(its numbers are not in the source text). condition_raw/scaled: eq. 9 with 6 blocks "
+                   "(window 5 T) at the seed's initial state; window_info_*: information of the initial state "
+                   "from all samples over a fixed window (1-sigma of the weakest direction, velocity x 1000 s).")
     files = _write_table(out, table, "Seed 002 table 4: observability vs sample period", notes)
     fig, axes = _figure(2)
     T = [r["step_s"] for r in table]
@@ -284,11 +282,10 @@ def report_visibility(study, rows, out):
     for r in table:
         cols += [k for k in r if k not in cols]
     table = [{c: r.get(c) for c in cols} for r in table]
-    notes = [f"Study `{study.name}`: {study.description}",
-             f"Seed 002 eq. 1: a {ring[0]:g}-{ring[1]:g} deg limb ring sees the whole Earth for "
-             f"R/sin({ring[1] / 2:g} deg) - R <= h <= R/sin({ring[0] / 2:g} deg) - R. Rows after the bands: passes "
-             "navigated with the ring's direction + limb radius at every epoch (all) vs only when the limb is "
-             "inside the ring."]
+    notes = _notes(study, f"Seed 002 eq. 1: a {ring[0]:g}-{ring[1]:g} deg limb ring sees the whole Earth for "
+                   f"R/sin({ring[1] / 2:g} deg) - R <= h <= R/sin({ring[0] / 2:g} deg) - R. Rows after the bands: "
+                   "passes navigated with the ring's direction + limb radius at every epoch (all) vs only when the "
+                   "limb is inside the ring.")
     files = _write_table(out, table, "Seed 002: limb-ring visibility bound", notes)
     r0_km, lo, hi = bands[0]
     fig, ax = _figure(1)
@@ -319,11 +316,8 @@ def report_table5(study, rows, out):
         t["seed_over_bound"] = None if seed is None else float(seed / t["lower_bound_km"])
         table.append(t)
     table.sort(key=lambda r: (r["alt_km"], r["angle_error_deg"]))
-    notes = [f"Study `{study.name}`: {study.description}",
-             "Seed 000 table 5 via fgnav.analysis.seed000.table5 (definitions in its docstring); "
-             "ours_mc_km: Monte Carlo of r = -(R/sin rho) u with the same errors (2000 draws)."]
-    if ref is None:
-        notes.append(NO_REFERENCE)
+    notes = _notes(study, "Seed 000 table 5 via fgnav.analysis.seed000.table5 (definitions in its docstring); "
+                   "ours_mc_km: Monte Carlo of r = -(R/sin rho) u with the same errors (2000 draws).")
     files = _write_table(out, table, "Seed 000 table 5: direct positioning error", notes)
     fig, ax = _figure(1)
     for alt in sorted({r["alt_km"] for r in table}):
@@ -376,12 +370,11 @@ def report_nees(study, rows, out):
                  seed_value=None)
         table.append(r)
     pct = f"{(1.0 - ref.alpha) * 100:g}%"
-    notes = [f"Study `{study.name}`: {study.description}",
-             "NEES of the 6-D state against truth (independent DOP853); ANEES over runs at the final and "
-             f"middle epochs with the two-sided {pct} chi-square band chi2(6R)/R; epochs_inside_band: "
-             f"fraction of epochs whose ANEES lies in that band (about {1.0 - ref.alpha:g} if consistent; epochs of "
-             "one run are correlated). EKF rows are the filtered (causal) estimates. No seed value exists (the "
-             "seeds give no consistency test)."]
+    notes = _notes(study, "NEES of the 6-D state against truth (independent DOP853); ANEES over runs at the final and "
+                   f"middle epochs with the two-sided {pct} chi-square band chi2(6R)/R; epochs_inside_band: "
+                   f"fraction of epochs whose ANEES lies in that band (about {1.0 - ref.alpha:g} if consistent; "
+                   "epochs of one run are correlated). EKF rows are the filtered (causal) estimates. No seed value "
+                   "exists (the seeds give no consistency test).")
     files = _write_table(out, table, "NEES / ANEES consistency", notes)
     fig, ax = _figure(1)
     lo = hi = None
