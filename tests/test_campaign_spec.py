@@ -62,6 +62,7 @@ BAD = [
     # (base, old, new, the key the message must name)
     (NAVIGATE, 'name = "t"', 'name = "t"\ncolour = 1', "colour"),
     (NAVIGATE, 'name = "t"', "name = 3", "name"),
+    (NAVIGATE, 'name = "t"', 'name = "t"\ndescription = ["a"]', "description"),
     (NAVIGATE, 'task = "navigate"', 'task = "juggle"', "task"),
     (NAVIGATE, 'report = "seed002-noise"', 'report = "visibility"', "report"),
     (NAVIGATE, 'methods = ["batch", "ekf"]', 'methods = ["magic"]', "methods"),

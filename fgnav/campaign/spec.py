@@ -254,7 +254,9 @@ def study_from_dict(d: dict, path) -> Study:
         if key not in d:
             raise InputFormatError(path, None, key, f"this key ({EXAMPLE})")
     name = typed_value(path, "name", d["name"], str)
-    description = typed_value(path, "description", d["description"], str) if "description" in d else ""
+    description = d.get("description", "")
+    if not isinstance(description, str):
+        raise InputFormatError(path, None, "description", "a string", description)
     if d["task"] not in TASKS:
         raise InputFormatError(path, None, "task", f"one of {tuple(TASKS)}", d["task"])
     task = TASKS[d["task"]]
