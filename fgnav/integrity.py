@@ -85,14 +85,16 @@ def _chi2_test(chi2: float, dof: int) -> dict:
             "log10_p": logsf / math.log(10.0)}
 
 
-def _severity(test: dict) -> str:
-    """ok / suspect / failed for a chi-square test (see the module docstring)."""
+def _severity(test: dict, suspect_above: float = SUSPECT_NORMALIZED_CHI2,
+              failed_above: float = FAILED_NORMALIZED_CHI2) -> str:
+    """ok / suspect / failed for a chi-square test: beyond its 1 - 1e-6 quantile and with
+    chi2/dof above ``suspect_above`` (``failed_above``); see the module docstring."""
     if not math.isfinite(test["chi2"]):
         return "failed"
     beyond = test["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY)
-    if beyond and test["normalized"] > FAILED_NORMALIZED_CHI2:
+    if beyond and test["normalized"] > failed_above:
         return "failed"
-    if beyond and test["normalized"] > SUSPECT_NORMALIZED_CHI2:
+    if beyond and test["normalized"] > suspect_above:
         return "suspect"
     return "ok"
 
@@ -150,9 +152,10 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring).
 
     ``model``: the :class:`factors.dynamics.MotionModel` of the solve (enables the
-    manoeuvre and omitted-force tests). ``normalized_residuals``: kind -> (M, m) residuals that are N(0, I) when the model is
-    right, if they differ from ``sol.residuals`` (an EKF's innovations normalized by their
-    covariance). Returns the ``"integrity"`` object of summary.json.
+    manoeuvre and omitted-force tests, and an EKF's normalized innovations).
+    ``normalized_residuals``: kind -> (M, m) residuals that are N(0, I) when the model is
+    right, where they differ from ``sol.residuals``. Returns the ``"integrity"`` object of
+    summary.json.
     """
     reasons: list[tuple[str, str, str]] = []  # (severity, text, advice key)
     notes: list[str] = []
@@ -163,7 +166,8 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         res = sol.residuals
     families: dict[str, dict] = {}
 
-    if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))):
+    finite = bool(np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci)))
+    if not finite:
         reasons.append(("failed", "the solution has non-finite states or covariances", "converge"))
 
     if sol.extras.get("converged") is False:
@@ -223,10 +227,9 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     # relinearization threshold away (1 km), which alone makes the motion rows ~1 sigma.
     if chi2_motion is not None and p.n_epochs > 1 and sol.method != "fixed-lag":
         motion = _chi2_test(float(chi2_motion), 6 * (p.n_epochs - 1))
-        sev = "failed" if motion["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY) and \
-            motion["normalized"] > FAILED_NORMALIZED_CHI2 else \
-            "suspect" if motion["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY) else "ok"
-        motion["status"] = sev
+        # a smoother's process-noise residuals are far below their dimension on a right
+        # model: any chi-square beyond the quantile is suspect
+        sev = motion["status"] = _severity(motion, suspect_above=0.0)
         if sev != "ok":
             reasons.append((sev, f"motion: chi2/dof = {motion['normalized']:.3g} over "
                                  f"{motion['dof']} process-noise components: the orbit bends "
@@ -238,9 +241,9 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         m2 = float(sum(np.nansum(r * r) for r in pr))
         prior = _chi2_test(m2, sum(r.size for r in pr))
         prior["mahalanobis"] = math.sqrt(m2) if math.isfinite(m2) else math.inf
-        beyond = prior["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY)
-        prior["status"] = ("failed" if beyond and prior["normalized"] > FAILED_NORMALIZED_CHI2 ** 2
-                           else "suspect" if beyond else "ok")
+        # failed when the prior is 4x further (in sigma) than its gate would allow
+        prior["status"] = _severity(prior, suspect_above=0.0,
+                                    failed_above=FAILED_NORMALIZED_CHI2 ** 2)
         if prior["status"] != "ok":
             reasons.append((prior["status"], f"the prior is {prior['mahalanobis']:.3g} sigma "
                                              f"(Mahalanobis) from the solution", "prior"))
@@ -251,7 +254,6 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                                   f"orbit determined from the data alone", "prior"))
 
     glr = third = None
-    finite = np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_eci))
     if getattr(p, "breaks", ()):
         notes.append("manoeuvre and omitted-force tests not run: the log is solved as separate "
                      "arcs")
