@@ -52,7 +52,8 @@ radius, refraction) 1e-9..1 rad, attitude 1e-9..pi rad, ``prior_position`` 1e-3.
 ``prior_velocity`` 1e-6..1e5 m/s, ``altitude`` 1e-3..1e7 m. Below the range a measurement
 would be trusted beyond any sensor (and beyond double precision in the solvers' whitened
 rows); above it, it carries no information. A ``prior_position`` lies outside the Earth
-(|r| >= 6,378,137 m, the equatorial radius).
+(|r| >= 6,378,137 m, the equatorial radius) and within 1e13 m (``MAX_DISTANCE_M``, which
+also bounds radii and heights); a ``prior_velocity`` within 1e6 m/s.
 
 Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the file, the
 1-based line, the column and what was expected, unless stated otherwise)
@@ -130,6 +131,11 @@ SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
 """Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""
 PRIOR_MIN_RADIUS_M = 6378137.0
 """A ``prior_position`` closer to the Earth's centre than this (m) is an error."""
+MAX_DISTANCE_M = 1e13
+"""Largest position, radius or height a row may give (m, ~67 AU): beyond it a value is a
+unit or typing error, and its square would overflow the solvers' arithmetic."""
+MAX_SPEED_MPS = 1e6
+"""Largest ``prior_velocity`` component (m/s)."""
 
 DIRECTION_KINDS = ("earth_direction", "earth_direction_body", "sun_direction_body",
                    "moon_direction_body", "refraction")
@@ -244,9 +250,17 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
     if not lo <= sigma <= hi:
         raise _RowError("bad_sigma", "sigma", f"a 1-sigma within {lo:g}..{hi:g} {unit} for "
                         f"{kind}", _fmt_found(sigma))
-    if kind == "prior_position" and not math.hypot(x, y, z) >= PRIOR_MIN_RADIUS_M:
-        raise _RowError("out_of_range", "x,y,z", f"a position outside the Earth (|r| >= "
-                        f"{PRIOR_MIN_RADIUS_M:.0f} m)", f"|r| = {math.hypot(x, y, z)!r} m")
+    if kind == "prior_position" and not PRIOR_MIN_RADIUS_M <= math.hypot(x, y, z) <= MAX_DISTANCE_M:
+        raise _RowError("out_of_range", "x,y,z", f"a position outside the Earth and within "
+                        f"{MAX_DISTANCE_M:g} m ({PRIOR_MIN_RADIUS_M:.0f} m <= |r| <= "
+                        f"{MAX_DISTANCE_M:g} m)", f"|r| = {math.hypot(x, y, z)!r} m")
+    if kind == "prior_velocity" and not math.hypot(x, y, z) <= MAX_SPEED_MPS:
+        raise _RowError("out_of_range", "x,y,z", f"a velocity within {MAX_SPEED_MPS:g} m/s",
+                        f"|v| = {math.hypot(x, y, z)!r} m/s")
+    if kind in ("limb_radius", "altitude") and not (abs(x) <= MAX_DISTANCE_M and
+                                                    y <= MAX_DISTANCE_M):
+        raise _RowError("out_of_range", "x,y", f"values within {MAX_DISTANCE_M:g} m",
+                        f"{_fmt_found(x)}, {_fmt_found(y)}")
     renorm = False
     if kind in DIRECTION_KINDS:
         n = math.hypot(x, y, z)
