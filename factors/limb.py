@@ -12,6 +12,7 @@ import functools
 import numpy as np
 
 from factors.adapters import custom_factor, pad_position_jacobian, vector_state
+from factors.errors import ModelDomainError
 
 __all__ = ["limb_radius_residual", "make_limb_radius_factor"]
 
@@ -34,14 +35,14 @@ def limb_radius_residual(r_eci_m, rho_meas_rad, r_limb_m):
 
     Raises
     ------
-    ValueError if ``|r| <= r_limb`` (inside the limb sphere: no limb).
+    ModelDomainError (a ValueError) if ``|r| <= r_limb`` (inside the limb sphere: no limb).
     """
     r = np.asarray(r_eci_m, dtype=float)
     n = np.linalg.norm(r, axis=-1)
     rl = np.broadcast_to(np.asarray(r_limb_m, dtype=float), n.shape)
     if np.any(n <= rl):
         k = int(np.argmax(n <= rl))
-        raise ValueError(f"limb radius residual: |r| = {n[k]:.1f} m is not above the limb "
+        raise ModelDomainError(f"limb radius residual: |r| = {n[k]:.1f} m is not above the limb "
                          f"radius {rl[k]:.1f} m (epoch index {k})")
     rho = np.arcsin(rl / n)
     e = (rho - np.asarray(rho_meas_rad, dtype=float))[:, None]

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.analysis.crb import check_observability, cramer_rao_bound
+from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
 from fgnav.initial_orbit import (
     START_INFLATION, Start, has_prior, initial_orbit, propagate_orbit, start_point, strip_prior,
@@ -82,9 +83,16 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                 raise
             raise type(exc)(f"{exc} Without a prior the orbit comes from the measurements "
                             f"alone: or add 'prior_position' and 'prior_velocity' rows.") from exc
-        return start.finish(_dispatch(start, method, options, lag_s=lag_s, progress=progress,
-                                      checkpoint=checkpoint, checkpoint_every=checkpoint_every,
-                                      resume=resume))
+        try:
+            sol = _dispatch(start, method, options, lag_s=lag_s, progress=progress,
+                            checkpoint=checkpoint, checkpoint_every=checkpoint_every,
+                            resume=resume)
+        except ModelDomainError as exc:
+            raise NotObservableError(
+                f"{p.source}: the {method} estimate left the domain of a measurement model "
+                f"({exc}): the first guess is far from the data's orbit; check the prior rows, "
+                f"or try --ignore-prior") from exc
+        return start.finish(sol)
 
     if from_data or checkpoint:
         return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior))

@@ -143,3 +143,25 @@ def test_magnitudes_that_would_overflow_are_refused(tmp_path, capsys, row, colum
     rc = main(["smooth", str(tmp_path / "log.csv"), "--out", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "line 3" in err and f"column '{column}'" in err, err
+
+
+def test_a_prior_that_sends_the_estimate_inside_the_limb_sphere(tmp_path, capsys):
+    """Found by the fuzz test: the prior position flipped (r -> -r) in a direction + limb
+    log made a Gauss-Newton iterate cross inside the limb sphere, where the limb model is
+    undefined (a ValueError traceback). Now the data's own orbit takes over, or the user is
+    told."""
+    lines = clean_lines(tmp_path)
+    i = next(j for j, line in enumerate(lines) if ",prior_position," in line)
+    cols = lines[i].split(",")
+    cols[2:5] = [c[1:] if c.startswith("-") else "-" + c for c in cols[2:5]]
+    lines[i] = ",".join(cols)
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    rc = main(["smooth", str(tmp_path / "log.csv"), "--out", str(tmp_path / "out"), "--quiet",
+               "--third-body"])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    if rc == 0:
+        summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+        assert summary["integrity"]["status"] == "failed"  # the log's prior is refuted
+    else:
+        assert rc == 2 and "--ignore-prior" in err, err

@@ -25,6 +25,7 @@ import gtsam
 import numpy as np
 
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
+from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
 from fgnav.graph import PRIOR_KINDS, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
@@ -216,7 +217,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         Xs = x_ekf
         try:
             lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
-        except NotObservableError:
+        except (NotObservableError, ModelDomainError):
             converged = False
         if converged:
             q_stages = [options.q_m2_s3]

@@ -1,0 +1,7 @@
+"""Errors of the measurement and motion models."""
+
+
+class ModelDomainError(ValueError):
+    """A state outside the domain of a measurement model, e.g. a position inside the limb
+    sphere, where no limb is seen. Raised during linearization; solvers turn it into a
+    message that the estimate left the model's domain (a first guess far off)."""
