@@ -165,3 +165,14 @@ def test_a_prior_that_sends_the_estimate_inside_the_limb_sphere(tmp_path, capsys
         assert summary["integrity"]["status"] == "failed"  # the log's prior is refuted
     else:
         assert rc == 2 and "--ignore-prior" in err, err
+
+
+def test_isam2_gate_with_an_attitude_row(tmp_path, capsys):
+    """Found by the fuzz test: an 'attitude' row (no factor of its own) reached the iSAM2
+    gate, which looked up a linearizer for it (KeyError)."""
+    lines = clean_lines(tmp_path)
+    lines.insert(3, "2025-03-01T00:00:00.000000Z,attitude,0.1,0.2,0.3,0.001")
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    rc = main(["smooth", str(tmp_path / "log.csv"), "--out", str(tmp_path / "out"), "--quiet",
+               "--method", "isam2", "--gate", "0.9999", "--third-body"])
+    assert rc == 0, capsys.readouterr().err

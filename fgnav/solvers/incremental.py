@@ -137,6 +137,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
 
     def add_epoch_factors(graph, k, guess, kept_only):
         for kind, rows in per_epoch[k]:
+            if kind not in LINEARIZERS:  # e.g. 'attitude' rows: used by build_pass, not factors
+                continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
             elif gate is not None and kind not in PRIOR_KINDS:
