@@ -8,6 +8,7 @@ Whatever the log and the options, the command ends in one of two ways: exit 0 (o
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -91,8 +92,11 @@ def options(draw):
     return opts
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                                                  HealthCheck.too_slow])
+# In CI (CI=true) the examples are derandomized, so a run is reproducible and a red CI names
+# a fixed example; locally each run explores new ones (--hypothesis-seed=N to repeat one):
+# 120 local runs found the four tracebacks pinned by the tests below.
+@settings(max_examples=60, deadline=None, derandomize=os.environ.get("CI") == "true",
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(data=st.data(), opts=options())
 def test_smooth_end_to_end_never_a_traceback(tmp_path, capsys, data, opts):
     lines = clean_lines(tmp_path)
