@@ -209,7 +209,7 @@ def report_noise(study, rows, out):
     notes = _notes(study, "Seed 002 table 2 (final errors after 4 h): its numbers are not in the source text" + bound,
                    f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
     files = _write_table(out, table, "Seed 002 table 2: direction noise vs navigation error", notes)
-    files.append(_plot_navigate(table, "sigma_deg", "direction noise 1-sigma (deg)", "seed 002 table 2",
+    files.append(_plot_navigate(table, "sigma_deg", "direction noise 1-sigma (deg)", "Pan & Yao 2017, table 2",
                                 out / "plot.png",
                                 hline=None if ref is None else (ref.final_position_km, ref.final_velocity_mps)))
     return files
@@ -222,7 +222,7 @@ def report_period(study, rows, out):
     notes = _notes(study, "Seed 002 table 3 (sample period 0.1/1/10/100 s, 500 m / 0.05 m/s initial error, 0.01 deg).",
                    f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
     files = _write_table(out, table, "Seed 002 table 3: sample period vs navigation error", notes)
-    files.append(_plot_navigate(table, "step_s", "sample period (s)", "seed 002 table 3", out / "plot.png"))
+    files.append(_plot_navigate(table, "step_s", "sample period (s)", "Pan & Yao 2017, table 3", out / "plot.png"))
     return files
 
 
@@ -247,7 +247,7 @@ def report_observability(study, rows, out):
     axes[0].loglog(T, [r["condition_raw"] for r in table], "o-", label="cond(M), SI units")
     axes[0].loglog(T, [r["condition_scaled"] for r in table], "s-", label="cond(M), columns scaled")
     axes[0].loglog(T, [r["window_info_condition"] for r in table], "^-", label="cond(J), fixed window")
-    axes[0].set(xlabel="sample period (s)", ylabel="condition number", title="seed 002 table 4")
+    axes[0].set(xlabel="sample period (s)", ylabel="condition number", title="Pan & Yao 2017, table 4")
     axes[1].loglog(T, [r["weakest_sigma_m"] for r in table], "o-")
     axes[1].set(xlabel="sample period (s)", ylabel="weakest direction 1-sigma (m)",
                 title=f"information over {table[0]['window_h'] if table else ''} h")
@@ -293,7 +293,7 @@ def report_visibility(study, rows, out):
     ax.semilogx(h / 1e3, 2 * limb_half_angle_rad(r0_km * 1e3 + h, r0_km * 1e3) / DEG, label="Earth apparent diameter")
     ax.axhspan(ring[0], ring[1], color="g", alpha=0.2, label=f"ring {ring[0]:g}-{ring[1]:g} deg")
     ax.axvspan(lo / 1e3, hi / 1e3, color="b", alpha=0.1, label=f"band {lo/1e3:.1f}-{hi/1e3:.1f} km")
-    ax.set(xlabel="altitude (km)", ylabel="apparent diameter (deg)", title="seed 002 visibility bound")
+    ax.set(xlabel="altitude (km)", ylabel="apparent diameter (deg)", title="Pan & Yao 2017, visibility bound")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     files.append(_save_plot(fig, out / "plot.png"))
@@ -327,7 +327,7 @@ def report_table5(study, rows, out):
         s = [r for r in t if r["seed_km"] is not None]
         ax.plot([r["angle_error_deg"] for r in s], [r["seed_km"] for r in s], "x:", color=line.get_color())
     ax.set(xlabel="angle error (deg)", ylabel="direct positioning error (km)",
-           title="seed 000 table 5 (x: seed)")
+           title="Wu et al., table 5 (x: random seed)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     files.append(_save_plot(fig, out / "plot.png"))
