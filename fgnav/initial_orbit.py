@@ -80,11 +80,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from factors.constants import MU_EARTH_M3_S2
 from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError
 from fgnav.graph import linearize_all
-from fgnav.measurements import Family, Pass, prior_covariance, prior_state
+from fgnav.measurements import Family, Pass, covering_sigmas, prior_covariance, prior_state
 from fgnav.solvers.first_guess import initial_guess
 
 __all__ = ["InitialOrbit", "initial_orbit", "prior_consistency", "propagate_orbit", "trajectory",
@@ -614,8 +613,7 @@ def with_start_prior(p: Pass, x0: np.ndarray, P0: np.ndarray) -> Pass:
     1-sigma the square root of the largest eigenvalue of each 3x3 block of ``P0`` (the
     rows' format has one sigma per row, so the ellipsoid is covered by its sphere)."""
     q = strip_prior(p)
-    sig_r = math.sqrt(float(np.linalg.eigvalsh(P0[:3, :3])[-1]))
-    sig_v = math.sqrt(float(np.linalg.eigvalsh(P0[3:, 3:])[-1]))
+    sig_r, sig_v = covering_sigmas(P0)
     one = np.zeros(1, dtype=int)
     q.families = {"prior_position": Family(k=one, values={"xyz": x0[None, :3].copy()},
                                            sigma=np.array([sig_r]), line=np.zeros(1, dtype=int)),

@@ -37,8 +37,8 @@ import numpy as np
 
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-from fgnav.analysis.crb import cumulative_stm
-from fgnav.graph import LINEARIZERS, linearize_all
+from fgnav.analysis.crb import rows_at_first_state
+from fgnav.graph import LINEARIZERS
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
@@ -183,15 +183,8 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
             continue
         r = np.asarray(r, dtype=float)
         fam = p.families[kind]
-        keep = np.all(np.isfinite(r), axis=1)
-        w = row_weights.get(kind)
-        n_rej = 0 if w is None else int(np.sum(np.asarray(w) == 0))
-        if w is not None:
-            keep &= np.asarray(w) > 0
-        test = _chi2_test(float(np.sum(r[keep] ** 2)), int(keep.sum() * r.shape[1]))
-        test["rows"] = int(len(fam))
-        test["rejected"] = int(n_rej)
-        test["rejected_fraction"] = n_rej / max(len(fam), 1)
+        test, keep = _family_test(r, row_weights.get(kind))
+        n_rej = test["rejected"]
         sev = _severity(test)
         test["status"] = sev
         families[kind] = test
@@ -309,6 +302,20 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     return out
 
 
+def _family_test(r: np.ndarray, w) -> tuple[dict, np.ndarray]:
+    """The chi-square test of a family's whitened residuals ``r`` (M, m) over its finite rows
+    not rejected (``w``: (M,) robust weights / gate decisions, 0 = rejected, or None); the
+    test dict gains ``rejected``, ``rejected_fraction``; returns it and the kept-row mask."""
+    r = np.asarray(r, dtype=float)
+    keep = np.all(np.isfinite(r), axis=1)
+    n_rej = 0 if w is None else int(np.sum(np.asarray(w) == 0))
+    if w is not None:
+        keep &= np.asarray(w) > 0
+    test = _chi2_test(float(np.sum(r[keep] ** 2)), int(keep.sum() * r.shape[1]))
+    test.update(rows=len(r), rejected=n_rej, rejected_fraction=n_rej / max(len(r), 1))
+    return test, keep
+
+
 def needs_prior_test(sol, p) -> str | None:
     """Why a solution started from the log's prior should have that prior tested against
     the measurements' own orbit, or None when it fits the data: no convergence, non-finite
@@ -327,12 +334,10 @@ def needs_prior_test(sol, p) -> str | None:
             prior_chi2 += float(np.sum(r[keep] ** 2))
             prior_dof += int(keep.sum() * r.shape[1])
             continue
-        w = row_weights.get(kind)
-        if w is not None:
-            if np.mean(np.asarray(w) == 0) > MAX_REJECTED_FRACTION:
-                return f"{kind}: most rows rejected"
-            keep &= np.asarray(w) > 0
-        if _severity(_chi2_test(float(np.sum(r[keep] ** 2)), int(keep.sum() * r.shape[1]))) != "ok":
+        test, _ = _family_test(r, row_weights.get(kind))
+        if test["rejected_fraction"] > MAX_REJECTED_FRACTION:
+            return f"{kind}: most rows rejected"
+        if _severity(test) != "ok":
             return f"{kind}: residuals beyond their noise"
     if prior_dof and _chi2_test(prior_chi2, prior_dof)["log10_p"] < math.log10(FALSE_ALARM_PROBABILITY):
         return "the prior is far from the solution"
@@ -361,15 +366,12 @@ class _Mapped:
     """
 
     def __init__(self, p, sol, model, row_weights=None):
-        X = sol.x_eci
         self.t0_j2000_s = float(j2000_seconds(p.epoch0))
-        _, Phi = propagate_many(X[:-1], np.diff(p.t_s), model, self.t0_j2000_s + p.t_s[:-1])
-        self.Phik = cumulative_stm(Phi)
         rejected = {k: np.asarray(w) == 0 for k, w in (row_weights or {}).items()
                     if k not in PRIOR_KINDS}
-        rows = linearize_all(p, X, None, rejected or None)
+        self.Phik, H, rows = rows_at_first_state(p, sol.x_eci, model, rejected or None)
         live = np.any(rows.A != 0, axis=1)
-        H = np.einsum("ri,rij->rj", rows.A[live], self.Phik[rows.k[live]])
+        H = H[live]
         norm = np.sqrt(np.sum(H * H, axis=0))
         self.s = 1.0 / np.where(norm > 0, norm, 1.0)
         self.H = H * self.s

@@ -10,6 +10,7 @@ attitude's (a body-frame direction with a known attitude).
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -301,6 +302,14 @@ def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
         sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
         P[sl, sl] = np.eye(3) * sig ** 2
     return P
+
+
+def covering_sigmas(P: np.ndarray) -> tuple[float, float]:
+    """Isotropic 1-sigma (position m, velocity m/s) that cover a state covariance ``P``
+    (6, 6): the square root of the largest eigenvalue of each 3x3 block (prior rows carry one
+    sigma per row, so the ellipsoid is covered by its sphere)."""
+    return (math.sqrt(float(np.linalg.eigvalsh(P[:3, :3])[-1])),
+            math.sqrt(float(np.linalg.eigvalsh(P[3:, 3:])[-1])))
 
 
 def prior_state(p: Pass) -> tuple[int, np.ndarray]:

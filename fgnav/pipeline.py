@@ -27,7 +27,7 @@ from fgnav.io.outputs import (
 )
 from fgnav.io.summary import write_summary
 from fgnav.io.tdm import read_tdm
-from fgnav.measurements import Pass, build_pass, check_observable
+from fgnav.measurements import Pass, build_pass, check_observable, covering_sigmas
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log
 from fgnav.solution import Solution
@@ -164,9 +164,7 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
         t0 = float(j2000_seconds(p.epoch0))
         p = strip_prior(p)
         x0, P0 = propagate_orbit(initial_orbit(p, model, t0), p, model, t0, 0)
-        P0 = START_INFLATION * P0
-        start = (x0, float(np.sqrt(np.linalg.eigvalsh(P0[:3, :3])[-1])),
-                 float(np.sqrt(np.linalg.eigvalsh(P0[3:, 3:])[-1])))
+        start = (x0, *covering_sigmas(START_INFLATION * P0))
     return plan_gaps(p, options, gap_factor, start=start)
 
 

@@ -54,16 +54,26 @@ def _scaled_inverse(J: np.ndarray) -> np.ndarray:
     return np.linalg.inv(Js) * s[:, None] * s[None, :]
 
 
-def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel()) -> CrbResult:
-    """The bound along ``X_ref`` (N,6), see the module docstring."""
+def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected=None):
+    """Every whitened row of the pass linearized along ``X_ref`` (N, 6) and mapped to the
+    first state through the cumulative STM, ``G_j = a_j^T Phi(t_k, t_0)``.
+
+    Returns ``(Phik (N,6,6), G (R,6), rows)`` with ``rows`` the
+    :class:`fgnav.graph.Rows` (``rejected``: kind -> (M,) bool rows given zero weight).
+    """
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
         _, Phi = propagate_many(X_ref[:-1], np.diff(p.t_s), model, t0 + p.t_s[:-1])
         Phik = cumulative_stm(Phi)
     else:
         Phik = np.eye(6)[None]
-    rows = linearize_all(p, X_ref)
-    G = np.einsum("ri,rij->rj", rows.A, Phik[rows.k])
+    rows = linearize_all(p, X_ref, None, rejected)
+    return Phik, np.einsum("ri,rij->rj", rows.A, Phik[rows.k]), rows
+
+
+def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel()) -> CrbResult:
+    """The bound along ``X_ref`` (N,6), see the module docstring."""
+    Phik, G, rows = rows_at_first_state(p, X_ref, model)
     J0 = G.T @ G
     Gm = G[~np.isin(rows.row_kind, PRIOR_KINDS)]
     J0_meas = Gm.T @ Gm

@@ -33,7 +33,8 @@ import numpy as np
 from factors.dynamics import process_noise, propagate
 from fgnav.analysis.crb import CrbResult, cramer_rao_bound
 from fgnav.errors import UserError
-from fgnav.measurements import Pass, format_duration, fill_gaps, long_gaps, slice_pass
+from fgnav.measurements import (Pass, covering_sigmas, fill_gaps, format_duration, long_gaps,
+                                slice_pass)
 from fgnav.solution import Solution
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
@@ -95,9 +96,7 @@ def plan_gaps(p: Pass, options, gap_factor: float = 10.0, *, start: tuple | None
             notes.append(g)
             if not g["bridged"]:
                 split = int(i) + 1
-                s_r = float(np.sqrt(np.linalg.eigvalsh(P1[:3, :3])[-1]))
-                s_v = float(np.sqrt(np.linalg.eigvalsh(P1[3:, 3:])[-1]))
-                prior = (x1, s_r, s_v)
+                prior = (x1, *covering_sigmas(P1))
                 break
         if split is None:
             break
