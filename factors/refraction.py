@@ -19,6 +19,13 @@ gives the tangent height through the inverse atmosphere model, ``h_m = h(gamma)`
 residual is ``e = h_a - h_m`` (metres): each refracted star constrains the position to a
 surface. For a star towards the limb ``r.s < 0``.
 
+Atmosphere-model bias (optional): the real atmosphere differs from the model by a slowly
+varying shift of the tangent height, ``gamma_real(h) = gamma_model(h + b)`` (a density
+error of a few per cent moves the refraction profile by a few hundred metres). The inverse
+model then returns ``h(gamma) = h_true + b``, so the residual with the bias as a variable is
+``e = h_a - (h(gamma) - b)``, ``de/db = +1``: ``b`` estimates the model's error on the
+tangent height (the simulator's ``dh`` of :mod:`fgnav.simulate.refraction_sim`, same sign).
+
 Models (``model=``), both of the form ``gamma(h) = gamma_ref exp(-(h - h_ref)/H)``:
 
 - ``"exponential-seed004"``: Li et al. 2017's fit, ``gamma_ref`` = 2350.1074 arcsec at
@@ -48,7 +55,7 @@ __all__ = [
     "REFRACTION_VALID_BAND_M", "ExponentialRefractionModel", "REFRACTION_MODELS",
     "refraction_model", "refraction_angle_rad", "tangent_height_from_refraction_m",
     "in_valid_band", "apparent_tangent_height_m", "refraction_residual",
-    "refraction_sigma_m", "make_refraction_factor",
+    "refraction_sigma_m", "make_refraction_factor", "make_refraction_bias_factor",
 ]
 
 REFRACTION_VALID_BAND_M = (20e3, 50e3)
@@ -167,7 +174,7 @@ def apparent_tangent_height_m(r_eci_m, s_eci, gamma_rad, r_earth_m=R_EARTH_M, a_
 
 
 def refraction_residual(r_eci_m, s_eci, gamma_meas_rad, r_earth_m=R_EARTH_M, a_m=0.0,
-                        model="exponential-seed004"):
+                        model="exponential-seed004", bias_m=None):
     """Starlight-refraction residual (metres of tangent height).
 
     ``e = h_a(r; s, gamma_meas) - h(gamma_meas)``, with ``h_a`` from
@@ -175,20 +182,28 @@ def refraction_residual(r_eci_m, s_eci, gamma_meas_rad, r_earth_m=R_EARTH_M, a_m
     the measurement, so only ``r`` is differentiated:
     ``H_r = (r - p s)^T / sqrt(|r|^2 - p^2) + sign(p) tan(gamma) s^T``, ``p = r.s``.
 
+    With the atmosphere-model bias ``b`` (``bias_m``, the height shift of the real atmosphere
+    against the model, see the module docstring) the residual is
+    ``e = h_a - (h(gamma_meas) - b)`` and its Jacobian ``H_b = de/db = 1``.
+
     Parameters
     ----------
     r_eci_m : (N, 3) m; s_eci : (N, 3) catalogue star direction (ECI, unit);
     gamma_meas_rad : (N,) measured refraction angle, rad; r_earth_m, a_m : m;
-    model : refraction model name (see module docstring).
+    model : refraction model name (see module docstring);
+    bias_m : None (no bias variable), or a scalar or (N,) tangent-height bias ``b``, m.
 
     Returns
     -------
-    e : (N, 1) m; H_r : (N, 1, 3).
+    e : (N, 1) m; H_r : (N, 1, 3); and, only when ``bias_m`` is given, H_b : (N, 1, 1).
     """
     g = np.asarray(gamma_meas_rad, dtype=float).reshape(-1)
     h_a, H_r = apparent_tangent_height_m(r_eci_m, s_eci, g, r_earth_m, a_m)
     e = h_a - tangent_height_from_refraction_m(g, model)
-    return e[:, None], H_r[:, None, :]
+    if bias_m is None:
+        return e[:, None], H_r[:, None, :]
+    e = e + np.broadcast_to(np.asarray(bias_m, dtype=float).reshape(-1), e.shape)
+    return e[:, None], H_r[:, None, :], np.ones((e.shape[0], 1, 1))
 
 
 def refraction_sigma_m(gamma_rad, sigma_gamma_rad, sigma_model_m, model="exponential-seed004",
@@ -231,3 +246,27 @@ def make_refraction_factor(key_x, s_eci, gamma_meas_rad, sigma_m, r_earth_m=R_EA
     return custom_factor([key_x], sigma_m,
                          functools.partial(_refraction, key_x, s, g, float(r_earth_m),
                                            float(a_m), model), dim=1)
+
+
+def _refraction_bias(key_x, key_b, s, gamma, r_earth_m, a_m, model, values):
+    x = vector_state(values, key_x)
+    b = vector_state(values, key_b)
+    e, H_r, H_b = refraction_residual(x[None, :3], s, gamma, r_earth_m, a_m, model, b[0])
+    return e[0], [pad_position_jacobian(H_r[0], x.shape[0]), H_b[0]]
+
+
+def make_refraction_bias_factor(key_x, key_b, s_eci, gamma_meas_rad, sigma_m, r_earth_m=R_EARTH_M,
+                                a_m=0.0, model="exponential-seed004"):
+    """CustomFactor on a state key ``[r; v]`` and a Vector1 bias key ``[b]`` (m): error (1,) m
+    ``h_a - (h(gamma) - b)``, Jacobians (1, 6) and (1, 1) (:func:`refraction_residual` with
+    ``bias_m``).
+
+    ``sigma_m`` from :func:`refraction_sigma_m` (its ``sigma_model_m`` then the white,
+    star-to-star part of the model error only; the bias is the variable).
+    """
+    s = np.asarray(s_eci, dtype=float).reshape(1, 3)
+    g = np.array([float(gamma_meas_rad)])
+    refraction_model(model)  # validate the name now, not inside the optimizer
+    return custom_factor([key_x, key_b], sigma_m,
+                         functools.partial(_refraction_bias, key_x, key_b, s, g,
+                                           float(r_earth_m), float(a_m), model), dim=1)

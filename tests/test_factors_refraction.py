@@ -17,12 +17,14 @@ from factors.constants import ARCSEC, R_EARTH_M
 from factors.refraction import (GLADSTONE_DALE_M3_KG, REFRACTION_MODELS,
                                 REFRACTION_VALID_BAND_M, US76_DENSITY_KG_M3,
                                 apparent_tangent_height_m, in_valid_band,
-                                make_refraction_factor, refraction_angle_rad,
+                                make_refraction_bias_factor, make_refraction_factor,
+                                refraction_angle_rad,
                                 refraction_residual, refraction_sigma_m,
                                 tangent_height_from_refraction_m)
 from factors.testing import check_jacobians, check_linearization, random_positions_m
 
 X = gtsam.symbol("x", 4)
+B = gtsam.symbol("b", 4)
 A_OBL_M = 1.5e3  # an arbitrary oblateness correction, to exercise the parameter
 
 
@@ -177,3 +179,60 @@ def test_factor_linearizes_like_numpy(rng):
     check_linearization(f, values, [A_[0]], b[0])
     with pytest.raises(ValueError, match="unknown refraction model"):
         make_refraction_factor(X, s[0], g[0], sigma, model="nope")
+
+
+def test_bias_residual_zero_at_truth_and_sign(rng):
+    """A real atmosphere shifted in height by b against the model, gamma_real(h) =
+    gamma_model(h + b): at the true position the residual is -b without the bias variable and
+    0 with bias_m = b (the sign the simulator's atmosphere-model error has)."""
+    n = 25
+    r = random_positions_m(rng, n, 6.9e6, 7.5e6)
+    h = rng.uniform(22e3, 48e3, size=n)
+    b = rng.uniform(-600.0, 600.0, size=n)
+    g_real = refraction_angle_rad(h + b)
+    s = star_for_tangent_height(r, h, g_real, rng=rng)
+    e0, H0 = refraction_residual(r, s, g_real, R_EARTH_M, A_OBL_M)
+    e, H_r, H_b = refraction_residual(r, s, g_real, R_EARTH_M, A_OBL_M, bias_m=b)
+    assert e.shape == (n, 1) and H_r.shape == (n, 1, 3) and H_b.shape == (n, 1, 1)
+    np.testing.assert_allclose(e0[:, 0], -b, atol=1e-6)  # m
+    np.testing.assert_allclose(e, 0.0, atol=1e-6)
+    np.testing.assert_array_equal(H_r, H0)  # the bias does not change the geometry
+    # a scalar bias broadcasts to every row
+    e_s, _, _ = refraction_residual(r, s, g_real, R_EARTH_M, A_OBL_M, bias_m=250.0)
+    np.testing.assert_allclose(e_s[:, 0], e0[:, 0] + 250.0, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("model", sorted(REFRACTION_MODELS))
+def test_bias_jacobians(rng, model):
+    n = 30
+    r = random_positions_m(rng, n, 6.9e6, 7.5e6) + 5e3 * rng.normal(size=(n, 3))
+    h = rng.uniform(*REFRACTION_VALID_BAND_M, size=n)
+    g = refraction_angle_rad(h, model) * (1 + 0.05 * rng.normal(size=n))
+    s = star_for_tangent_height(r, h, g, rng=rng)
+    b = rng.normal(0.0, 300.0, size=(n, 1))
+    _, H_r, H_b = refraction_residual(r, s, g, R_EARTH_M, A_OBL_M, model, bias_m=b[:, 0])
+
+    def f(r_, b_):
+        return refraction_residual(r_, s, g, R_EARTH_M, A_OBL_M, model, bias_m=b_[:, 0])
+
+    check_jacobians(f, (r, b), (H_r, H_b), ("vector", "vector"), names=("r_eci_m", "bias_m"))
+
+
+def test_bias_factor_linearizes_like_numpy(rng):
+    r = random_positions_m(rng, 1, 6.9e6, 7.5e6)
+    g = refraction_angle_rad(np.array([32e3 + 300.0]))
+    s = star_for_tangent_height(r, np.array([32e3]), g, rng=rng)
+    r_lin = r + [[300.0, -200.0, 100.0]]
+    b_lin = np.array([180.0])
+    sigma = refraction_sigma_m(g[0], 1 * ARCSEC, 100.0)
+    f = make_refraction_bias_factor(X, B, s[0], g[0], sigma, R_EARTH_M, A_OBL_M)
+    assert list(f.keys()) == [X, B]
+    values = gtsam.Values()
+    values.insert(X, np.concatenate([r_lin[0], [7e3, 0.0, 0.0]]))
+    values.insert(B, b_lin)
+    e, H_r, H_b = refraction_residual(r_lin, s, g, R_EARTH_M, A_OBL_M, bias_m=b_lin)
+    (A_x, A_b), b = whiten(e, [pad_position_jacobian(H_r), H_b], sigma)
+    check_linearization(f, values, [A_x[0], A_b[0]], b[0])
+    assert f.error(values) == pytest.approx(0.5 * (e[0, 0] / sigma) ** 2, rel=1e-12)
+    with pytest.raises(ValueError, match="unknown refraction model"):
+        make_refraction_bias_factor(X, B, s[0], g[0], sigma, model="nope")
