@@ -59,6 +59,11 @@ class SensorSpec:
     vmag_max: float = 6.0                  # faintest star used
     azimuths_deg: tuple = (0.0, 120.0, 240.0)  # head boresights about nadir, from velocity
     boresight_tangent_km: float = 35.0     # tangent height of the ray at the field centre
+    # the real atmosphere's height shift against the refraction model, b(t) (m): b0 + drift t
+    # + a seeded random walk (fgnav.simulate.refraction_sim.refraction_bias_path_m); 0 = none
+    model_bias_m: float = 0.0              # b at the pass start (t = 0)
+    model_bias_drift_m_per_h: float = 0.0  # deterministic drift rate
+    model_bias_random_walk_m_per_sqrt_h: float = 0.0  # random-walk diffusion, 1σ after 1 h
     # body-frame directions (the INS/CNS lecture; fgnav.simulate.body_directions): body = LVLH
     min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
 
@@ -136,15 +141,22 @@ SENSOR_KEYS = {
     "vmag_max": ("number", "mag", -2.0, 10.0, True, True),
     "azimuths_deg": ("numbers", "deg", None, None, True, True),
     "boresight_tangent_km": ("number", "km", 0.0, 100.0, True, True),
+    "model_bias_m": ("number", "m", -1e5, 1e5, True, True),
+    "model_bias_drift_m_per_h": ("number", "m/h", -1e5, 1e5, True, True),
+    "model_bias_random_walk_m_per_sqrt_h": ("number", "m/sqrt(h)", 0.0, 1e5, True, True),
     "min_sun_elongation_deg": ("number", "deg", 0.0, 180.0, True, True),
 }
 _DIRECTION = ("sigma_deg",)
+MODEL_BIAS_KEYS = ("model_bias_m", "model_bias_drift_m_per_h",
+                   "model_bias_random_walk_m_per_sqrt_h")
+"""The refraction sensor's atmosphere-model bias keys; at most one sensor of a scenario may
+set them (the pass has one true bias, ``SimulatedPass.truth_params["refraction_bias_m"]``)."""
 SENSOR_KIND_KEYS = {
     "earth_direction": _DIRECTION,
     "limb_radius": _DIRECTION + ("r_limb_km",),
     "altitude": ("sigma_m",),
     "refraction": ("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
-                   "vmag_max", "azimuths_deg", "boresight_tangent_km"),
+                   "vmag_max", "azimuths_deg", "boresight_tangent_km") + MODEL_BIAS_KEYS,
     "earth_direction_body": _DIRECTION,
     "sun_direction_body": _DIRECTION,
     "moon_direction_body": _DIRECTION + ("min_sun_elongation_deg",),
@@ -387,6 +399,13 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         raise src.error(None, 0, "sensor", "at least one [[sensor]] table (an array of tables)",
                         sensors if not isinstance(sensors, list) else None, label="sensor")
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
+    biased = [i for i, s in enumerate(sensors) if any(k in s for k in MODEL_BIAS_KEYS)]
+    if len(biased) > 1:
+        i = biased[1]
+        key = next(k for k in MODEL_BIAS_KEYS if k in sensors[i])
+        raise src.error("sensor", i, key, f"the atmosphere-model bias keys on one refraction "
+                        f"sensor only (already on sensor[{biased[0] + 1}])", key,
+                        label=f"sensor[{i + 1}].{key}")
     return Scenario(
         name=top.get("name", Path(path).stem), description=top.get("description", ""),
         epoch=top["epoch"], duration_h=top["duration_h"], step_s=top["step_s"],

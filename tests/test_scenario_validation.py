@@ -134,6 +134,19 @@ BAD = {
                                   "sensor[3].azimuths_deg", "non-empty array"),
     "refraction_fov_180": (BASE + '\n[[sensor]]\nkind = "refraction"\nfov_deg = 180.0\n',
                            "sensor[3].fov_deg", "<= 90"),
+    "bias_on_a_direction_sensor": (sub("sigma_deg = 0.01", "sigma_deg = 0.01\nmodel_bias_m = 300.0"),
+                                   "sensor[1].model_bias_m", "known: kind, period_s, sigma_deg"),
+    "bias_random_walk_negative": (BASE + '\n[[sensor]]\nkind = "refraction"\n'
+                                  'model_bias_random_walk_m_per_sqrt_h = -1.0\n',
+                                  "sensor[3].model_bias_random_walk_m_per_sqrt_h", ">= 0 m/sqrt(h)"),
+    "bias_drift_nan": (BASE + '\n[[sensor]]\nkind = "refraction"\nmodel_bias_drift_m_per_h = nan\n',
+                       "sensor[3].model_bias_drift_m_per_h", "finite"),
+    "bias_string": (BASE + '\n[[sensor]]\nkind = "refraction"\nmodel_bias_m = "300 m"\n',
+                    "sensor[3].model_bias_m", "finite number"),
+    "bias_on_two_refraction_sensors": (
+        BASE + '\n[[sensor]]\nkind = "refraction"\nmodel_bias_m = 300.0\n'
+        '\n[[sensor]]\nkind = "refraction"\nmodel_bias_drift_m_per_h = 10.0\n',
+        "sensor[4].model_bias_drift_m_per_h", "one refraction sensor only"),
 }
 
 
@@ -185,7 +198,8 @@ def test_good_variants_load(tmp_path):
 def test_builtin_scenarios_load_unchanged():
     from fgnav.scenarios import builtin_names, load_scenario
 
-    assert builtin_names() == ["geo-limb", "gto-transfer", "leo-sun-earth-moon", "refraction-leo"]
+    assert builtin_names() == ["geo-limb", "gto-transfer", "leo-sun-earth-moon", "refraction-leo",
+                               "refraction-leo-bias"]
     gto = load_scenario("gto-transfer")
     assert gto.x0_eci == (6509244.371304875, 0.0, 3713244.835519765,
                           -3737.397235776740, 0.0, 8790.602460568101)

@@ -10,7 +10,9 @@ def register(sub):
     p = sub.add_parser("simulate", help="simulate a scenario: DIR/measurements.csv + DIR/truth.oem",
                        description="Simulate a built-in scenario (e.g. gto-transfer, geo-limb) or a "
                                    "scenario TOML file: truth from an independent DOP853 integrator, "
-                                   "measurements with seeded noise.")
+                                   "measurements with seeded noise. A refraction sensor with "
+                                   "an atmosphere-model bias also gives "
+                                   "DIR/truth_refraction_bias.csv (epoch,refraction_bias_m).")
     p.add_argument("scenario", help="built-in name or path to a scenario .toml")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
@@ -63,11 +65,21 @@ def run(args) -> int:
                   object_name=scn.name.upper(),
                   comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
                             "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+        written = [out / "measurements.csv", out / "truth.oem"]
+        if "refraction_bias_m" in sim.truth_params:
+            from fgnav.io.truth_params import TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv
+
+            written.append(out / TRUTH_REFRACTION_BIAS_CSV)
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s,
+                {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
+                comments=(f"scenario {scn.name}, seed {args.seed}: the real atmosphere's "
+                          "tangent-height shift against the refraction model, m",))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
-              f"{out / 'measurements.csv'}, {out / 'truth.oem'}")
+              + ", ".join(str(w) for w in written))
     if getattr(args, "images", False):
         from fgnav.simulate.images import ImageConfig, render_pass_frames
 

@@ -7,13 +7,18 @@ from the estimator's propagator. Noise:
   tangent-plane components ``n ~ N(0, sigma^2 I_2)``, ``t = |n|``, ``d = B^T n / t``;
 * limb angular radius: ``rho = arcsin(R_limb/|r|) + sigma n``;
 * altimeter: ``h = |r| - R_ref + sigma n``;
+* refraction: :mod:`fgnav.simulate.refraction_sim`; an atmosphere-model bias path ``b(t)``
+  (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`) draws its random walk
+  from its own stream, ``numpy.random.default_rng([seed, REFRACTION_BIAS_STREAM])``, so
+  switching it on leaves the other draws' sequence as it was; the path, at every truth
+  epoch, is ``SimulatedPass.truth_params["refraction_bias_m"]`` when refraction rows exist;
 * prior: ``x_prior = x_true + e``, ``e ~ N(0, diag(sigma^2))`` ("random") or ``e = sigma``
   per axis ("fixed", Pan & Yao 2017's setting).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -23,7 +28,8 @@ from fgnav.orbit import integrate_truth
 from fgnav.errors import UserError
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.noise import perturb_directions
-from fgnav.simulate.refraction_sim import simulate_refraction_rows
+from fgnav.simulate.refraction_sim import (has_model_bias, refraction_bias_path_m,
+                                           simulate_refraction_rows)
 from fgnav.simulate.body_directions import simulate_body_direction_rows
 from fgnav.time import j2000_seconds, parse_utc
 
@@ -36,6 +42,14 @@ class SimulatedPass:
     t_s: np.ndarray          # (N,) truth epochs (every measurement epoch)
     x_true: np.ndarray       # (N,6)
     log: MeasurementLog
+    truth_params: dict = field(default_factory=dict)
+    """True values of model parameters at ``t_s``, name -> (N,) array; today
+    ``"refraction_bias_m"`` (m), the atmosphere-model bias of a refraction sensor that has
+    one (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`)."""
+
+
+REFRACTION_BIAS_STREAM = 1
+"""Second entropy word of the random-walk stream of the atmosphere-model bias."""
 
 
 def sensor_epochs(scn: Scenario, period_s: float | None) -> np.ndarray:
@@ -62,6 +76,7 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                              third_body=scn.truth_third_body, t0_j2000_s=float(j2000_seconds(epoch0)),
                              drag=scn.truth_drag or None, srp=scn.truth_srp or None)
     kinds, ts, xyz, sig, extras = [], [], [], [], []
+    truth_params = {}
 
     def add(kind, t, values, sigma, extra=None):
         kinds.extend([kind] * len(t))
@@ -94,7 +109,15 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
             add("altitude", t, np.column_stack([h, np.full(len(t), R_EARTH_M), np.full(len(t), np.nan)]),
                 spec.sigma_m)
         elif spec.kind == "refraction":
-            for chunk in simulate_refraction_rows(spec, t, x_true[idx], epoch0, rng):
+            b_all = None
+            if has_model_bias(spec):
+                b_all = refraction_bias_path_m(
+                    spec, t_all, np.random.default_rng([seed, REFRACTION_BIAS_STREAM]))
+            chunks = simulate_refraction_rows(spec, t, x_true[idx], epoch0, rng,
+                                              bias_m=None if b_all is None else b_all[idx])
+            if b_all is not None and any(c[0] == "refraction" for c in chunks):
+                truth_params["refraction_bias_m"] = b_all
+            for chunk in chunks:
                 add(*chunk)
         elif spec.kind in ("earth_direction_body", "sun_direction_body", "moon_direction_body"):
             for chunk in simulate_body_direction_rows(spec, t, x_true[idx], epoch0, rng):
@@ -108,4 +131,5 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                  for c in ("gamma", "sigma_model_m")}
     log = log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
                           np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
-    return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log)
+    return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
+                         truth_params=truth_params)

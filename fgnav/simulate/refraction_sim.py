@@ -17,9 +17,14 @@ the factor's own geometry (``factors.refraction.apparent_tangent_height_m`` with
     h = sqrt(|r|^2 - (r.s)^2) + |r.s| tan(gamma_real(h)) - R_e,
 
 (a scalar root, Newton; ``h - q + R_e`` is increasing since gamma decreases with h), with
-the real atmosphere ``gamma_real(h) = gamma_model(h + dh_model)``, ``dh_model ~ N(0,
-sigma_model_m^2)`` per star: the inverse model then returns ``h + dh_model``, which is the
-Li et al. 2017's "atmosphere-model error added to the tangent height" (step 4). The measured angle
+the real atmosphere ``gamma_real(h) = gamma_model(h + dh_model)``, ``dh_model = b(t) +
+N(0, sigma_model_m^2)`` per star: the inverse model then returns ``h + dh_model``, which is
+Li et al. 2017's "atmosphere-model error added to the tangent height" (step 4). Li et al.
+draw it white per star (``b = 0``, the default); a real model's error is mostly a slowly
+varying bias ``b(t)`` of the whole profile (:func:`refraction_bias_path_m`: the sensor keys
+``model_bias_m``, ``model_bias_drift_m_per_h``, ``model_bias_random_walk_m_per_sqrt_h``),
+the same for every star of an epoch; ``factors.refraction.refraction_residual(...,
+bias_m=b)`` is zero at the truth for it. The measured angle
 is ``gamma_real(h) + U(-D, D)``, ``D = gamma_halfwidth_arcsec`` (Li et al. 2017's uniform
 refraction-angle error). Stars whose ray grazes in the valid band
 (``factors.refraction.REFRACTION_VALID_BAND_M``) give ``refraction`` rows (catalogue
@@ -41,7 +46,8 @@ from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
-           "simulate_refraction_rows", "SIGMA_FLOOR_RAD"]
+           "simulate_refraction_rows", "SIGMA_FLOOR_RAD", "has_model_bias",
+           "refraction_bias_path_m"]
 
 UNREFRACTED_MIN_HEIGHT_M = 100e3
 """A star whose straight ray passes higher than this above R_e counts as unrefracted, m."""
@@ -86,11 +92,42 @@ def true_tangent_height_m(q_m, los_m, model, dh_model_m=0.0, r_earth_m=R_EARTH_M
     return h
 
 
+def has_model_bias(spec):
+    """True when the refraction sensor ``spec`` has a non-zero atmosphere-model bias."""
+    return bool(spec.model_bias_m or spec.model_bias_drift_m_per_h
+                or spec.model_bias_random_walk_m_per_sqrt_h)
+
+
+def refraction_bias_path_m(spec, t_s, rng):
+    """The real atmosphere's tangent-height shift against the model, ``b(t)`` (m), at the
+    epochs ``t_s`` (s from the pass start, increasing, (N,)):
+
+        b(t_k) = b0 + d t_k / 3600 + w(t_k),
+        w(t_0) = 0,  w(t_k) = w(t_{k-1}) + q sqrt((t_k - t_{k-1}) / 3600) n_k,  n_k ~ N(0, 1),
+
+    ``b0 = spec.model_bias_m`` (m), ``d = spec.model_bias_drift_m_per_h`` (m/h), ``q =
+    spec.model_bias_random_walk_m_per_sqrt_h`` (m/sqrt(h)): a constant plus a linear drift
+    plus a Wiener process sampled at ``t_s`` (1σ ``q sqrt(t_h)`` after ``t_h`` hours; the
+    exact discrete form of a random walk with process noise ``q^2 dt``, Bar-Shalom, Li &
+    Kirubarajan 2001, ch. 6, so a smoother that models ``b`` as that random walk has the
+    truth's own process). ``rng`` (a numpy Generator) is drawn from only when ``q > 0``.
+    """
+    t = np.asarray(t_s, dtype=float)
+    b = spec.model_bias_m + spec.model_bias_drift_m_per_h * t / 3600.0
+    q = spec.model_bias_random_walk_m_per_sqrt_h
+    if q > 0 and len(t) > 1:
+        steps = q * np.sqrt(np.diff(t) / 3600.0) * rng.standard_normal(len(t) - 1)
+        b = b + np.concatenate([[0.0], np.cumsum(steps)])
+    return b
+
+
 def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-seed004",
-                             catalogue=None):
+                             catalogue=None, bias_m=None):
     """Rows of the refraction sensor ``spec`` at epochs ``t_s`` (``pass_sim`` protocol):
     a list of ``(kind, t, xyz, sigma[, extra])`` chunks, kinds ``refraction`` and
-    ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator."""
+    ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator;
+    ``bias_m`` the atmosphere-model bias ``b(t)`` at ``t_s`` ((N,) m, from
+    :func:`refraction_bias_path_m`; None = 0), added to every star's model error."""
     if catalogue is None:
         catalogue = load_catalogue(epoch_year=decimal_year(epoch0),
                                    vmag_max=spec.vmag_max)
@@ -124,6 +161,8 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
         clear = ~ahead | (q - R_EARTH_M > UNREFRACTED_MIN_HEIGHT_M)
         cand = np.flatnonzero(ahead & (q - R_EARTH_M > h_lo - 10e3) & (q - R_EARTH_M < h_hi + 10e3))
         dh = spec.sigma_model_m * rng.standard_normal(len(cand))
+        if bias_m is not None:
+            dh = dh + bias_m[n]
         h = true_tangent_height_m(q[cand], -p[cand], m, dh)
         keep = (h >= h_lo) & (h <= h_hi)
         g_true = m.gamma_rad(h[keep] + dh[keep])
