@@ -18,7 +18,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError
 from fgnav.io.atomic import atomic_write_text
-from fgnav.io.text import read_utf8_text
+from fgnav.io.text import csv_records, finite_number, read_utf8_text
 from fgnav.time import format_utc, parse_utc
 
 COLUMNS = ("epoch", "qw", "qx", "qy", "qz", "sigma_x_rad", "sigma_y_rad", "sigma_z_rad",
@@ -56,11 +56,7 @@ def read_attitude_csv(path):
     text = read_utf8_text(path, "an attitude CSV file")  # not UTF-8: the line and the byte
     epochs, Rs, Ps = [], [], []
     header = None
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        fields = [f.strip() for f in line.split(",")]
+    for lineno, line, fields in csv_records(text):
         if header is None:
             if tuple(fields) != COLUMNS:
                 raise InputFormatError(path, lineno, None, "header " + ",".join(COLUMNS), line)
@@ -75,10 +71,7 @@ def read_attitude_csv(path):
                                    fields[0]) from None
         v = np.empty(len(COLUMNS) - 1)
         for j, (name, f) in enumerate(zip(COLUMNS[1:], fields[1:])):
-            try:
-                v[j] = float(f)
-            except ValueError:
-                v[j] = math.nan
+            v[j] = finite_number(f)
             if not math.isfinite(v[j]) or (name.startswith("sigma") and v[j] < 0):
                 raise InputFormatError(path, lineno, name, "a finite number" +
                                        (" >= 0" if name.startswith("sigma") else ""), f)

@@ -14,7 +14,8 @@ import tomllib
 
 from fgnav.errors import InputFormatError, UserError
 
-__all__ = ["read_utf8_text", "decode_utf8", "load_toml", "parse_toml"]
+__all__ = ["read_utf8_text", "decode_utf8", "load_toml", "parse_toml", "csv_records",
+           "finite_number"]
 
 UTF8_BOM = b"\xef\xbb\xbf"
 
@@ -67,3 +68,21 @@ def parse_toml(path, text: str) -> dict:
         elif "end of document" in msg:
             line = line or text.count("\n") + 1
         raise InputFormatError(path, line, None, f"valid TOML ({msg})") from None
+
+
+def csv_records(text: str):
+    """The records of a small CSV ``text``: ``(line number (1-based), the stripped line, its
+    stripped comma-separated fields)`` for every line that is neither blank nor a ``#``
+    comment, the header included."""
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        line = raw.strip()
+        if line and not line.startswith("#"):
+            yield lineno, line, [f.strip() for f in line.split(",")]
+
+
+def finite_number(field: str) -> float:
+    """``field`` as a float, NaN when it is not a decimal number (callers test finiteness)."""
+    try:
+        return float(field)
+    except ValueError:
+        return float("nan")

@@ -24,7 +24,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
-from fgnav.io.text import read_utf8_text
+from fgnav.io.text import csv_records, finite_number, read_utf8_text
 from fgnav.time import add_seconds, format_utc, parse_utc
 
 __all__ = ["TRUTH_REFRACTION_BIAS_CSV", "write_truth_params_csv", "read_truth_params_csv"]
@@ -69,11 +69,7 @@ def read_truth_params_csv(path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     :class:`~fgnav.errors.InputFormatError` naming the line and column."""
     text = read_utf8_text(path, "a truth-parameter CSV file")
     header, epochs, rows = None, [], []
-    for lineno, raw in enumerate(text.splitlines(), 1):
-        s = raw.strip()
-        if not s or s.startswith("#"):
-            continue
-        fields = [f.strip() for f in s.split(",")]
+    for lineno, s, fields in csv_records(text):
         if header is None:
             if fields[0] != "epoch" or len(fields) < 2 or len(set(fields)) != len(fields) or \
                     not all(_NAME_RE.match(f) for f in fields[1:]):
@@ -95,10 +91,7 @@ def read_truth_params_csv(path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
                                    f"{format_utc(epochs[-1])}", fields[0])
         row = []
         for name, f in zip(header[1:], fields[1:]):
-            try:
-                x = float(f)
-            except ValueError:
-                x = math.nan
+            x = finite_number(f)
             if not math.isfinite(x):
                 raise InputFormatError(path, lineno, name, "a finite decimal number", f)
             row.append(x)
