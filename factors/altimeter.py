@@ -11,13 +11,41 @@ altimeter that reports height above the ellipsoid the caller supplies a latitude
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
+from numba import njit
 
 from factors.adapters import custom_factor, pad_position_jacobian, vector_state
-from factors.geometry import unit_and_jacobian
 
-__all__ = ["altitude_residual", "make_altitude_factor"]
+__all__ = ["altitude_residual", "make_altitude_factor", "altitude_kernel"]
+
+
+@njit(cache=True)
+def altitude_kernel(x, data, B, e, H):
+    """One measurement (the one definition; the numpy residual and the compiled EKF call it).
+
+    x (>= 3,): position first, m; ``data[0]`` the measured height h (m), ``data[1]`` the
+    reference radius r_ref (m); B unused. Writes ``e[0] = |r| - r_ref - h`` and
+    ``H[0, :3] = r^T/|r|`` (other columns 0). Returns 1 (rows written).
+    """
+    n = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
+    e[0] = n - data[1] - data[0]
+    for j in range(H.shape[1]):
+        H[0, j] = 0.0
+    for j in range(3):
+        H[0, j] = x[j] / n
+    return 1
+
+
+@njit(cache=True)
+def _altitude_many(r, h, r_ref, e, H):
+    data = np.empty(2)
+    B = np.empty((2, 3))
+    for i in range(r.shape[0]):
+        data[0] = h[i]
+        data[1] = r_ref[i]
+        altitude_kernel(r[i], data, B, e[i], H[i])
 
 
 def altitude_residual(r_eci_m, h_meas_m, r_ref_m):
@@ -34,11 +62,14 @@ def altitude_residual(r_eci_m, h_meas_m, r_ref_m):
     -------
     e : (N, 1) m; H_r : (N, 1, 3) dimensionless.
     """
-    r = np.asarray(r_eci_m, dtype=float)
-    u, _ = unit_and_jacobian(r)
-    n = np.linalg.norm(r, axis=-1)
-    e = n - np.asarray(r_ref_m, dtype=float) - np.asarray(h_meas_m, dtype=float)
-    return np.asarray(e, dtype=float).reshape(-1, 1), u[:, None, :]
+    r = np.ascontiguousarray(np.asarray(r_eci_m, dtype=float).reshape(-1, 3))
+    M = len(r)
+    h = np.ascontiguousarray(np.broadcast_to(np.asarray(h_meas_m, dtype=float), (M,)))
+    rr = np.ascontiguousarray(np.broadcast_to(np.asarray(r_ref_m, dtype=float), (M,)))
+    e = np.empty((M, 1))
+    H_r = np.empty((M, 1, 3))
+    _altitude_many(r, h, rr, e, H_r)
+    return e, H_r
 
 
 def _altitude(key_x, h, r_ref, values):

@@ -66,7 +66,7 @@ from factors.geometry import skew, tangent_basis, unit_and_jacobian
 __all__ = [
     "earth_direction_residual", "body_direction_residual", "star_direction_residual",
     "make_earth_direction_factor", "make_body_direction_factor", "make_star_direction_factor",
-    "sphere_log", "sphere_log_kernel", "SERIES_BELOW",
+    "sphere_log", "sphere_log_kernel", "SERIES_BELOW", "earth_direction_row_kernel",
 ]
 
 SERIES_BELOW = 1e-6
@@ -257,6 +257,14 @@ def earth_direction_kernel(x, B, want_H, e, H):
             H[i, 2] = -(H[i, 2] - ju * u2) / n
             for j in range(3, H.shape[1]):
                 H[i, j] = 0.0
+
+
+@njit(cache=True)
+def earth_direction_row_kernel(x, data, B, e, H):
+    """Row kernel (compiled EKF): :func:`earth_direction_kernel` with the Jacobian; ``data``
+    unused (the measurement is in ``B``). Returns 2 (rows written)."""
+    earth_direction_kernel(x, B, True, e, H)
+    return 2
 
 
 @njit(cache=True)

@@ -1,13 +1,15 @@
-"""Graph assembly: one small function per factor family.
+"""Graph assembly over the measurement-model registry (:mod:`fgnav.models.registry`).
 
-Two routes share the residuals of ``factors/``:
+Two routes share the models' residuals:
 
-* bulk (batch Gauss–Newton): ``linearize_<family>(family, X)`` evaluates the family's
-  residual for all its rows at once and returns pre-whitened rows ``(k, A, b)`` with
-  ``A`` of shape (M, m, 6) on the state of epoch ``k`` and ``b = -e/sigma``
-  (so the linear problem is ``|| A dx - b ||^2``);
-* incremental (iSAM2, fixed-lag): ``factors_<family>(family, rows, key)`` returns the
-  ``gtsam.CustomFactor`` objects of the given rows.
+* bulk (batch Gauss–Newton): :func:`linearize_all` evaluates every family's residual for all
+  its rows at once and returns pre-whitened rows ``(k, A, b)`` with ``A`` in the columns of
+  the pass's per-epoch block (:class:`fgnav.models.variables.Layout`: the orbit state, then
+  e.g. a bias) and ``b = -e/sigma`` (the linear problem is ``|| A dx - b ||^2``);
+* incremental (iSAM2, fixed-lag): :func:`factors_for_rows` returns the GTSAM factors of the
+  given rows (the models' ``factors/`` adapters) on the epoch's variable keys.
+
+Neither route names a measurement kind: each asks the family's model.
 """
 
 from __future__ import annotations
@@ -16,92 +18,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.adapters import whiten
-from factors.altimeter import altitude_residual, make_altitude_factor
-from factors.direction import earth_direction_residual, make_earth_direction_factor
-from factors.limb import limb_radius_residual, make_limb_radius_factor
-from factors.refraction import make_refraction_factor, refraction_residual, refraction_sigma_m
-from fgnav.constants import R_EARTH_M
+from fgnav.models.registry import model, prior_kinds
+from fgnav.models.variables import Layout
+
+PRIOR_KINDS = prior_kinds()
 
 
-def _pad6(H_r: np.ndarray) -> np.ndarray:
-    """Jacobians with respect to position (M,m,3) -> with respect to the state (M,m,6)."""
-    out = np.zeros(H_r.shape[:-1] + (6,))
-    out[..., :3] = H_r
-    return out
+def layout_of(p) -> Layout:
+    """The per-epoch variables of a pass (its ``layout``; the orbit state alone by default)."""
+    return getattr(p, "layout", None) or Layout()
 
 
-def _prior_rows(fam, X, sl):
-    """Prior on position (sl = 0:3) or velocity (3:6): e = x - x_prior, H = [I 0] or [0 I]."""
-    e = X[fam.k, sl] - fam.values["xyz"]
-    H = np.zeros((len(fam), 3, 6))
-    H[:, :, sl] = np.eye(3)
-    A, b = whiten(e, H, fam.sigma)
+def is_solved(kind: str) -> bool:
+    """True for the kinds whose rows enter the graphs (not, e.g., ``attitude`` rows)."""
+    try:
+        return model(kind).solved
+    except KeyError:
+        return False
+
+
+def linearize_family(p, kind, fam, X):
+    """Whitened rows of one family at the block values ``X`` (N, n): ``(k, A (M, m, n),
+    b (M, m), e (M, m))`` (``fam`` may be a subset of the pass's family)."""
+    A, b, e = model(kind).linearize(fam, _block(p, X), layout_of(p))
     return fam.k, A, b, e
 
 
-def linearize_prior_position(fam, X):
-    return _prior_rows(fam, X, slice(0, 3))
-
-
-def linearize_prior_velocity(fam, X):
-    return _prior_rows(fam, X, slice(3, 6))
-
-
-def linearize_earth_direction(fam, X):
-    e, H_r = earth_direction_residual(X[fam.k, :3], fam.values["u_eci"])
-    A, b = whiten(e, _pad6(H_r), fam.sigma)
-    return fam.k, A, b, e
-
-
-def linearize_limb_radius(fam, X):
-    e, H_r = limb_radius_residual(X[fam.k, :3], fam.values["rho_rad"], fam.values["r_limb_m"])
-    A, b = whiten(e, _pad6(H_r), fam.sigma)
-    return fam.k, A, b, e
-
-
-def linearize_altitude(fam, X):
-    e, H_r = altitude_residual(X[fam.k, :3], fam.values["h_m"], fam.values["r_ref_m"])
-    A, b = whiten(e, _pad6(H_r), fam.sigma)
-    return fam.k, A, b, e
-
-
-def refraction_sigma(fam, X=None) -> np.ndarray:
-    """Tangent-height 1σ (m) of each refraction row: angle error and model error combined.
-
-    The residual ``e = h_a(r; s, gamma) - h(gamma)`` depends on the measured gamma through
-    both terms, ``de/dgamma = |r.s| sec^2(gamma) + H/gamma``: with the states ``X`` (N, 6)
-    the line-of-sight range ``|r.s|`` is taken at ``X`` (the Monte Carlo of
-    tests/test_factors_refraction.py matches only with it; +13 % on the angle term in LEO).
-    Without ``X`` (single-factor route, no state at hand) Li et al. 2017's ``H/gamma`` alone is
-    used.
-    """
-    los = 0.0
-    if X is not None:
-        los = np.abs(np.sum(np.asarray(X)[fam.k, :3] * fam.values["s_eci"], axis=1))
-    return refraction_sigma_m(fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"],
-                              los_range_m=los)
-
-
-def linearize_refraction(fam, X):
-    e, H_r = refraction_residual(X[fam.k, :3], fam.values["s_eci"], fam.values["gamma_rad"],
-                                 np.full(len(fam), R_EARTH_M), np.zeros(len(fam)))
-    A, b = whiten(e, _pad6(H_r), refraction_sigma(fam, X))
-    return fam.k, A, b, e
-
-
-LINEARIZERS = {
-    "prior_position": linearize_prior_position,
-    "prior_velocity": linearize_prior_velocity,
-    "earth_direction": linearize_earth_direction,
-    "limb_radius": linearize_limb_radius,
-    "altitude": linearize_altitude,
-    "refraction": linearize_refraction,
-}
-"""Families the smoothers use, by log kind ('attitude' rows are used by build_pass)."""
-
-
-PRIOR_KINDS = ("prior_position", "prior_velocity")
+def _block(p, X):
+    """``X`` as block values of the pass's layout (orbit-only (N, 6) input is padded with the
+    other variables' prior means)."""
+    lay = layout_of(p)
+    X = np.asarray(X, dtype=float)
+    return X if X.shape[-1] == lay.n else lay.initial(X[..., :6])
 
 
 @dataclass
@@ -109,29 +57,49 @@ class Rows:
     """All whitened measurement rows of a pass, as scalar rows sorted by epoch."""
 
     k: np.ndarray            # (R,) epoch index of each row
-    A: np.ndarray            # (R, 6) whitened Jacobian rows (robust weights applied)
+    A: np.ndarray            # (R, n) whitened Jacobian rows (robust weights applied)
     b: np.ndarray            # (R,) whitened right-hand side, -e/sigma (weights applied)
     residuals: dict          # kind -> (M, m) whitened residuals e/sigma (no weights)
-    row_kind: np.ndarray     # (R,) kind of each row
+    row_kind: np.ndarray     # (R,) kind of each row ('prior_<variable>' for variable priors)
     weights: dict            # kind -> (M,) robust weight of each measurement (1 without)
 
 
+def variable_prior_rows(p, X):
+    """Priors of the variables after the orbit state at the first epoch,
+    ``b_0 ~ N(prior_mean, prior_sigma^2)``: ``(k (R,), A (R, n), b (R,), tags (R,))``."""
+    lay = layout_of(p)
+    ks, As, bs, tags = [], [], [], []
+    for v in lay.extra:
+        sl = lay.slices[v.name]
+        A = np.zeros((v.dim, lay.n))
+        A[:, sl] = np.eye(v.dim) / v.prior_sigma
+        As.append(A)
+        bs.append(-(X[0, sl] - v.prior_mean) / v.prior_sigma)
+        ks.append(np.zeros(v.dim, dtype=int))
+        tags.append(np.full(v.dim, f"prior_{v.name}", dtype=object))
+    if not As:
+        return np.zeros(0, int), np.zeros((0, lay.n)), np.zeros(0), np.zeros(0, object)
+    return np.concatenate(ks), np.concatenate(As), np.concatenate(bs), np.concatenate(tags)
+
+
 def linearize_all(p, X, robust=None, rejected=None) -> Rows:
-    """Linearize every measurement family of a pass at the states ``X`` (N, 6).
+    """Linearize every measurement family of a pass at the block values ``X`` (N, n).
 
     ``robust``: a :class:`fgnav.robust.RobustKernel` applied to every measurement except
     the priors (IRLS: rows scaled by sqrt(w) of the measurement's whitened norm).
     ``rejected``: kind -> (M,) bool, measurements given zero weight (outliers).
     """
+    X = _block(p, X)
+    n = layout_of(p).n
     ks, As, bs, res, tags, wts = [], [], [], {}, [], {}
     for kind, fam in p.families.items():
-        fn = LINEARIZERS.get(kind)
-        if fn is None:
+        if not is_solved(kind):
             continue
-        k, A, b, e = fn(fam, X)
-        m = A.shape[1]
+        mdl = model(kind)
+        A, b, _ = mdl.linearize(fam, X, layout_of(p))
+        m = mdl.dim
         res[kind] = -b.reshape(len(fam), m)  # whitened residual e/sigma
-        if robust is not None and kind not in PRIOR_KINDS:
+        if robust is not None and mdl.robust:
             w = robust.weights(np.linalg.norm(b.reshape(len(fam), m), axis=1))
             sw = np.sqrt(w)
             A = A * sw[:, None, None]
@@ -144,70 +112,40 @@ def linearize_all(p, X, robust=None, rejected=None) -> Rows:
             A = A * keep[:, None, None]
             b = b * keep[:, None]
         wts[kind] = w
-        ks.append(np.repeat(k, m))
-        As.append(A.reshape(-1, 6))
+        ks.append(np.repeat(fam.k, m))
+        As.append(A.reshape(-1, n))
         bs.append(b.reshape(-1))
         tags.append(np.full(len(fam) * m, kind, dtype=object))
+    kv, Av, bv, tv = variable_prior_rows(p, X)
+    ks.append(kv)
+    As.append(Av)
+    bs.append(bv)
+    tags.append(tv)
     k = np.concatenate(ks)
     order = np.argsort(k, kind="stable")
     return Rows(k[order], np.concatenate(As)[order], np.concatenate(bs)[order], res,
                 np.concatenate(tags)[order], wts)
 
 
-# ---- incremental route ---------------------------------------------------------------
-
-def make_state_prior_factor(key, sl, mean, sigma):
-    """A prior on part of a Vector6 state (position: sl = 0:3, velocity: 3:6).
-
-    Error e = x[sl] - mean (unwhitened, m or m/s); H = [I 0] or [0 I] (3x6).
-    """
-    import gtsam
-
-    H = np.zeros((3, 6))
-    H[:, sl] = np.eye(3)
-    mean = np.array(mean, dtype=float)
-
-    def error(this, values, jacobians):
-        if jacobians is not None:
-            jacobians[0] = H
-        return values.atVector(this.keys()[0])[sl] - mean
-
-    return gtsam.CustomFactor(gtsam.noiseModel.Isotropic.Sigma(3, float(sigma)), [key], error)
-
-
-def factors_for_rows(kind, fam, rows, key, robust=None, x_guess=None):
-    """CustomFactors (iSAM2 route) for the given rows of a family, all on state ``key``.
+def factors_for_rows(p, kind, rows, k, robust=None, x_guess=None):
+    """GTSAM factors (iSAM2 route) of the given rows of a family, on epoch ``k``'s keys.
 
     ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping the noise model of every
-    measurement but the priors. ``x_guess`` (6,): the state's first guess, for noise that
-    depends on geometry (the refraction line-of-sight term, as in the batch route).
+    measurement but the priors. ``x_guess``: the orbit state's first guess (6,), for noise
+    that depends on geometry (as in the batch route).
     """
-    import gtsam
+    return model(kind).factors(p.families[kind], rows, k, layout_of(p), robust, x_guess)
 
-    out = []
-    dim = {"earth_direction": 2}.get(kind, 1)
 
-    def noise(sigma):
-        if robust is None or kind in PRIOR_KINDS:
-            return sigma
-        return robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)))
-
-    for j in rows:
-        if kind == "prior_position":
-            out.append(make_state_prior_factor(key, slice(0, 3), fam.values["xyz"][j], fam.sigma[j]))
-        elif kind == "prior_velocity":
-            out.append(make_state_prior_factor(key, slice(3, 6), fam.values["xyz"][j], fam.sigma[j]))
-        elif kind == "earth_direction":
-            out.append(make_earth_direction_factor(key, fam.values["u_eci"][j], noise(fam.sigma[j])))
-        elif kind == "limb_radius":
-            out.append(make_limb_radius_factor(key, fam.values["rho_rad"][j],
-                                               fam.values["r_limb_m"][j], noise(fam.sigma[j])))
-        elif kind == "altitude":
-            out.append(make_altitude_factor(key, fam.values["h_m"][j], fam.values["r_ref_m"][j],
-                                            noise(fam.sigma[j])))
-        elif kind == "refraction":
-            sub = fam.subset(np.array([j]), 0)
-            sig = refraction_sigma(sub, None if x_guess is None else np.asarray(x_guess)[None])[0]
-            out.append(make_refraction_factor(key, fam.values["s_eci"][j], fam.values["gamma_rad"][j],
-                                              noise(sig), R_EARTH_M, 0.0))
-    return out
+def orbit_rows(p, kind, fam, x_orbit, variables=None):
+    """Whitened rows of a family on the orbit state alone: ``(k, A (M, m, 6), b, e)`` at the
+    orbit states ``x_orbit`` (N, 6), with the pass's further variables held at ``variables``
+    (a solution's ``variables``: name -> (values (N, d), covariances)) or their prior mean.
+    For the analyses that work with the orbit marginals (consistency, integrity)."""
+    lay = layout_of(p)
+    X = lay.initial(np.asarray(x_orbit, dtype=float)[..., :6])
+    for name, (vals, _) in (variables or {}).items():
+        if lay.has(name) and len(vals) == len(X):
+            X[:, lay.slices[name]] = vals
+    k, A, b, e = linearize_family(p, kind, fam, X)
+    return k, A[..., :6], b, e

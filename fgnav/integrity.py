@@ -38,12 +38,11 @@ import numpy as np
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import rows_at_first_state
-from fgnav.graph import LINEARIZERS
+from fgnav.graph import PRIOR_KINDS, is_solved, orbit_rows
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
 
-PRIOR_KINDS = ("prior_position", "prior_velocity")
 
 FALSE_ALARM_PROBABILITY = 1e-6
 """Per-test probability of calling a consistent statistic inconsistent."""
@@ -486,12 +485,11 @@ def filter_normalized_innovations(p, sol, model) -> dict:
             "q_m2_s3", 0.0) or 1e-30)
     out = {}
     for kind, r in sol.residuals.items():
-        fn = LINEARIZERS.get(kind)
-        if fn is None or kind in PRIOR_KINDS or kind not in p.families:
+        if not is_solved(kind) or kind in PRIOR_KINDS or kind not in p.families:
             out[kind] = r
             continue
         fam = p.families[kind]
-        _, A, _, _ = fn(fam, X_pred)
+        _, A, _, _ = orbit_rows(p, kind, fam, X_pred, sol.variables)
         S = A @ P_pred[fam.k] @ np.swapaxes(A, 1, 2) + np.eye(A.shape[1])
         b = np.asarray(r, dtype=float)
         ok = np.all(np.isfinite(b), axis=1)

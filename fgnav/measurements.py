@@ -16,10 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-
-DIRECTION_KINDS = ("earth_direction", "earth_direction_body")
-STATE_OBSERVING_KINDS = ("earth_direction", "earth_direction_body", "limb_radius", "altitude",
-                         "refraction", "moon_direction_body")
+from fgnav.models.registry import ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, variable
+from fgnav.models.variables import ORBIT, Layout
 
 
 @dataclass
@@ -58,6 +56,7 @@ class Pass:
     breaks: tuple[int, ...] = ()
     arc_priors: list = field(default_factory=list)
     gap_notes: list = field(default_factory=list)
+    layout: Layout = field(default_factory=Layout)  # per-epoch graph variables (orbit first)
 
     @property
     def n_epochs(self) -> int:
@@ -84,82 +83,64 @@ def rows_by_epoch(p: Pass) -> list[list[tuple[str, np.ndarray]]]:
     return out
 
 
-def _rotvec_to_matrix(w: np.ndarray) -> np.ndarray:
-    """Rotation vectors (M,3) -> rotation matrices (M,3,3) (Rodrigues)."""
-    theta = np.linalg.norm(w, axis=1)
-    M = len(w)
-    K = np.zeros((M, 3, 3))
-    safe = np.where(theta > 1e-300, theta, 1.0)
-    k = w / safe[:, None]
-    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
-    return np.eye(3)[None] + s * K + (1.0 - c) * (K @ K)
-
-
 def build_pass(log) -> Pass:
-    """Group a :class:`fgnav.io.log_csv.MeasurementLog` by epoch into a :class:`Pass`."""
+    """Group a :class:`fgnav.io.log_csv.MeasurementLog` by epoch into a :class:`Pass`.
+
+    One family per kind that enters the graphs (its model's ``values`` from the log rows),
+    plus the ``attitude`` rows; a body-frame kind (``body_frame_of``) joins its ECI family,
+    rotated with the attitude measured at the same epoch.
+    """
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
     xyz = np.asarray(log.xyz, dtype=float)
     sigma = np.asarray(log.sigma, dtype=float)
     lines = np.asarray(log.line)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings))
-
-    def rows(kind):
-        return np.flatnonzero(kinds == kind)
-
-    def fam(kind, idx, values, sig=None):
-        if len(idx):
-            p.families[kind] = Family(k=k_of_row[idx], values=values,
-                                      sigma=sigma[idx] if sig is None else sig, line=lines[idx])
-
-    for kind in ("prior_position", "prior_velocity"):
-        i = rows(kind)
-        fam(kind, i, {"xyz": xyz[i]})
-    i = rows("earth_direction")
-    fam("earth_direction", i, {"u_eci": xyz[i]})
-    i = rows("limb_radius")
-    fam("limb_radius", i, {"rho_rad": xyz[i, 0], "r_limb_m": xyz[i, 1]})
-    i = rows("altitude")
-    fam("altitude", i, {"h_m": xyz[i, 0], "r_ref_m": xyz[i, 1]})
-    i = rows("refraction")
-    if len(i):
-        extra = log.extra
-        gamma = extra["gamma"][i]
-        sig_model = extra.get("sigma_model_m", np.full(len(kinds), np.nan))[i]
-        fam("refraction", i, {"s_eci": xyz[i], "gamma_rad": gamma,
-                              "sigma_model_m": np.nan_to_num(sig_model, nan=0.0)})
-    i = rows("attitude")
-    att_R = {}
-    if len(i):
-        R = _rotvec_to_matrix(xyz[i])
-        fam("attitude", i, {"R_eci_from_body": R})
-        for j, kk in enumerate(k_of_row[i]):
-            att_R[int(kk)] = (R[j], sigma[i][j])
-    for body_kind, eci_kind in (("earth_direction_body", "earth_direction"),):
-        i = rows(body_kind)
-        if not len(i):
+    for kind, mdl in MODELS.items():
+        i = np.flatnonzero(kinds == kind)
+        if len(i) and (mdl.solved or kind == ATTITUDE.kind):
+            p.families[kind] = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i],
+                                      line=lines[i])
+    att = p.families.get(ATTITUDE.kind)
+    att_at = {} if att is None else {int(kk): j for j, kk in enumerate(att.k)}
+    for body_kind, mdl in MODELS.items():
+        i = np.flatnonzero(kinds == body_kind)
+        if mdl.body_frame_of is None or not len(i):
             continue
-        missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_R]
+        missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_at]
         if missing:
             raise UserError(
-                f"{log.path}: {body_kind} rows need an 'attitude' row at the same epoch; "
+                f"{log.path}: {body_kind} rows need an '{ATTITUDE.kind}' row at the same epoch; "
                 f"none for line(s) {missing[:5]}{' ...' if len(missing) > 5 else ''}")
-        u_eci = np.array([att_R[int(k_of_row[j])][0] @ xyz[j] for j in i])
-        sig = np.hypot(sigma[i], np.array([att_R[int(k_of_row[j])][1] for j in i]))
-        old = p.families.get(eci_kind)
+        ja = np.array([att_at[int(k_of_row[j])] for j in i])
+        u_eci = np.einsum("mij,mj->mi", att.values["R_eci_from_body"][ja], xyz[i])
+        sig = np.hypot(sigma[i], att.sigma[ja])
         new = Family(k=k_of_row[i], values={"u_eci": u_eci}, sigma=sig, line=lines[i])
-        if old is None:
-            p.families[eci_kind] = new
-        else:
+        old = p.families.get(mdl.body_frame_of)
+        if old is not None:
             order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
-            p.families[eci_kind] = Family(
-                k=np.concatenate([old.k, new.k])[order],
-                values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order]},
-                sigma=np.concatenate([old.sigma, sig])[order],
-                line=np.concatenate([old.line, new.line])[order])
+            new = Family(k=np.concatenate([old.k, new.k])[order],
+                         values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order]},
+                         sigma=np.concatenate([old.sigma, sig])[order],
+                         line=np.concatenate([old.line, new.line])[order])
+        p.families[mdl.body_frame_of] = new
     return p
+
+
+def with_estimates(p: Pass, estimate=()) -> Pass:
+    """The pass with the graph variables named in ``estimate`` (e.g. ``refraction-bias``)
+    added to every epoch's block; each must be declared by a model with rows in the pass."""
+    variables = [ORBIT]
+    for name in estimate or ():
+        v = variable(name)
+        users = [k for k in p.families if v in MODELS[k].optional_variables]
+        if not users:
+            declared = [k for k, m in MODELS.items() if v in m.optional_variables]
+            raise UserError(f"--estimate {v.cli_name}: {p.source} has no rows that depend on it "
+                            f"(it is used by {', '.join(declared)})")
+        if v not in variables:
+            variables.append(v)
+    return dataclasses.replace(p, layout=Layout(tuple(variables)))
 
 
 def check_observable(p: Pass, require_prior: bool = True) -> None:
@@ -168,13 +149,14 @@ def check_observable(p: Pass, require_prior: bool = True) -> None:
     ``require_prior=False``: the orbit will start from the measurements
     (:mod:`fgnav.initial_orbit`), so only the measurements are checked here.
     """
-    n_obs = sum(p.count(k) for k in STATE_OBSERVING_KINDS if k != "moon_direction_body")
+    observing = [k for k in p.families if k in MODELS and MODELS[k].observes_orbit]
+    n_obs = sum(p.count(k) for k in observing)
     if not require_prior and n_obs == 0:
         raise UserError(f"{p.source}: no measurements that observe the orbit "
                         f"(found only: {p.counts() or 'nothing'})")
     if not require_prior:
         return
-    if p.count("prior_position") == 0 or p.count("prior_velocity") == 0:
+    if p.count(PRIOR_POSITION.kind) == 0 or p.count(PRIOR_VELOCITY.kind) == 0:
         if n_obs == 0:
             raise UserError(f"{p.source}: no measurements that observe the orbit "
                             f"(found only: {p.counts() or 'nothing'})")
@@ -184,9 +166,10 @@ def check_observable(p: Pass, require_prior: bool = True) -> None:
     if n_obs == 0:
         raise UserError(
             f"{p.source}: the log has priors but no measurement that observes the orbit "
-            f"(earth_direction, limb_radius, altitude, refraction); counts: {p.counts()}")
-    if p.count("earth_direction") + p.count("refraction") == 0 and p.count("limb_radius") + \
-            p.count("altitude") < 6:
+            f"({', '.join(k for k, m in MODELS.items() if m.observes_orbit and m.solved)}); "
+            f"counts: {p.counts()}")
+    n_range = sum(p.count(k) for k in observing if MODELS[k].range_m is not None)
+    if n_obs == n_range and n_range < 6:
         raise UserError(f"{p.source}: no direction data and fewer than 6 range-type "
                         f"measurements: the orbit is not observable from this log")
 
@@ -271,7 +254,7 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
             rows_of[kind] = rows
     if prior is not None:
         x, s_r, s_v = prior
-        for kind, xyz, s in (("prior_position", x[:3], s_r), ("prior_velocity", x[3:], s_v)):
+        for kind, xyz, s in ((PRIOR_POSITION.kind, x[:3], s_r), (PRIOR_VELOCITY.kind, x[3:], s_v)):
             new = Family(k=np.array([0]), values={"xyz": np.asarray(xyz, float)[None]},
                          sigma=np.array([float(s)]), line=np.array([0]))
             old = fams.get(kind)
@@ -280,7 +263,7 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
                              sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
             fams[kind] = new
             rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
-    sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source,
+    sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source, layout=p.layout,
                inserted=None if p.inserted is None else p.inserted[k0:k1])
     return sub, rows_of
 
@@ -296,7 +279,7 @@ def format_duration(s: float) -> str:
 def prior_covariance(p: Pass, k0: int = 0) -> np.ndarray:
     """Initial covariance (diagonal, SI) from the prior rows at epoch ``k0`` (else the first)."""
     P = np.zeros((6, 6))
-    for kind, sl in (("prior_position", slice(0, 3)), ("prior_velocity", slice(3, 6))):
+    for kind, sl in ((PRIOR_POSITION.kind, slice(0, 3)), (PRIOR_VELOCITY.kind, slice(3, 6))):
         fam = p.families[kind]
         j = np.flatnonzero(fam.k == k0)
         sig = fam.sigma[j[0]] if len(j) else fam.sigma[0]
@@ -315,7 +298,7 @@ def covering_sigmas(P: np.ndarray) -> tuple[float, float]:
 def prior_state(p: Pass) -> tuple[int, np.ndarray]:
     """The a-priori state (6,) and its epoch index: the first epoch that has both a
     ``prior_position`` and a ``prior_velocity`` row."""
-    pp, pv = p.families.get("prior_position"), p.families.get("prior_velocity")
+    pp, pv = p.families.get(PRIOR_POSITION.kind), p.families.get(PRIOR_VELOCITY.kind)
     if pp is None or pv is None:
         raise UserError(f"{p.source}: a first guess needs 'prior_position' and 'prior_velocity' rows")
     common = np.intersect1d(pp.k, pv.k)

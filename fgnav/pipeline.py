@@ -34,7 +34,7 @@ from fgnav.solution import Solution
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
-from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.incremental import smooth_incremental
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
@@ -135,7 +135,7 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
-        if options.gate_probability is None and set(p.families) <= set(SUPPORTED_KINDS):
+        if options.gate_probability is None and numba_supports(p):
             return run_ekf_numba(p, options, progress=progress)
         return run_ekf(p, options, progress=progress)
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,

@@ -25,6 +25,8 @@ class Solution:
     online_x_eci, online_P_eci : for incremental methods and the EKF, each epoch's state
         and covariance as estimated when that epoch arrived (N, 6) / (N, 6, 6).
     latency_s : (N,) per-epoch update latency of incremental methods.
+    variables : graph variables estimated beside the orbit state (``fgnav.models.variables``):
+        name -> (values (N, d), marginal covariances (N, d, d)), e.g. ``refraction_bias``.
     extras : free-form diagnostics written into summary.json.
     """
 
@@ -41,6 +43,7 @@ class Solution:
     online_P_eci: np.ndarray | None = None
     latency_s: np.ndarray | None = None
     extras: dict = field(default_factory=dict)
+    variables: dict = field(default_factory=dict)
 
 
 def latency_summary(latency_s) -> dict:

@@ -13,7 +13,7 @@ import pytest
 
 from factors.geometry import tangent_basis, unit_and_jacobian
 from fgnav.cli import main
-from fgnav.graph import LINEARIZERS
+from fgnav.graph import linearize_family
 from fgnav.io.log_csv import read_log
 from fgnav.measurements import build_pass
 from fgnav.io.oem import read_oem
@@ -60,8 +60,9 @@ def test_thirty_percent_flipped_directions_are_seen(clean, tmp_path):
     # the residual tells: at the clean solution and at the truth, each flipped row is
     # ~pi/sigma whitened; the others are as on the clean pass
     for X in (sol_clean.x_eci, x_true):
-        _, _, b, _ = LINEARIZERS["earth_direction"](fam, X)
-        _, _, b0, _ = LINEARIZERS["earth_direction"](p_clean.families["earth_direction"], X)
+        _, _, b, _ = linearize_family(p, "earth_direction", fam, X)
+        _, _, b0, _ = linearize_family(p_clean, "earth_direction",
+                                       p_clean.families["earth_direction"], X)
         w = np.linalg.norm(b.reshape(M, 2), axis=1)
         np.testing.assert_allclose(w[rows], np.pi / fam.sigma[rows], rtol=1e-3)
         keep = np.setdiff1d(np.arange(M), rows)
@@ -93,7 +94,7 @@ def test_mirrored_prior_is_not_fitted_with_a_normal_chi2(clean, tmp_path):
     assert sol.extras["initial_orbit"]["prior_consistent"] is False
     # the mirror orbit itself is the farthest point of every direction row
     M = len(p.families["earth_direction"])
-    _, _, b, _ = LINEARIZERS["earth_direction"](p.families["earth_direction"], -x_true)
+    _, _, b, _ = linearize_family(p, "earth_direction", p.families["earth_direction"], -x_true)
     w = np.linalg.norm(b.reshape(M, 2), axis=1) * p.families["earth_direction"].sigma
     assert np.all(w > np.pi - 1e-2)
 
@@ -109,10 +110,10 @@ def test_same_answer_as_the_tangent_plane_residual_on_clean_data(clean, monkeypa
     """The two models agree to second order in the angle (e = t (1 + angle^2/6)): on the clean
     pass batch moves by ~1e-7 sigma, position RMS by ~3e-7 relative (the Gauss-Newton loop
     itself stops within 1e-4 sigma; 4 h at 1 Hz: 1.4e-5 relative, 6e-5 sigma)."""
-    import fgnav.graph
+    import fgnav.models.registry
 
     _, p, sol, x_true = clean
-    monkeypatch.setattr(fgnav.graph, "earth_direction_residual", _tangent_plane_residual)
+    monkeypatch.setattr(fgnav.models.registry, "earth_direction_residual", _tangent_plane_residual)
     old = solve(p, "batch")
     sigma = np.sqrt(np.diagonal(old.P_eci, axis1=1, axis2=2))
     assert np.max(np.abs(sol.x_eci - old.x_eci) / sigma) < 1e-4

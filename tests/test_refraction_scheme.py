@@ -18,7 +18,8 @@ from factors.refraction import (REFRACTION_VALID_BAND_M, apparent_tangent_height
 from fgnav.analysis.direct_fix import (cone_axis, cone_fix_candidates, refraction_direct_fix,
                                        refraction_direct_fixes)
 from fgnav.analysis.scheme_studies import MADAN_POSITION_M, refraction_study
-from fgnav.graph import linearize_refraction, refraction_sigma
+from fgnav.graph import linearize_family
+from fgnav.models.registry import model
 from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
@@ -93,21 +94,22 @@ def test_simulated_rows_geometry_and_determinism(short_sim):
 
 
 def test_simulated_noise_matches_graph_sigma(short_sim):
-    """Whitened residuals at truth (linearize_refraction with the line-of-sight term) have
+    """Whitened residuals at truth (the refraction model's rows, with the line-of-sight term) have
     unit variance: Li et al. 2017's uniform angle error and the model error are what the graph
     assumes."""
     p = build_pass(short_sim.log)
     x = short_sim.x_true[np.searchsorted(short_sim.t_s, p.t_s)]
     fam = p.families["refraction"]
-    _, _, b, e = linearize_refraction(fam, x)
+    _, _, b, e = linearize_family(p, "refraction", fam, x)
     assert len(b) > 2000
     assert np.var(b) == pytest.approx(1.0, abs=0.12)  # sampling 1σ ~ 0.035
     assert abs(np.mean(b)) < 0.1
     # the sigma includes |r.s| sec^2(gamma): larger than Li et al. 2017's H/gamma-only value
     los = np.abs(np.sum(x[fam.k, :3] * fam.values["s_eci"], axis=1))
-    np.testing.assert_allclose(refraction_sigma(fam, x), refraction_sigma_m(
+    refraction = model("refraction")
+    np.testing.assert_allclose(refraction.noise_sigma(fam, x[fam.k]), refraction_sigma_m(
         fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"], los_range_m=los))
-    assert np.all(refraction_sigma(fam, x) > refraction_sigma(fam))
+    assert np.all(refraction.noise_sigma(fam, x[fam.k]) > refraction.noise_sigma(fam))
 
 
 def test_cone_closed_form_exact_on_axis_and_refined_fix_exact():

@@ -24,10 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.dynamics import process_noise, propagate
-from fgnav.graph import LINEARIZERS
+from fgnav.graph import PRIOR_KINDS, is_solved, orbit_rows
 from fgnav.time import j2000_seconds
 
-PRIOR_KINDS = ("prior_position", "prior_velocity")
 
 __all__ = ["nees", "chi2_band", "AneesResult", "anees", "nees_curve", "nis_ekf",
            "nis_smoother", "nis_summary"]
@@ -97,9 +96,10 @@ def nees_curve(nees_runs: np.ndarray, dof: int = 6, alpha: float = 0.05):
     return curve, lo, hi, float(np.mean((curve >= lo) & (curve <= hi)))
 
 
-def _family_rows(p, kind, X):
-    """(k, A (M,m,6), b (M,m)) of one family linearized at X (whitened)."""
-    k, A, b, _ = LINEARIZERS[kind](p.families[kind], X)
+def _family_rows(p, kind, X, variables=None):
+    """(k, A (M,m,6), b (M,m)) of one family linearized at the orbit states X (whitened; the
+    pass's further variables at ``variables``, a solution's, or their prior mean)."""
+    k, A, b, _ = orbit_rows(p, kind, p.families[kind], X, variables)
     m = A.shape[1]
     return np.asarray(k), np.asarray(A).reshape(len(k), m, 6), np.asarray(b).reshape(len(k), m)
 
@@ -112,9 +112,9 @@ def nis_smoother(p, sol) -> tuple[np.ndarray, np.ndarray]:
     """
     out, dofs = [], []
     for kind in p.families:
-        if kind in PRIOR_KINDS or kind not in LINEARIZERS:
+        if kind in PRIOR_KINDS or not is_solved(kind):
             continue
-        k, A, b = _family_rows(p, kind, sol.x_eci)
+        k, A, b = _family_rows(p, kind, sol.x_eci, sol.variables)
         r = -b
         S = np.eye(A.shape[1])[None] - np.einsum("mij,mjl,mkl->mik", A, sol.P_eci[k], A)
         out.append(np.einsum("mi,mi->m", r, np.linalg.solve(S, r[..., None])[..., 0]))
@@ -147,9 +147,9 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
     b_by_k: dict[int, list] = {}
 
     for kind in p.families:
-        if kind in PRIOR_KINDS or kind not in LINEARIZERS:
+        if kind in PRIOR_KINDS or not is_solved(kind):
             continue
-        k, A, b = _family_rows(p, kind, Xp)
+        k, A, b = _family_rows(p, kind, Xp, sol.variables)
         for j in range(len(k)):
             A_by_k.setdefault(int(k[j]), []).append(A[j])
             b_by_k.setdefault(int(k[j]), []).append(b[j])

@@ -37,7 +37,7 @@ from fgnav.measurements import (Pass, covering_sigmas, fill_gaps, format_duratio
                                 slice_pass)
 from fgnav.solution import Solution
 from fgnav.solvers.ekf import run_ekf
-from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.time import j2000_seconds
 
 KAPPA_MAX = 1.0
@@ -47,7 +47,7 @@ KAPPA_MAX = 1.0
 def _filter(p: Pass, options):
     """Filtered states and covariances of a pass (the numba EKF where it applies)."""
     plain = dataclasses.replace(options, gate_probability=None, robust=None)
-    if set(p.families) <= set(SUPPORTED_KINDS):
+    if numba_supports(p):
         try:
             return run_ekf_numba(p, plain)
         except ValueError:

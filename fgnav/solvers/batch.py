@@ -27,14 +27,16 @@ import numpy as np
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from fgnav.graph import PRIOR_KINDS, linearize_all
+from factors.random_walk import random_walk_residual
+from fgnav.graph import PRIOR_KINDS, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass
-from fgnav.solvers.ekf_numba import SUPPORTED_KINDS, run_ekf_numba
+from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
+from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
 _UNIT = {}
@@ -52,36 +54,64 @@ X = gtsam.symbol_shorthand.X
 
 @dataclass
 class Linearization:
-    R: np.ndarray        # (N,6,6) conditionals
-    S: np.ndarray        # (N,6,6)
-    d: np.ndarray        # (N,6)
+    R: np.ndarray        # (N,n,n) conditionals (n: the pass's block size, 6 for the orbit alone)
+    S: np.ndarray        # (N,n,n)
+    d: np.ndarray        # (N,n)
     chi2_meas: float
     chi2_motion: float
     residuals: dict
     weights: dict
-    col_norm: np.ndarray | None = None  # (N,6) column norms of the whitened system
+    col_norm: np.ndarray | None = None  # (N,n) column norms of the whitened system
+
+
+def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float):
+    """The whitened process rows of every step k -> k + 1 on the block ``(X_k, X_{k+1})``:
+    ``A0, A1`` (N-1, n, n) and ``b`` (N-1, n), so that step k's rows are
+    ``|A0 dx_k + A1 dx_{k+1} - b|^2``.
+
+    Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
+    motion factor, ``factors.motion``); each further vector variable its random walk
+    (``factors.random_walk``), ``w [-I, I]``, ``b = -w (b_{k+1} - b_k)``, ``w = 1/sqrt(psd dt)``.
+    """
+    lay = layout_of(p)
+    N, n = p.n_epochs, lay.n
+    A0 = np.zeros((max(N - 1, 0), n, n))
+    A1 = np.zeros_like(A0)
+    b = np.zeros((max(N - 1, 0), n))
+    if N < 2:
+        return A0, A1, b
+    dt = np.diff(p.t_s)
+    F, Phi = propagate_many(Xs[:-1, :6], dt, model, t0_j2000_s + p.t_s[:-1])
+    W = process_noise_sqrt_information(dt, q)
+    A0[:, :6, :6] = -np.einsum("kij,kjl->kil", W, Phi)
+    A1[:, :6, :6] = W
+    b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
+    for v in lay.extra:
+        if v.manifold != "vector":
+            raise NotImplementedError(f"{v.name}: a random walk on {v.manifold} is not modelled")
+        sl = lay.slices[v.name]
+        e, H0, H1 = random_walk_residual(Xs[:-1, sl], Xs[1:, sl])
+        w = 1.0 / v.step_sigma(dt)
+        A0[:, sl, sl] = w[:, None, None] * H0
+        A1[:, sl, sl] = w[:, None, None] * H1
+        b[:, sl] = -w[:, None] * e
+    return A0, A1, b
 
 
 def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
                        robust=None, rejected=None):
-    """The pass linearized at ``Xs``: one pre-whitened JacobianFactor per epoch.
+    """The pass linearized at ``Xs`` (N, n): one pre-whitened JacobianFactor per epoch.
 
-    Returns the GaussianFactorGraph, the chi-square of the measurement and motion rows, the
+    Returns the GaussianFactorGraph, the chi-square of the measurement and process rows, the
     measurement rows (:class:`fgnav.graph.Rows`: residuals and robust weights per kind) and
-    the norm of every column of the whitened system (N, 6) (for :func:`_check_rank`).
+    the norm of every column of the whitened system (N, n) (for :func:`_check_rank`).
     """
     N = p.n_epochs
+    n = layout_of(p).n
     rows = linearize_all(p, Xs, robust, rejected)
     k_rows, A_rows, b_rows = rows.k, rows.A, rows.b
     starts = np.searchsorted(k_rows, np.arange(N + 1))
-    if N > 1:
-        dt = np.diff(p.t_s)
-        F, Phi = propagate_many(Xs[:-1], dt, model, t0_j2000_s + p.t_s[:-1])
-        W = process_noise_sqrt_information(dt, q)
-        A0_mot = -np.einsum("kij,kjl->kil", W, Phi)
-        b_mot = -np.einsum("kij,kj->ki", W, Xs[1:] - F)
-    else:
-        W = A0_mot = b_mot = np.zeros((0, 6, 6))
+    A0_mot, W, b_mot = process_blocks(p, Xs, q, model, t0_j2000_s)
     # Stack each epoch's measurement rows over its motion rows, grouped by row count so the
     # stacking is one numpy call per group rather than one per epoch (0.45 -> 0.35 s per
     # iteration at 14,400 epochs, same factors in the same order).
@@ -96,9 +126,9 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
         km = ks[mot]
         if len(km):
             A0 = np.concatenate([Am[mot], A0_mot[km]], axis=1)
-            A1 = np.concatenate([np.zeros((len(km), m, 6)), W[km]], axis=1)
+            A1 = np.concatenate([np.zeros((len(km), m, n)), W[km]], axis=1)
             b = np.concatenate([bm[mot], b_mot[km]], axis=1)
-            unit = _unit(m + 6)
+            unit = _unit(m + n)
             for i, k in enumerate(km.tolist()):
                 factors[k] = JF(X(k), A0[i], X(k + 1), A1[i], b[i], unit)
         if m and not mot.all():
@@ -107,7 +137,7 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
     for f in factors:
         if f is not None:
             graph.push_back(f)
-    col2 = np.zeros((N, 6))
+    col2 = np.zeros((N, n))
     np.add.at(col2, k_rows, A_rows * A_rows)
     if N > 1:
         col2[:-1] += np.sum(A0_mot * A0_mot, axis=1)
@@ -115,8 +145,8 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
     return graph, float(b_rows @ b_rows), float(np.sum(b_mot * b_mot)), rows, np.sqrt(col2)
 
 
-def eliminate_chain(graph, N: int, source: str = ""):
-    """Eliminate X0..X_{N-1} in time order with QR; the conditionals (R, S, d) of each state."""
+def eliminate_chain(graph, N: int, source: str = "", n: int = 6):
+    """Eliminate X0..X_{N-1} (blocks of n) in time order with QR; the conditionals (R, S, d)."""
     ordering = gtsam.Ordering()
     for k in range(N):
         ordering.push_back(X(k))
@@ -125,9 +155,9 @@ def eliminate_chain(graph, N: int, source: str = ""):
     except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
         raise NotObservableError(f"{source}: the linearized system is singular ({exc}); "
                                  f"the measurements do not observe every state") from exc
-    R = np.empty((N, 6, 6))
-    S = np.zeros((N, 6, 6))
-    d = np.empty((N, 6))
+    R = np.empty((N, n, n))
+    S = np.zeros((N, n, n))
+    d = np.empty((N, n))
     for k in range(N):
         c = bn.at(k)
         R[k] = c.R()
@@ -142,7 +172,7 @@ def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionMode
     """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
     graph, chi2_meas, chi2_motion, rows, col_norm = build_linear_graph(p, Xs, q, model, t0_j2000_s,
                                                                         robust, rejected)
-    R, S, d = eliminate_chain(graph, p.n_epochs, p.source)
+    R, S, d = eliminate_chain(graph, p.n_epochs, p.source, layout_of(p).n)
     return Linearization(R, S, d, chi2_meas, chi2_motion, rows.residuals, rows.weights, col_norm)
 
 
@@ -159,7 +189,7 @@ def _check_rank(p: Pass, lin: Linearization, rel_tol: float = 1e-13) -> None:
     bad = np.argwhere(~(diag >= rel_tol * scale))
     if len(bad):
         k, i = bad[0]
-        comp = ["x", "y", "z", "vx", "vy", "vz"][i]
+        comp = layout_of(p).component_names()[i]
         raise NotObservableError(
             f"{p.source}: state component {comp} at t = {p.t_s[k]:.3f} s is not observable "
             f"(zero pivot in the QR elimination); add measurements or a prior")
@@ -175,6 +205,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
     Xs = None
+    lay = layout_of(p)
     q_stages = []
     q = max(options.q_start_m2_s3, options.q_m2_s3)
     while q > options.q_m2_s3 * (1 + 1e-9):
@@ -192,10 +223,10 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             dx = back_substitute(lin.R, lin.S, lin.d)
             if not np.all(np.isfinite(dx)):
                 raise NotObservableError(f"{p.source}: the Gauss-Newton update is not finite")
-            Xs = Xs + dx
+            Xs = lay.retract(Xs, dx)
             iterations += 1
             step_r = float(np.max(np.abs(dx[:, :3])))
-            step_v = float(np.max(np.abs(dx[:, 3:])))
+            step_v = float(np.max(np.abs(dx[:, 3:6])))
             if progress is not None:
                 progress(q, iterations, step_r)
             if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
@@ -214,7 +245,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         # The filtered trajectory is a first guess close enough for Gauss-Newton at the
         # target process noise: 3 iterations instead of 7 on gto-transfer (1.2 s vs 3.3 s at
         # 14,400 epochs, same solution to 0.2 mm). Continuation from the prior if it fails.
-        Xs = x_ekf
+        Xs = lay.initial(x_ekf)
         try:
             lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
         except (NotObservableError, ModelDomainError):
@@ -222,7 +253,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         if converged:
             q_stages = [options.q_m2_s3]
     if not converged:
-        Xs = initial_guess(p, model, t0_j2000) if x_init is None else np.array(x_init, dtype=float)
+        Xs = lay.initial(initial_guess(p, model, t0_j2000)) if x_init is None else _as_block(lay, x_init)
         for stage, q in enumerate(q_stages):
             final = stage == len(q_stages) - 1
             # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last
@@ -243,7 +274,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                        for k, w in weights_robust.items()}
     P = chain_marginals(lin.R, lin.S)
     wall = time.perf_counter() - t_start
-    return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs, P_eci=P,
+    return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs[:, :6],
+                    P_eci=P[:, :6, :6], variables=block_variables(lay, Xs, P),
                     iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
                     residuals=lin.residuals,
                     extras={"converged": bool(converged), "q_m2_s3": options.q_m2_s3,
@@ -254,13 +286,19 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                             **robust_counts(options, lin.weights)})
 
 
+def _as_block(lay, x):
+    """Block values (N, n) from ``x`` given as (N, n) or as orbit states (N, 6)."""
+    x = np.array(x, dtype=float)
+    return x if x.shape[-1] == lay.n else lay.initial(x[..., :6])
+
+
 def _ekf_first_guess(p: Pass, options: SmootherOptions):
     """The numba EKF's filtered states as a first guess, or None where it does not apply
     (measurement kinds it does not model, ``init="prior"``, or a filter that fails)."""
     if options.init != "auto":
         return None
 
-    if not set(p.families) <= set(SUPPORTED_KINDS):
+    if not numba_supports(p):
         return None
     try:
         x = run_ekf_numba(p, options).x_eci

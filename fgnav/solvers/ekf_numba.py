@@ -6,27 +6,20 @@ Same math, step for step (SI, ECI, state ``x = [r_eci_m; v_eci_mps]``):
   (``factors.dynamics.propagate_nb``, called directly), ``P <- Phi P Phi^T + Q(dt)`` with the
   white-acceleration process noise ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``
   (Bar-Shalom eq. 6.2.2-12; ``factors.dynamics.process_noise``);
-* update, per epoch and per measurement kind (all rows of one kind at one epoch at once, in
-  the order of ``fgnav.measurements.rows_by_epoch``), with the whitened rows
-  ``A = H/sigma``, ``b = -e/sigma`` of ``fgnav.graph.LINEARIZERS``:
+* update, per epoch and per measurement family (all rows of one family at one epoch at once,
+  in the order of ``fgnav.measurements.rows_by_epoch``), with the whitened rows
+  ``A = H/sigma``, ``b = -e/sigma`` of the family's measurement model:
   ``S = A P A^T + I``, ``K = P A^T S^-1``, ``x <- x + K b``,
   ``P <- (I - K A) P (I - K A)^T + K K^T`` (Joseph form).
 
-Residuals ``e`` and Jacobians ``H`` (position block; velocity columns zero):
-
-* ``prior_position`` / ``prior_velocity``: ``e = x[0:3] - xyz`` / ``x[3:6] - xyz``,
-  ``H = [I 0]`` / ``[0 I]`` (skipped at epoch 0, where the initial state is the prior);
-* ``earth_direction`` (``factors.direction.earth_direction_residual``): the log map of the
-  unit sphere at ``u_meas``, ``e = Log_{u_meas}(-r/|r|)`` (``|e|`` = angle, ``-u_meas`` the
-  farthest point), ``H_r = -J_u (I - u u^T)/|r|``, computed by the same numba kernel the
-  numpy residual calls (``factors.direction.earth_direction_kernel``), with
-  ``B = tangent_basis(u_meas)`` (``factors.geometry``) precomputed once per row;
-* ``limb_radius`` (``factors.limb``): ``e = arcsin(R_limb/|r|) - rho``,
-  ``H_r = -R_limb / (|r| sqrt(|r|^2 - R_limb^2)) r^T/|r|``;
-* ``altitude`` (``factors.altimeter``): ``e = |r| - r_ref - h``, ``H_r = r^T/|r|``.
-
-Kinds outside these five (e.g. ``refraction``) are not handled here: :func:`run_ekf_numba`
-raises ``ValueError`` naming them, so the caller can fall back to the numpy EKF.
+Residuals ``e`` and Jacobians ``H`` come from the models' row kernels in ``factors/``
+(:data:`ROW_KERNELS`: the priors, the geocentric direction, the limb radius, the altimeter),
+the same compiled functions their numpy residuals call. A model registers its kernel in
+``fgnav.models.registry`` (``numba_kernel``); a pass with any other family, or with
+graph variables beyond the orbit state, is not handled here: :func:`numba_supports` says so
+and :func:`run_ekf_numba` raises ``ValueError`` naming the families, so the caller can fall
+back to the numpy EKF (``fgnav.solvers.ekf``). Priors at epoch 0 are skipped (the initial
+state is the prior).
 The innovation covariance ``S`` is factored with a small in-kernel Cholesky (it is SPD:
 ``A P A^T + I``).
 """
@@ -39,22 +32,49 @@ import time
 import numpy as np
 from numba import njit
 
-from factors.direction import earth_direction_kernel
+from factors.altimeter import altitude_kernel
+from factors.direction import earth_direction_row_kernel
 from factors.dynamics import propagate_nb
-from factors.geometry import tangent_basis
+from factors.limb import limb_radius_kernel
+from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.measurements import prior_covariance
+from fgnav.models.registry import MODELS
 from fgnav.solution import Solution
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
-__all__ = ["SUPPORTED_KINDS", "run_ekf_numba", "pack_pass", "first_state", "prior_covariance"]
+__all__ = ["ROW_KERNELS", "numba_supports", "run_ekf_numba", "pack_pass", "first_state",
+           "prior_covariance"]
 
-SUPPORTED_KINDS = ("prior_position", "prior_velocity", "earth_direction", "limb_radius", "altitude")
-"""Measurement families the numba kernel updates with (code = index in this tuple)."""
+ROW_KERNELS = (prior_position_kernel, prior_velocity_kernel, earth_direction_row_kernel,
+               limb_radius_kernel, altitude_kernel)
+"""The row kernels :func:`_rows` dispatches on (a model's code = index of its ``numba_kernel``).
+Each is ``kernel(x (6,), data (3,), B (2, 3), e (m,), H (m, 6)) -> rows written, or -1``."""
+_K0, _K1, _K2, _K3, _K4 = ROW_KERNELS
+_MAX_ROWS = 64            # rows of one (epoch, family) group handled by the kernel at once
 
-_DIM = (3, 3, 2, 1, 1)   # rows per measurement of each kind
-_MAX_ROWS = 64            # rows of one (epoch, kind) group handled by the kernel at once
+
+def _code(mdl) -> int | None:
+    """The kernel code of a model, or None if the compiled EKF has no kernel for it."""
+    for i, kern in enumerate(ROW_KERNELS):
+        if mdl.numba_kernel is kern:
+            return i
+    return None
+
+
+def _unsupported(p) -> list[str]:
+    """The families of ``p`` that enter the graphs but have no row kernel here."""
+    return [k for k in p.families if k in MODELS and MODELS[k].solved and _code(MODELS[k]) is None]
+
+
+def numba_supports(p) -> bool:
+    """True if every family of the pass has a row kernel here (rows that do not enter the
+    graphs, such as ``attitude``, count against it: the callers then use the numpy EKF, as
+    they always have) and the pass's graph variables are the orbit state alone."""
+    if getattr(p, "layout", None) is not None and p.layout.n != 6:
+        return False
+    return all(k in MODELS and _code(MODELS[k]) is not None for k in p.families)
 
 
 # ----------------------------------------------------------------------------- kernel
@@ -91,51 +111,28 @@ def _chol_solve_inplace(S, Y, m, ncol):
 
 @njit(cache=True)
 def _rows(code, x, data, B, sigma, A, b, r0):
-    """Whitened rows (A, b) of one measurement starting at row r0; returns rows written,
-    or -1 if the residual is undefined (limb: |r| <= R_limb)."""
-    rx = x[0]
-    ry = x[1]
-    rz = x[2]
-    if code == 0 or code == 1:
-        off = 0 if code == 0 else 3
-        for i in range(3):
-            for j in range(6):
-                A[r0 + i, j] = 0.0
-            A[r0 + i, off + i] = 1.0 / sigma
-            b[r0 + i] = -(x[off + i] - data[i]) / sigma
-        return 3
-    if code == 2:
-        earth_direction_kernel(x, B, True, b[r0:r0 + 2], A[r0:r0 + 2])
-        for i in range(2):
-            b[r0 + i] = -b[r0 + i] / sigma
-            for j in range(6):
-                A[r0 + i, j] /= sigma
-        return 2
-    n = math.sqrt(rx * rx + ry * ry + rz * rz)
-    ux = rx / n
-    uy = ry / n
-    uz = rz / n
-    for j in range(6):
-        A[r0, j] = 0.0
-    if code == 3:
-        rho = data[0]
-        rl = data[1]
-        if n <= rl:
-            return -1
-        e = math.asin(rl / n) - rho
-        g = -rl / (n * math.sqrt(n * n - rl * rl))
-        A[r0, 0] = (g / n) * rx / sigma
-        A[r0, 1] = (g / n) * ry / sigma
-        A[r0, 2] = (g / n) * rz / sigma
-        b[r0] = -e / sigma
-        return 1
-    # code 4: altitude, e = |r| - r_ref - h
-    e = n - data[1] - data[0]
-    A[r0, 0] = ux / sigma
-    A[r0, 1] = uy / sigma
-    A[r0, 2] = uz / sigma
-    b[r0] = -e / sigma
-    return 1
+    """Whitened rows (A, b) of one measurement starting at row r0, by its model's row kernel
+    (:data:`ROW_KERNELS`); returns the rows written, or -1 where the residual is undefined
+    (limb: |r| <= R_limb)."""
+    e = b[r0:]
+    H = A[r0:]
+    if code == 0:
+        m = _K0(x, data, B, e, H)
+    elif code == 1:
+        m = _K1(x, data, B, e, H)
+    elif code == 2:
+        m = _K2(x, data, B, e, H)
+    elif code == 3:
+        m = _K3(x, data, B, e, H)
+    else:
+        m = _K4(x, data, B, e, H)
+    if m < 0:
+        return -1
+    for i in range(m):
+        b[r0 + i] = -b[r0 + i] / sigma
+        for j in range(6):
+            A[r0 + i, j] /= sigma
+    return m
 
 
 @njit(cache=True)
@@ -157,12 +154,14 @@ def _sandwich(M, P, T, out):
 
 @njit(cache=True)
 def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, q,
-               g_ptr, g_code, g_row0, g_nmeas, m_data, m_B, m_sigma, x, P, xs, Ps, innov):
+               g_ptr, g_code, g_row0, g_nmeas, g_dim, g_prior, m_data, m_B, m_sigma, x, P, xs,
+               Ps, innov):
     """Filter epochs ``k_begin <= k < k_end`` in place; returns -1, or the failing measurement.
 
     x (6,), P (6,6): state and covariance after epoch ``k_begin - 1`` (or the prior at 0).
     Groups of epoch k are ``g_ptr[k]:g_ptr[k+1]``; group g holds ``g_nmeas[g]`` measurements
-    of kind ``g_code[g]`` from packed row ``g_row0[g]``; ``m_data (M,3)`` their values,
+    of the model with kernel code ``g_code[g]`` (``g_dim[g]`` rows each; ``g_prior[g]``: a
+    prior, skipped at epoch 0) from packed row ``g_row0[g]``; ``m_data (M,3)`` their values,
     ``m_B (M,2,3)`` tangent bases, ``m_sigma (M,)`` 1-sigma; innovations ``-b`` go to
     ``innov (M,3)``. Writes xs[k], Ps[k].
     """
@@ -195,7 +194,7 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
                 P[3 + i, 3 + i] += qvv
         for g in range(g_ptr[k], g_ptr[k + 1]):
             code = g_code[g]
-            if (code == 0 or code == 1) and k == 0:
+            if g_prior[g] and k == 0:
                 continue  # the initial state already is this prior
             m = 0
             r0 = g_row0[g]
@@ -244,7 +243,7 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
                 for j in range(6):
                     P[i, j] = Phi[i, j]
             # innovations -b, row by row
-            dim = 3 if code <= 1 else (2 if code == 2 else 1)
+            dim = g_dim[g]
             for jm in range(g_nmeas[g]):
                 for c in range(dim):
                     innov[r0 + jm, c] = -b[jm * dim + c]
@@ -260,54 +259,53 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
 class Packed:
     """A pass flattened for the kernel (see :func:`ekf_kernel` for the array meanings)."""
 
-    def __init__(self, g_ptr, g_code, g_row0, g_nmeas, m_data, m_B, m_sigma, spans):
+    def __init__(self, g_ptr, g_code, g_row0, g_nmeas, g_dim, g_prior, m_data, m_B, m_sigma, spans):
         self.g_ptr, self.g_code, self.g_row0, self.g_nmeas = g_ptr, g_code, g_row0, g_nmeas
+        self.g_dim, self.g_prior = g_dim, g_prior
         self.m_data, self.m_B, self.m_sigma = m_data, m_B, m_sigma
         self.spans = spans  # kind -> (first packed row, family row order (M_kind,))
 
 
 def pack_pass(p) -> Packed:
-    """Flatten the supported families of a pass into (epoch, kind) groups, in the order the
-    numpy EKF updates (epoch, then family order in ``p.families``, rows by family order)."""
-    unsupported = [k for k in p.families if k not in SUPPORTED_KINDS and k != "attitude"]
-    if unsupported:
-        raise ValueError(f"the numba EKF handles {', '.join(SUPPORTED_KINDS)}; "
-                         f"this pass also has {', '.join(unsupported)} (use fgnav.solvers.ekf)")
+    """Flatten the families of a pass into (epoch, family) groups, in the order the numpy
+    EKF updates (epoch, then family order in ``p.families``, rows by family order)."""
+    unsupported = _unsupported(p)
+    if unsupported or p.layout.n != 6:
+        raise ValueError(f"the numba EKF has no kernel for {', '.join(unsupported) or 'the pass'}"
+                         f"{'' if unsupported else ' (graph variables beyond the orbit state)'} "
+                         f"(use fgnav.solvers.ekf)")
     N = p.n_epochs
     datas, Bs, sigmas, spans = [], [], [], {}
-    g_k, g_fam, g_code, g_row0, g_n = [], [], [], [], []
+    g_k, g_fam, g_code, g_row0, g_n, g_dim, g_prior = [], [], [], [], [], [], []
     row = 0
     for fi, (kind, fam) in enumerate(p.families.items()):
-        if kind not in SUPPORTED_KINDS:
+        mdl = MODELS.get(kind)
+        if mdl is None or not mdl.solved:
             continue
-        code = SUPPORTED_KINDS.index(kind)
+        code = _code(mdl)
         M = len(fam)
         order = np.argsort(fam.k, kind="stable")
         ks = fam.k[order]
         data = np.zeros((M, 3))
         B = np.zeros((M, 2, 3))
-        if code <= 1:
-            data[:] = fam.values["xyz"][order]
-        elif code == 2:
-            data[:] = fam.values["u_eci"][order]
-            B[:] = tangent_basis(data)
-        elif code == 3:
-            data[:, 0] = fam.values["rho_rad"][order]
-            data[:, 1] = fam.values["r_limb_m"][order]
-        else:
-            data[:, 0] = fam.values["h_m"][order]
-            data[:, 1] = fam.values["r_ref_m"][order]
+        d, b = mdl.numba_data(fam)
+        d = np.asarray(d, dtype=float)[order]
+        data[:, :d.shape[1]] = d
+        if b is not None:
+            B[:] = np.asarray(b, dtype=float)[order]
         sig = np.asarray(fam.sigma, dtype=float)[order]
         if np.any(~(sig > 0)):
             raise ValueError(f"{kind}: sigma must be positive")
         uk, first, counts = np.unique(ks, return_index=True, return_counts=True)
-        if np.any(counts * _DIM[code] > _MAX_ROWS):
-            raise ValueError(f"{kind}: more than {_MAX_ROWS // _DIM[code]} rows at one epoch")
+        if np.any(counts * mdl.dim > _MAX_ROWS):
+            raise ValueError(f"{kind}: more than {_MAX_ROWS // mdl.dim} rows at one epoch")
         g_k.append(uk)
         g_fam.append(np.full(len(uk), fi))
         g_code.append(np.full(len(uk), code))
         g_row0.append(row + first)
         g_n.append(counts)
+        g_dim.append(np.full(len(uk), mdl.dim))
+        g_prior.append(np.full(len(uk), mdl.prior))
         datas.append(data)
         Bs.append(B)
         sigmas.append(sig)
@@ -318,8 +316,11 @@ def pack_pass(p) -> Packed:
     gk = np.concatenate(g_k)
     o = np.lexsort((np.concatenate(g_fam), gk))
     g_ptr = np.searchsorted(gk[o], np.arange(N + 1)).astype(np.int64)
-    return Packed(g_ptr, np.concatenate(g_code)[o].astype(np.int64),
-                  np.concatenate(g_row0)[o].astype(np.int64), np.concatenate(g_n)[o].astype(np.int64),
+
+    def cat(parts, dtype=np.int64):
+        return np.concatenate(parts)[o].astype(dtype)
+
+    return Packed(g_ptr, cat(g_code), cat(g_row0), cat(g_n), cat(g_dim), cat(g_prior, np.bool_),
                   np.ascontiguousarray(np.concatenate(datas)), np.ascontiguousarray(np.concatenate(Bs)),
                   np.concatenate(sigmas), spans)
 
@@ -354,7 +355,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     if not q > 0.0:
         raise ValueError(f"q_m2_s3 must be positive (m^2/s^3), got {q!r}")
     args = (t_s, t0_j2000, mu, j2, re, third, hmax, mus, mum, q, pk.g_ptr, pk.g_code,
-            pk.g_row0, pk.g_nmeas, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov)
+            pk.g_row0, pk.g_nmeas, pk.g_dim, pk.g_prior, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov)
     latency = np.empty(N)
     t_load = time.perf_counter()
     ekf_kernel(0, 0, *args)   # an empty range: loads (or compiles) the kernel outside the timing
@@ -381,10 +382,10 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     run_s = time.perf_counter() - t_run
     residuals: dict[str, np.ndarray] = {}
     for kind, (r0, order) in pk.spans.items():
-        dim = _DIM[SUPPORTED_KINDS.index(kind)]
+        dim = MODELS[kind].dim
         r = np.full((len(order), dim), np.nan)
         r[order] = innov[r0:r0 + len(order), :dim]
-        if kind in ("prior_position", "prior_velocity") and np.all(np.isnan(r)):
+        if MODELS[kind].prior and np.all(np.isnan(r)):
             continue  # only the epoch-0 prior: never an update (as in run_ekf)
         residuals[kind] = r
     wall = time.perf_counter() - t_start

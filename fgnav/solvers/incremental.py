@@ -54,8 +54,10 @@ import numpy as np
 
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
 from factors.motion import make_motion_factor, motion_residual
+from factors.random_walk import make_random_walk_factor, make_vector_prior_factor
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import LINEARIZERS, PRIOR_KINDS, factors_for_rows
+from fgnav.graph import factors_for_rows, is_solved, layout_of, linearize_family
+from fgnav.models.registry import model as model_of
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass, rows_by_epoch
@@ -65,9 +67,42 @@ from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
 X = gtsam.symbol_shorthand.X
+
+
+def _insert_block(values, lay, k, block):
+    """Insert epoch ``k``'s variables (block values (n,)) into a ``gtsam.Values``."""
+    values.insert(X(k), np.asarray(block[:6], dtype=float))
+    for v in lay.extra:
+        values.insert(v.key(k), np.asarray(block[lay.slices[v.name]], dtype=float))
+
+
+def _read_block(vector_at, lay, k):
+    """Epoch ``k``'s block values (n,) from ``vector_at(key)`` (an estimate's ``atVector`` or
+    iSAM2's ``calculateEstimateVector``)."""
+    if not lay.extra:
+        return np.asarray(vector_at(X(k)), dtype=float)
+    return np.concatenate([vector_at(X(k))] + [vector_at(v.key(k)) for v in lay.extra])
+
+
+def _timestamps(lay, k, t):
+    """Fixed-lag timestamps of epoch ``k``'s keys."""
+    return {X(k): t, **{v.key(k): t for v in lay.extra}}
+
+
+def _process_factors(lay, k, dt, q, model, t0_j2000_s):
+    """The factors from epoch ``k - 1`` to ``k``: the orbit's motion factor and each further
+    variable's random walk (at ``k = 0``: the further variables' priors)."""
+    if k == 0:
+        return [make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
+                for v in lay.extra]
+    out = [make_motion_factor(X(k - 1), X(k), dt, q, model, t0_j2000_s)]
+    for v in lay.extra:
+        out.append(make_random_walk_factor(v.key(k - 1), v.key(k), float(v.step_sigma(dt)), v.dim))
+    return out
 
 
 def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
@@ -104,9 +139,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
     N = p.n_epochs
+    lay = layout_of(p)
     per_epoch = rows_by_epoch(p)
     # The first guess of state 0 comes from the priors (propagated back if they are later).
-    x_prev = first_state(p, model, t0_j2000)
+    x_prev = lay.initial(first_state(p, model, t0_j2000)[None])[0]
     fixed_lag = method == "fixed-lag"
     if fixed_lag:
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
@@ -121,9 +157,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))
-    lagged_x = np.empty((N, 6))      # fixed-lag: each state's estimate when it leaves the window
-    lagged_P = np.empty((N, 6, 6))
-    lagged_next = np.full((N, 6), np.nan)  # ... and its successor's in that same estimate
+    lagged_x = np.empty((N, lay.n))   # fixed-lag: each state's estimate when it leaves the window
+    lagged_P = np.zeros((N, lay.n, lay.n))
+    lagged_next = np.full((N, lay.n), np.nan)  # ... and its successor's in that same estimate
     oldest = 0
     latency = np.empty(N)
     kernel = RobustKernel.create(options.robust, options.robust_k)
@@ -137,15 +173,15 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
 
     def add_epoch_factors(graph, k, guess, kept_only):
         for kind, rows in per_epoch[k]:
-            if kind not in LINEARIZERS:  # e.g. 'attitude' rows: used by build_pass, not factors
+            if not is_solved(kind):  # e.g. 'attitude' rows: used by build_pass, not factors
                 continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
-            elif gate is not None and kind not in PRIOR_KINDS:
-                kept = _gate_rows(p.families[kind], kind, rows, guess, P_pred, gate)
+            elif gate is not None and model_of(kind).robust:
+                kept = _gate_rows(p, kind, rows, guess, P_pred, gate)
                 rejected_rows[kind][np.setdiff1d(rows, kept)] = True
                 rows = kept
-            for f in factors_for_rows(kind, p.families[kind], rows, X(k), kernel, guess):
+            for f in factors_for_rows(p, kind, rows, k, kernel, guess[:6]):
                 graph.add(f)
 
     k_start = 0
@@ -153,69 +189,70 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         if not checkpoint:
             raise UserError("resume needs a checkpoint file")
         k_start, x_est, rejected_rows = _load_checkpoint(
-            checkpoint, fingerprint, online_x, online_P, latency, rejected_rows)
+            checkpoint, fingerprint, online_x, online_P, latency, rejected_rows, lay.n)
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         for k in range(k_start):
-            if k > 0:
-                dt = p.t_s[k] - p.t_s[k - 1]
-                graph.add(make_motion_factor(X(k - 1), X(k), dt, options.q_m2_s3, model,
-                                             t0_j2000 + p.t_s[k - 1]))
+            dt = p.t_s[k] - p.t_s[k - 1] if k > 0 else 0.0
+            for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
+                                      t0_j2000 + p.t_s[max(k - 1, 0)]):
+                graph.add(f)
             add_epoch_factors(graph, k, x_est[k], kept_only=True)
-            values.insert(X(k), x_est[k])
+            _insert_block(values, lay, k, x_est[k])
         isam.update(graph, values)
         held_lp = isam.getLinearizationPoint()
-        x_prev = isam.calculateEstimateVector(X(k_start - 1))
-    _warm_up(p, per_epoch, options, model, t0_j2000, x_prev, kernel)
+        x_prev = _read_block(isam.calculateEstimateVector, lay, k_start - 1)
+    _warm_up(p, per_epoch, options, model, t0_j2000, x_prev[:6], kernel)
     with _gc_paused():
         for k in range(k_start, N):
             if fixed_lag and oldest < k and p.t_s[oldest] < p.t_s[k] - lag_internal:
                 oldest = _harvest(smoother, p.t_s, oldest, k, p.t_s[k] - inc.lag_s,
-                                  lagged_x, lagged_P, lagged_next)
+                                  lagged_x, lagged_P, lagged_next, lay)
             t_k0 = time.perf_counter()
             graph = gtsam.NonlinearFactorGraph()
             values = gtsam.Values()
-            if k == 0:
-                guess = x_prev
-            else:
-                dt = p.t_s[k] - p.t_s[k - 1]
-                guess, Phi_k = propagate(x_prev, dt, model, t0_j2000 + p.t_s[k - 1])
-                graph.add(make_motion_factor(X(k - 1), X(k), dt, options.q_m2_s3, model,
-                                             t0_j2000 + p.t_s[k - 1]))
+            dt = p.t_s[k] - p.t_s[k - 1] if k > 0 else 0.0
+            guess = x_prev.copy()
+            if k > 0:
+                guess[:6], Phi_k = propagate(x_prev[:6], dt, model, t0_j2000 + p.t_s[k - 1])
+            for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
+                                      t0_j2000 + p.t_s[max(k - 1, 0)]):
+                graph.add(f)
             if gate is not None:
-                P_pred = (prior_covariance(p) if k == 0 else
-                          Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, options.q_m2_s3))
+                P_pred = _predicted_covariance(p, lay, k, Phi_k if k else None, online_P, dt,
+                                               options.q_m2_s3)
             add_epoch_factors(graph, k, guess, kept_only=False)
-            values.insert(X(k), guess)
+            _insert_block(values, lay, k, guess)
             try:
                 if fixed_lag:
-                    smoother.update(graph, values, {X(k): float(p.t_s[k])})
+                    smoother.update(graph, values, _timestamps(lay, k, float(p.t_s[k])))
                     if held_lp is None:
                         held_lp = smoother.getISAM2().getLinearizationPoint()
-                    x_prev = smoother.calculateEstimateVector(X(k))
+                    x_prev = _read_block(smoother.calculateEstimateVector, lay, k)
                     P = smoother.marginalCovariance(X(k))
                 else:
                     isam.update(graph, values)
                     if held_lp is None:
                         held_lp = isam.getLinearizationPoint()
-                    x_prev = isam.calculateEstimateVector(X(k))
+                    x_prev = _read_block(isam.calculateEstimateVector, lay, k)
                     P = isam.marginalCovariance(X(k))
             except RuntimeError as exc:
                 raise NotObservableError(
                     f"{p.source}: {method} could not update at t = {p.t_s[k]:.3f} s ({exc}); "
                     f"the state is not observable from the data so far (a prior is needed at the "
                     f"first epoch)") from exc
-            online_x[k] = x_prev
+            online_x[k] = x_prev[:6]
             online_P[k] = P
             latency[k] = time.perf_counter() - t_k0
             if checkpoint and ((k + 1) % checkpoint_every == 0 or k == N - 1):
                 est = isam.calculateEstimate()
                 _save_checkpoint(checkpoint, fingerprint, k + 1, online_x, online_P, latency,
-                                 np.array([est.atVector(X(j)) for j in range(k + 1)]), rejected_rows)
+                                 np.array([_read_block(est.atVector, lay, j) for j in range(k + 1)]),
+                                 rejected_rows)
             if progress is not None:
                 progress(k)
     if fixed_lag:
-        _harvest(smoother, p.t_s, oldest, N, np.inf, lagged_x, lagged_P, lagged_next)
+        _harvest(smoother, p.t_s, oldest, N, np.inf, lagged_x, lagged_P, lagged_next, lay)
         x_final, P_final = lagged_x, lagged_P
         lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
         # The reported states come from different windows (each read when it leaves its
@@ -232,11 +269,12 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         # marginals in O(N) from the same elimination (isam.marginalCovariance of an old
         # state costs ~0.1-0.25 s each).
         x_final, lin, P_final, polish_iterations = polish_chain(
-            p, np.array([est.atVector(X(k)) for k in range(N)]), options.q_m2_s3, model,
+            p, np.array([_read_block(est.atVector, lay, k) for k in range(N)]), options.q_m2_s3, model,
             t0_j2000, kernel, rejected_rows if gate is not None else None)
     wall = time.perf_counter() - t_start
-    return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final,
-                    P_eci=P_final, iterations=N, wall_s=wall,
+    return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
+                    P_eci=P_final[:, :6, :6], variables=block_variables(lay, x_final, P_final),
+                    iterations=N, wall_s=wall,
                     chi2=lin.chi2_meas + lin.chi2_motion,
                     residuals=lin.residuals, online_x_eci=online_x,
                     online_P_eci=online_P, latency_s=latency,
@@ -277,9 +315,13 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     values = gtsam.Values()
     values.insert(X(0), x0)
     graph = gtsam.NonlinearFactorGraph()
+    lay = layout_of(p)
+    for v in lay.extra:
+        values.insert(v.key(0), np.full(v.dim, v.prior_mean))
     for kind, rows in per_epoch[0]:
-        for f in factors_for_rows(kind, p.families[kind], rows[:1], X(0), kernel, x0):
-            graph.add(f)
+        if is_solved(kind):
+            for f in factors_for_rows(p, kind, rows[:1], 0, kernel, x0):
+                graph.add(f)
     if p.n_epochs > 1:
         dt = p.t_s[1] - p.t_s[0]
         values.insert(X(1), propagate(x0, dt, model, t0_j2000 + p.t_s[0])[0])
@@ -287,7 +329,7 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     graph.linearize(values)
 
 
-def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_next):
+def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_next, lay):
     """Read out the fixed-lag smoothed states from ``oldest`` up to (not including) the first
     at or after ``t_due`` s or ``k_end``; returns the index of the next state to read.
 
@@ -303,16 +345,20 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
     (``calculateBestEstimate``): the per-update estimate stops at the wildfire threshold
     (100 m, 100 m/s), so an old state read from it lags its own smoothed value; on a 1 h
     gto-transfer pass at 10 s the motion chi-square of the states read that way was 6e14,
-    1e2 from the full back-substitution.
+    1e2 from the full back-substitution. Variables beyond the orbit state get their own
+    marginal (their cross-covariance with the orbit is not read: block-diagonal here).
     """
     isam = smoother.getISAM2()
     est = isam.calculateBestEstimate() if oldest < k_end and t_s[oldest] < t_due else None
     j = oldest
     while j < k_end and t_s[j] < t_due:
-        lagged_x[j] = est.atVector(X(j))
-        lagged_P[j] = smoother.marginalCovariance(X(j))
+        lagged_x[j] = _read_block(est.atVector, lay, j)
+        lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
+        for v in lay.extra:
+            sl = lay.slices[v.name]
+            lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
         if j + 1 < k_end:
-            lagged_next[j] = est.atVector(X(j + 1))
+            lagged_next[j] = _read_block(est.atVector, lay, j + 1)
         j += 1
     isam.deleteCachedShortcuts()
     return j
@@ -339,7 +385,7 @@ def polish_chain(p: Pass, x: np.ndarray, q_m2_s3: float, model, t0_j2000_s: floa
         dx = back_substitute(lin.R, lin.S, lin.d)
         if not np.all(np.isfinite(dx)):
             raise NotObservableError(f"{p.source}: the final Gauss-Newton update is not finite")
-        x = x + dx
+        x = layout_of(p).retract(x, dx)
         step = float(np.max(np.abs(dx) / np.sqrt(np.diagonal(P, axis1=1, axis2=2))))
         if step < tol_sigma:
             break
@@ -352,9 +398,9 @@ def _motion_chi2(p, x, x_next, q, model, t0_j2000):
     ``x_next`` is NaN: the last state, read with its predecessor in the final block)."""
     if p.n_epochs < 2:
         return 0.0
-    nxt = np.where(np.isnan(x_next[:-1]), x[1:], x_next[:-1])
+    nxt = np.where(np.isnan(x_next[:-1, :6]), x[1:, :6], x_next[:-1, :6])
     dt = np.diff(p.t_s)
-    e, _, _ = motion_residual(x[:-1], nxt, dt, model, t0_j2000 + p.t_s[:-1])
+    e, _, _ = motion_residual(x[:-1, :6], nxt, dt, model, t0_j2000 + p.t_s[:-1])
     w = np.einsum("kij,kj->ki", process_noise_sqrt_information(dt, q), e)
     return float(np.sum(w * w))
 
@@ -378,7 +424,7 @@ def _fingerprint(p: Pass, options: SmootherOptions, inc: IncrementalOptions, met
             v = np.ascontiguousarray(v)
             h.update(str((v.dtype.str, v.shape)).encode())
             h.update(v.tobytes())
-    h.update(repr((CHECKPOINT_FORMAT, method, options, inc)).encode())
+    h.update(repr((CHECKPOINT_FORMAT, method, options, inc, p.layout.names)).encode())
     return h.hexdigest()
 
 
@@ -392,14 +438,14 @@ def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_e
         f.write(buf.getvalue())
 
 
-def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows):
+def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows, n_block=6):
     """Read and validate a checkpoint written by :func:`_save_checkpoint` for this run.
 
     Anything else -- a missing, empty, truncated or foreign file, a pickle, missing or
     extra arrays, wrong shapes or dtypes, non-finite values, an epoch count out of range,
     another log or other options -- is a :class:`UserError` that says what is wrong.
     Fills ``online_x``, ``online_P``, ``latency`` up to the saved epoch; returns
-    ``(k_next, x_est, rejected_rows)``.
+    ``(k_next, x_est, rejected_rows)``; ``x_est`` (k_next, n_block) the block values.
     """
     N = len(online_x)
 
@@ -452,7 +498,7 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     if not 1 <= k <= N:
         raise bad(f"'k_next' = {k} outside 1..{N}, the epochs of this log")
     for name, shape in (("online_x", (k, 6)), ("online_P", (k, 6, 6)), ("latency", (k,)),
-                        ("x_est", (k, 6))):
+                        ("x_est", (k, n_block))):
         a = arrays[name]
         if a.shape != shape or a.dtype != np.float64:
             raise bad(f"'{name}' must be float64 of shape {shape}, found {a.dtype} {a.shape}")
@@ -469,11 +515,26 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     return k, arrays["x_est"], rows
 
 
-def _gate_rows(fam, kind, rows, x_pred, P_pred, probability):
-    """The rows whose innovation at the predicted state passes the chi-square gate."""
+def _predicted_covariance(p, lay, k, Phi_k, online_P, dt, q):
+    """The covariance of epoch ``k``'s block predicted from the online estimate of ``k - 1``
+    (for the gate): orbit ``Phi P Phi^T + Q``, further variables their prior sigma (a wide
+    bound: their online marginal is not read every epoch)."""
+    P = np.zeros((lay.n, lay.n))
+    P[:6, :6] = (prior_covariance(p) if k == 0 else
+                 Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, q))
+    for v in lay.extra:
+        sl = lay.slices[v.name]
+        P[sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
+    return P
+
+
+def _gate_rows(p, kind, rows, x_pred, P_pred, probability):
+    """The rows whose innovation at the predicted block passes the chi-square gate."""
+    fam = p.families[kind]
     keep = []
     for j in rows:
-        _, A, b, _ = LINEARIZERS[kind](fam.subset(np.array([j]), 0), x_pred[None])
-        if passes_gate(A.reshape(-1, 6), b.reshape(-1), P_pred, probability)[0]:
+        _, A, b, _ = linearize_family(p, kind, fam.subset(np.array([j]), 0), x_pred[None])
+        b = b.reshape(-1)
+        if passes_gate(A.reshape(len(b), -1), b, P_pred, probability)[0]:
             keep.append(j)
     return np.array(keep, dtype=int)

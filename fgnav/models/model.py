@@ -1,0 +1,122 @@
+"""A measurement model: everything the project knows about one log kind, in one object.
+
+The solvers, the EKF, the simulator, the log reader's consumers and the visualization ask
+the model (through :mod:`fgnav.models.registry`) instead of testing kind strings. A model
+gives:
+
+* ``kind``, ``dim``, ``unit``: its log kind, residual rows per measurement, the residual's unit;
+* ``values(log, rows)``: the family's arrays from the log's x, y, z and extra columns;
+* ``residual(fam, v)``: the one vectorized definition, ``(e (M, m), {variable: H})`` at the
+  values ``v`` (variable name -> (M, d)) of the variables it touches, ``H`` of shape
+  (M, m, d); ``"position"`` stands for the orbit state's first three columns;
+* ``factor(fam, j, keys, noise)``: its GTSAM factor (``factors/`` adapter) for row ``j``;
+* ``numba_kernel``/``numba_data``: the per-row numba kernel the compiled EKF dispatches on
+  (``fgnav.solvers.ekf_numba``) and the packed data it reads;
+* ``simulate``: the sensor simulator (``fgnav.simulate`` protocol: chunks of rows);
+* flags for the consumers: ``prior``, ``observes_orbit``, ``geocentric_direction``,
+  ``eci_ray``, ``range_m``, ``body_frame_of``.
+
+Whitening follows GTSAM's convention (``factors.adapters.whiten``): rows ``A = H/sigma``,
+``b = -e/sigma`` minimize ``|A dx - b|^2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from factors.adapters import whiten
+from fgnav.models.variables import Layout, Variable
+
+__all__ = ["MeasurementModel"]
+
+
+@dataclass(frozen=True, eq=False)
+class MeasurementModel:
+    kind: str
+    dim: int
+    unit: str
+    summary: str
+    values: Callable
+    residual: Callable | None = None
+    factor: Callable | None = None
+    sigma: Callable | None = None
+    variables: tuple[str, ...] = ("orbit",)
+    optional_variables: tuple[Variable, ...] = ()
+    prior: bool = False
+    observes_orbit: bool = False
+    numba_kernel: Callable | None = None
+    numba_data: Callable | None = None
+    simulate: Callable | None = None
+    scenario_keys: tuple[str, ...] = ()
+    eci_ray: bool = False
+    geocentric_direction: bool = False
+    range_m: Callable | None = None
+    body_frame_of: str | None = None
+
+    @property
+    def solved(self) -> bool:
+        """True when the model enters the graphs (has a residual)."""
+        return self.residual is not None
+
+    @property
+    def robust(self) -> bool:
+        """Robust kernels and gates apply to measurements, never to priors."""
+        return not self.prior
+
+    def variables_in(self, layout: Layout) -> tuple[str, ...]:
+        """The variables this model touches in a pass solved with ``layout``."""
+        return self.variables + tuple(v.name for v in self.optional_variables if layout.has(v.name))
+
+    def noise_sigma(self, fam, x_orbit=None) -> np.ndarray:
+        """1-sigma of each row (the residual's unit); ``x_orbit`` (M, 6) at the family's rows
+        for models whose noise depends on geometry (None: without the geometric term)."""
+        if self.sigma is None:
+            return np.asarray(fam.sigma, dtype=float)
+        return self.sigma(fam, x_orbit)
+
+    def evaluate(self, fam, X: np.ndarray, layout: Layout):
+        """Residuals and Jacobians of every row at the block values ``X`` (N, n):
+        ``e (M, m)`` unwhitened and ``H (M, m, n)`` in the layout's columns."""
+        vals_all = layout.values_at(X, fam.k)
+        vals = {name: vals_all[name] for name in self.variables_in(layout)}
+        e, jac = self.residual(fam, vals)
+        e = np.asarray(e, dtype=float).reshape(len(fam), self.dim)
+        H = np.zeros((len(fam), self.dim, layout.n))
+        for name, h in jac.items():
+            sl = slice(0, 3) if name == "position" else layout.slices[name]
+            H[..., sl] = h
+        return e, H
+
+    def linearize(self, fam, X: np.ndarray, layout: Layout):
+        """Whitened rows of every measurement: ``A (M, m, n)``, ``b (M, m)``, and ``e``."""
+        e, H = self.evaluate(fam, X, layout)
+        A, b = whiten(e, H, self.noise_sigma(fam, X[fam.k, :6]))
+        return A, b, e
+
+    def keys(self, layout: Layout, k: int) -> dict[str, int]:
+        """GTSAM keys of the variables this model touches at epoch ``k``."""
+        return {v.name: v.key(k) for v in layout.variables if v.name in self.variables_in(layout)}
+
+    def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None) -> list:
+        """GTSAM factors (iSAM2 route) of the given rows at epoch ``k``.
+
+        ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping every measurement's noise
+        (not the priors'); ``x_guess`` (6,): the orbit state's first guess, for noise that
+        depends on geometry (as in the batch route).
+        """
+        keys = self.keys(layout, k)
+        out = []
+        for j in rows:
+            sub = fam.subset(np.array([j]), 0)
+            sig = float(self.noise_sigma(sub, None if x_guess is None
+                                         else np.asarray(x_guess, dtype=float)[None, :6])[0])
+            noise = sig
+            if robust is not None and self.robust:
+                import gtsam  # the EKF baseline imports this module without GTSAM
+
+                noise = robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, sig))
+            out.append(self.factor(fam, j, keys, noise))
+        return out

@@ -1,0 +1,259 @@
+"""The measurement models of ``fgnav``, each registered once (see :mod:`fgnav.models.model`).
+
+This module is the one place that maps a log kind to its behaviour: the solvers, the EKFs,
+the simulator, the initial-orbit code and the visualization iterate over :data:`MODELS` or
+ask :func:`model`. To add a measurement: write its residual, Jacobians and GTSAM adapter in
+one file of ``factors/`` (with its Jacobian test), then add one :class:`MeasurementModel`
+entry below (CONTRIBUTING.md, "Add a measurement", walks through an example). The log
+format's columns and value checks stay in ``fgnav.io.log_csv`` (the format's definition).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
+from factors.direction import (earth_direction_residual, earth_direction_row_kernel,
+                               make_earth_direction_factor)
+from factors.geometry import so3_exp, tangent_basis
+from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
+from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
+                           prior_velocity_kernel, state_prior_residual)
+from factors.refraction import (make_refraction_bias_factor, make_refraction_factor,
+                                refraction_residual, refraction_sigma_m)
+from fgnav.constants import R_EARTH_M
+from fgnav.errors import UserError
+from fgnav.models.model import MeasurementModel
+from fgnav.models.variables import ORBIT, Variable
+from fgnav.simulate.body_directions import simulate_body_direction_rows
+from fgnav.simulate.refraction_sim import simulate_refraction_rows
+from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
+                                    limb_radius_readings)
+
+__all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
+           "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "PRIOR_POSITION",
+           "PRIOR_VELOCITY"]
+
+
+def _xyz(log, i):
+    return np.asarray(log.xyz, dtype=float)[i]
+
+
+def _readings(kind, fn):
+    """A simulator entry from a readings function ``(spec, t, x_true, rng) -> (xyz, sigma)``."""
+    def simulate(spec, t_s, x_true, epoch0, rng):
+        xyz, sigma = fn(spec, t_s, x_true, rng)
+        return [(kind, t_s, xyz, sigma)]
+    return simulate
+
+
+def _position_model(residual):
+    """``residual(fam, v)`` of a model whose residual depends on the position only."""
+    def res(fam, v):
+        e, H_r = residual(v["orbit"][:, :3], fam)
+        return e, {"position": H_r}
+    return res
+
+
+# ---- priors --------------------------------------------------------------------------------
+
+def _prior(kind, sl, kernel, what):
+    def res(fam, v):
+        e, H = state_prior_residual(v["orbit"], fam.values["xyz"], sl)
+        return e, {"orbit": H}
+
+    def data(fam):
+        return fam.values["xyz"], None
+
+    return MeasurementModel(
+        kind=kind, dim=3, unit="m" if sl == POSITION else "m/s", prior=True,
+        summary=f"a priori {what}, EME2000",
+        values=lambda log, i: {"xyz": _xyz(log, i)}, residual=res,
+        factor=lambda fam, j, keys, noise: make_state_prior_factor(keys["orbit"], sl,
+                                                                   fam.values["xyz"][j], noise),
+        numba_kernel=kernel, numba_data=data)
+
+
+PRIOR_POSITION = _prior("prior_position", POSITION, prior_position_kernel, "position, m")
+PRIOR_VELOCITY = _prior("prior_velocity", VELOCITY, prior_velocity_kernel, "velocity, m/s")
+
+
+# ---- geocentric direction ------------------------------------------------------------------
+
+EARTH_DIRECTION = MeasurementModel(
+    kind="earth_direction", dim=2, unit="rad", observes_orbit=True,
+    summary="unit vector spacecraft -> Earth centre, EME2000",
+    values=lambda log, i: {"u_eci": _xyz(log, i)},
+    residual=_position_model(lambda r, fam: earth_direction_residual(r, fam.values["u_eci"])),
+    factor=lambda fam, j, keys, noise: make_earth_direction_factor(keys["orbit"],
+                                                                   fam.values["u_eci"][j], noise),
+    numba_kernel=earth_direction_row_kernel,
+    numba_data=lambda fam: (fam.values["u_eci"], tangent_basis(fam.values["u_eci"])),
+    simulate=_readings("earth_direction", geocentric_direction_readings),
+    scenario_keys=("sigma_deg",), eci_ray=True, geocentric_direction=True)
+
+
+# ---- ranges --------------------------------------------------------------------------------
+
+def _two_columns(name0, name1):
+    return lambda log, i: {name0: _xyz(log, i)[:, 0], name1: _xyz(log, i)[:, 1]}
+
+
+def _columns_data(name0, name1):
+    def data(fam):
+        d = np.zeros((len(fam), 3))
+        d[:, 0], d[:, 1] = fam.values[name0], fam.values[name1]
+        return d, None
+    return data
+
+
+LIMB_RADIUS = MeasurementModel(
+    kind="limb_radius", dim=1, unit="rad", observes_orbit=True,
+    summary="angular radius of the limb sphere (rad) and its radius (m)",
+    values=_two_columns("rho_rad", "r_limb_m"),
+    residual=_position_model(lambda r, fam: limb_radius_residual(r, fam.values["rho_rad"],
+                                                                 fam.values["r_limb_m"])),
+    factor=lambda fam, j, keys, noise: make_limb_radius_factor(
+        keys["orbit"], fam.values["rho_rad"][j], fam.values["r_limb_m"][j], noise),
+    numba_kernel=limb_radius_kernel, numba_data=_columns_data("rho_rad", "r_limb_m"),
+    simulate=_readings("limb_radius", limb_radius_readings),
+    scenario_keys=("sigma_deg", "r_limb_km"),
+    range_m=lambda fam: fam.values["r_limb_m"] / np.sin(fam.values["rho_rad"]))
+
+ALTITUDE = MeasurementModel(
+    kind="altitude", dim=1, unit="m", observes_orbit=True,
+    summary="height above a sphere (m) and the sphere's radius (m)",
+    values=_two_columns("h_m", "r_ref_m"),
+    residual=_position_model(lambda r, fam: altitude_residual(r, fam.values["h_m"],
+                                                              fam.values["r_ref_m"])),
+    factor=lambda fam, j, keys, noise: make_altitude_factor(
+        keys["orbit"], fam.values["h_m"][j], fam.values["r_ref_m"][j], noise),
+    numba_kernel=altitude_kernel, numba_data=_columns_data("h_m", "r_ref_m"),
+    simulate=_readings("altitude", altitude_readings), scenario_keys=("sigma_m",),
+    range_m=lambda fam: fam.values["h_m"] + fam.values["r_ref_m"])
+
+
+# ---- starlight refraction ------------------------------------------------------------------
+
+REFRACTION_BIAS = Variable(
+    "refraction_bias", "b", 1, "m", components=("refraction_bias_m",),
+    psd=1.0, prior_sigma=1000.0,
+    description="bias of the atmosphere model's tangent height h(gamma), m (random walk)")
+"""The refraction model's tangent-height error shared by every star at an epoch: a random
+walk of spectral density 1 m^2/s (60 m in an hour), prior 1 km (see docs/refraction-bias.md)."""
+
+
+def _refraction_values(log, i):
+    extra = log.extra
+    sig_model = extra.get("sigma_model_m", np.full(len(log.kind), np.nan))[i]
+    return {"s_eci": _xyz(log, i), "gamma_rad": extra["gamma"][i],
+            "sigma_model_m": np.nan_to_num(sig_model, nan=0.0)}
+
+
+def _refraction_sigma(fam, x_orbit=None):
+    """Tangent-height 1-sigma (m): angle error and model error combined
+    (``factors.refraction.refraction_sigma_m``). The residual depends on the measured gamma
+    through both terms, ``de/dgamma = |r.s| sec^2(gamma) + H/gamma``: with the orbit states
+    ``x_orbit`` (M, 6) the line-of-sight range ``|r.s|`` is taken there (+13 % on the angle
+    term in LEO); without (no state at hand) Li et al. 2017's ``H/gamma`` alone."""
+    los = 0.0
+    if x_orbit is not None:
+        los = np.abs(np.sum(np.asarray(x_orbit)[:, :3] * fam.values["s_eci"], axis=1))
+    return refraction_sigma_m(fam.values["gamma_rad"], fam.sigma, fam.values["sigma_model_m"],
+                              los_range_m=los)
+
+
+def _refraction_residual(fam, v):
+    M = len(fam)
+    args = (v["orbit"][:, :3], fam.values["s_eci"], fam.values["gamma_rad"],
+            np.full(M, R_EARTH_M), np.zeros(M))
+    if REFRACTION_BIAS.name not in v:
+        e, H_r = refraction_residual(*args)
+        return e, {"position": H_r}
+    e, H_r, H_b = refraction_residual(*args, bias_m=v[REFRACTION_BIAS.name][:, 0])
+    return e, {"position": H_r, REFRACTION_BIAS.name: H_b}
+
+
+def _refraction_factor(fam, j, keys, noise):
+    s, g = fam.values["s_eci"][j], fam.values["gamma_rad"][j]
+    if REFRACTION_BIAS.name in keys:
+        return make_refraction_bias_factor(keys["orbit"], keys[REFRACTION_BIAS.name], s, g, noise,
+                                           R_EARTH_M, 0.0)
+    return make_refraction_factor(keys["orbit"], s, g, noise, R_EARTH_M, 0.0)
+
+
+REFRACTION = MeasurementModel(
+    kind="refraction", dim=1, unit="m", observes_orbit=True,
+    summary="refracted star: catalogue unit vector (EME2000), refraction angle gamma (rad)",
+    values=_refraction_values, residual=_refraction_residual, factor=_refraction_factor,
+    sigma=_refraction_sigma, optional_variables=(REFRACTION_BIAS,),
+    simulate=simulate_refraction_rows,
+    scenario_keys=("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
+                   "vmag_max", "azimuths_deg", "boresight_tangent_km"),
+    eci_ray=True)
+
+
+# ---- attitude and body-frame directions (turned into ECI rows before the graph) --------------
+
+ATTITUDE = MeasurementModel(
+    kind="attitude", dim=3, unit="rad",
+    summary="rotation vector of R_eci_from_body (a solved attitude)",
+    values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i))})
+
+
+def _body(kind, target, observes, keys, into=None):
+    return MeasurementModel(
+        kind=kind, dim=2, unit="rad", observes_orbit=observes,
+        summary=f"unit vector to the {target}, body frame",
+        values=lambda log, i: {"u_body": _xyz(log, i)}, simulate=simulate_body_direction_rows,
+        scenario_keys=keys, body_frame_of=into)
+
+
+EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
+                             into=EARTH_DIRECTION.kind)
+SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",))
+MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
+                            ("sigma_deg", "min_sun_elongation_deg"))
+
+
+MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
+    PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
+    ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY)}
+"""Every log kind the project reads, by kind."""
+
+VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{
+    v.name: v for m in MODELS.values() for v in m.optional_variables}}
+"""Every graph variable a model declares, by name (the orbit state first)."""
+
+
+def model(kind: str) -> MeasurementModel:
+    """The model of a log kind (KeyError for a kind the registry does not know)."""
+    return MODELS[kind]
+
+
+def solved_models(kinds) -> list[MeasurementModel]:
+    """The models among ``kinds`` that enter the graphs, in the given order."""
+    return [MODELS[k] for k in kinds if k in MODELS and MODELS[k].solved]
+
+
+def prior_kinds() -> tuple[str, ...]:
+    return tuple(k for k, m in MODELS.items() if m.prior)
+
+
+def eci_ray_kinds() -> tuple[str, ...]:
+    """Kinds whose x, y, z is a unit direction in ECI (drawn as rays)."""
+    return tuple(k for k, m in MODELS.items() if m.eci_ray)
+
+
+def simulated_kinds() -> tuple[str, ...]:
+    """Kinds a scenario's ``[[sensor]]`` may simulate."""
+    return tuple(k for k, m in MODELS.items() if m.simulate is not None)
+
+
+def variable(name: str) -> Variable:
+    """A declared variable by name (dashes allowed, as on the command line)."""
+    key = str(name).replace("-", "_")
+    if key not in VARIABLES or key == ORBIT.name:
+        raise UserError(f"--estimate: unknown variable '{name}'; variables that can be "
+                        f"estimated: {', '.join(v.cli_name for v in VARIABLES.values() if v is not ORBIT)}")
+    return VARIABLES[key]
