@@ -142,10 +142,16 @@ def orbit_rows(p, kind, fam, x_orbit, variables=None):
     orbit states ``x_orbit`` (N, 6), with the pass's further variables held at ``variables``
     (a solution's ``variables``: name -> (values (N, d), covariances)) or their prior mean.
     For the analyses that work with the orbit marginals (consistency, integrity)."""
+    k, A, b, e = linearize_family(p, kind, fam, block_values(p, x_orbit, variables))
+    return k, A[..., :6], b, e
+
+
+def block_values(p, x_orbit, variables=None) -> np.ndarray:
+    """The pass's block values (N, n) from orbit states (N, 6) and a solution's ``variables``
+    (name -> (values (N, d), covariances)); variables not given at their prior mean."""
     lay = layout_of(p)
     X = lay.initial(np.asarray(x_orbit, dtype=float)[..., :6])
     for name, (vals, _) in (variables or {}).items():
         if lay.has(name) and len(vals) == len(X):
             X[:, lay.slices[name]] = vals
-    k, A, b, e = linearize_family(p, kind, fam, X)
-    return k, A[..., :6], b, e
+    return X

@@ -605,7 +605,7 @@ def strip_prior(p: Pass) -> Pass:
     """The pass without its ``prior_position`` / ``prior_velocity`` rows."""
     fams = {k: f for k, f in p.families.items() if k not in ("prior_position", "prior_velocity")}
     return Pass(epoch0=p.epoch0, t_s=p.t_s, families=fams, source=p.source,
-                warnings=list(p.warnings))
+                warnings=list(p.warnings), layout=p.layout)
 
 
 def with_start_prior(p: Pass, x0: np.ndarray, P0: np.ndarray) -> Pass:

@@ -38,7 +38,7 @@ import numpy as np
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import rows_at_first_state
-from fgnav.graph import PRIOR_KINDS, is_solved, orbit_rows
+from fgnav.graph import PRIOR_KINDS, block_values, is_solved, orbit_rows
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
@@ -368,7 +368,8 @@ class _Mapped:
         self.t0_j2000_s = float(j2000_seconds(p.epoch0))
         rejected = {k: np.asarray(w) == 0 for k, w in (row_weights or {}).items()
                     if k not in PRIOR_KINDS}
-        self.Phik, H, rows = rows_at_first_state(p, sol.x_eci, model, rejected or None)
+        self.Phik, H, rows = rows_at_first_state(p, block_values(p, sol.x_eci, sol.variables),
+                                                 model, rejected or None)
         live = np.any(rows.A != 0, axis=1)
         H = H[live]
         norm = np.sqrt(np.sum(H * H, axis=0))

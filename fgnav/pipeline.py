@@ -26,8 +26,11 @@ from fgnav.io.outputs import (
     check_readable_file, commit_outputs, make_staging, remove_stale_staging,
 )
 from fgnav.io.summary import write_summary
+from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
-from fgnav.measurements import Pass, build_pass, check_observable, covering_sigmas
+from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
+                                with_estimates)
+from fgnav.models.registry import variable
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log
 from fgnav.solution import Solution
@@ -38,7 +41,7 @@ from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.incremental import smooth_incremental
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
-from fgnav.time import j2000_seconds, seconds_since
+from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
@@ -155,6 +158,9 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     """
     from_data = ignore_prior or not has_prior(p)
     check_observable(p, require_prior=not from_data)
+    if tuple(v.cli_name for v in p.layout.extra) != tuple(
+            variable(n).cli_name for n in options.estimate):
+        p = with_estimates(p, options.estimate)
     if gap_factor is None or p.inserted is not None:
         return p
 
@@ -229,7 +235,31 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
         x_true = truth_at(*truth, sol.t_s)
         summary.update(accuracy_metrics(sol, x_true))
         summary["truth_path"] = str(truth_path)
+        if sol.variables:
+            summary["variables"] = variable_summary(sol, truth_variables(truth_path, sol))
     return SmoothResult(sol, summary, x_true), p
+
+
+def truth_variables(truth_path: str | Path, sol: Solution) -> dict:
+    """True values of the solution's further variables at its epochs, from the files
+    ``truth_<variable>.csv`` beside the truth OEM (``fgnav simulate`` writes them; columns
+    ``epoch`` and the variable's components), linearly interpolated; variables without a
+    file are left out."""
+    out = {}
+    for name in sol.variables:
+        path = Path(truth_path).parent / f"truth_{name}.csv"
+        if not path.exists():
+            continue
+        epochs, cols = read_truth_params_csv(path)
+        t = np.asarray(seconds_since(epochs, sol.epoch0), dtype=float)
+        comps = variable(name).components
+        missing = [c for c in comps if c not in cols]
+        if missing:
+            raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
+        if t[0] > sol.t_s[0] + 1e-6 or t[-1] < sol.t_s[-1] - 1e-6:
+            raise UserError(f"{path}: does not cover the solution's epochs")
+        out[name] = np.column_stack([np.interp(sol.t_s, t, cols[c]) for c in comps])
+    return out
 
 
 def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
@@ -266,7 +296,11 @@ def read_measurements(path: str | Path):
 
 
 def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
-    """The summary.json keys every method shares."""
+    """The summary.json keys every method shares (``p`` is given the solution's further
+    variables if it lacks them, so the integrity tests evaluate the rows with them)."""
+    missing = [name for name in sol.variables if not p.layout.has(name)]
+    if missing:
+        p = with_estimates(p, tuple(v.name for v in p.layout.extra) + tuple(missing))
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
@@ -281,8 +315,32 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     for k, v in sol.extras.items():
         if _is_plain(v):
             s.setdefault(k, v)
+    if sol.variables:
+        s["variables"] = variable_summary(sol)
     s["integrity"] = assess(sol, p, options.motion_model())
     return s
+
+
+def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
+    """summary.json's ``variables``: per estimated variable (beside the orbit), its unit, mean
+    and RMS value, and the RMS and final 1-sigma of each component; with ``truth``
+    (name -> (N, d) true values at the solution's epochs) the RMS error, the largest
+    |error|/sigma and the mean normalized squared error (NEES per component)."""
+    out = {}
+    for name, (x, P) in sol.variables.items():
+        v = variable(name)
+        sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+        d = {"unit": v.unit, "components": list(v.components), "mean": x.mean(axis=0).tolist(),
+             "rms": np.sqrt(np.mean(x * x, axis=0)).tolist(),
+             "sigma_rms": np.sqrt(np.mean(sig * sig, axis=0)).tolist(),
+             "sigma_final": sig[-1].tolist()}
+        if truth is not None and name in truth:
+            err = x - truth[name]
+            d["error_rms"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
+            d["max_abs_error_over_sigma"] = np.max(np.abs(err) / sig, axis=0).tolist()
+            d["nees_mean"] = float(np.mean(np.sum(err * err / (sig * sig), axis=1)) / x.shape[1])
+        out[name] = d
+    return out
 
 
 def _is_plain(v) -> bool:
@@ -298,6 +356,24 @@ def _is_plain(v) -> bool:
 def residual_times(res: SmoothResult, p: Pass) -> dict:
     """kind -> (M,) seconds from epoch0 of each row of ``solution.residuals``."""
     return {kind: p.t_s[p.families[kind].k] for kind in res.solution.residuals if kind in p.families}
+
+
+def write_variables_csv(path: Path, sol: Solution) -> None:
+    """``variables.csv``: the estimated variables beside the orbit at every epoch, columns
+    ``epoch,t_s`` then per component ``<component>`` and ``<component>_sigma`` (its marginal
+    1-sigma), e.g. ``refraction_bias_m,refraction_bias_m_sigma``."""
+    cols, data = ["epoch", "t_s"], []
+    for name, (x, P) in sol.variables.items():
+        sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+        for i, c in enumerate(variable(name).components):
+            cols += [c, f"{c}_sigma"]
+            data += [x[:, i], sig[:, i]]
+    epochs = add_seconds(sol.epoch0, sol.t_s)
+    lines = [",".join(cols)]
+    for k in range(len(sol.t_s)):
+        lines.append(",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}"]
+                              + [f"{d[k]:.9g}" for d in data]))
+    atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
@@ -338,6 +414,9 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
             atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(
                 f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
             names.append("latency.csv")
+        if sol.variables:
+            write_variables_csv(stage / "variables.csv", sol)
+            names.append("variables.csv")
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
         return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))

@@ -20,7 +20,7 @@ from numba import njit
 
 from factors.dynamics import MotionModel, propagate_many
 from fgnav.errors import NotObservableError
-from fgnav.graph import PRIOR_KINDS, linearize_all
+from fgnav.graph import PRIOR_KINDS, Rows, linearize_all
 from fgnav.measurements import Pass
 from fgnav.time import j2000_seconds
 
@@ -55,19 +55,27 @@ def _scaled_inverse(J: np.ndarray) -> np.ndarray:
 
 
 def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected=None):
-    """Every whitened row of the pass linearized along ``X_ref`` (N, 6) and mapped to the
+    """Every whitened row of the pass linearized along ``X_ref`` (N, 6), or block values
+    (N, n) with the pass's further variables, and mapped to the
     first state through the cumulative STM, ``G_j = a_j^T Phi(t_k, t_0)``.
 
     Returns ``(Phik (N,6,6), G (R,6), rows)`` with ``rows`` the
     :class:`fgnav.graph.Rows` (``rejected``: kind -> (M,) bool rows given zero weight).
+    A pass with graph variables beyond the orbit (a bias) is bounded with them known: their
+    columns and priors are left out, so the bound is the orbit's with a perfectly known bias
+    (a lower bound of the bound with the bias estimated).
     """
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
-        _, Phi = propagate_many(X_ref[:-1], np.diff(p.t_s), model, t0 + p.t_s[:-1])
+        _, Phi = propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1])
         Phik = cumulative_stm(Phi)
     else:
         Phik = np.eye(6)[None]
     rows = linearize_all(p, X_ref, None, rejected)
+    if rows.A.shape[1] > 6:
+        keep = np.isin(rows.row_kind, [f"prior_{v.name}" for v in p.layout.extra], invert=True)
+        rows = Rows(rows.k[keep], rows.A[keep, :6], rows.b[keep], rows.residuals,
+                    rows.row_kind[keep], rows.weights)
     return Phik, np.einsum("ri,rij->rj", rows.A, Phik[rows.k]), rows
 
 

@@ -24,6 +24,10 @@ def add_solver_options(p):
     p.add_argument("--gate", type=float, metavar="P",
                    help="isam2, fixed-lag, ekf: reject a measurement whose innovation exceeds the chi-square "
                         "quantile P of its dimension (e.g. 0.9999)")
+    p.add_argument("--estimate", action="append", default=[], metavar="VARIABLE",
+                   help="also estimate this graph variable, per epoch as a random walk (repeatable): "
+                        "refraction-bias (the atmosphere model's tangent-height bias, m); written "
+                        "to variables.csv and summary.json 'variables'")
 
 
 # Which methods each method-specific option applies to (the others would ignore it).
@@ -96,7 +100,7 @@ def solver_options(args):
 
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
-          "gate_probability": args.gate}
+          "gate_probability": args.gate, "estimate": tuple(getattr(args, "estimate", ()) or ())}
     if args.process_noise is not None:
         if not args.process_noise > 0:
             from fgnav.errors import UserError

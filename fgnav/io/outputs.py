@@ -34,7 +34,8 @@ __all__ = ["MANIFEST", "STAGING_PREFIX", "SMOOTH_OUTPUTS", "REPORT_OUTPUTS", "ma
 
 MANIFEST = ".fgnav-outputs.json"
 STAGING_PREFIX = ".fgnav-staging-"
-SMOOTH_OUTPUTS = ("trajectory.oem", "online.oem", "residuals.csv", "latency.csv", "summary.json")
+SMOOTH_OUTPUTS = ("trajectory.oem", "online.oem", "residuals.csv", "latency.csv", "variables.csv",
+                  "summary.json")
 REPORT_OUTPUTS = ("errors_rtn.png", "sigma_rtn.png", "residuals_hist.png", "orbit_3d.png",
                   "latency.png", "report.md", "report.html")
 _STAGING_RE = re.compile(re.escape(STAGING_PREFIX) + r"(\d+)-")

@@ -163,8 +163,10 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
     if all("converged" in s.extras for s in sols):
         extras["converged"] = bool(all(s.extras["converged"] for s in sols))
     extras["arcs"] = len(sols)
+    variables = {name: tuple(np.concatenate([s.variables[name][i] for s in sols]) for i in (0, 1))
+                 for name in sols[0].variables if all(name in s.variables for s in sols)}
     return Solution(method=method, epoch0=p.epoch0, t_s=np.concatenate([s.t_s for s in sols]),
-                    x_eci=cat("x_eci"), P_eci=cat("P_eci"),
+                    x_eci=cat("x_eci"), P_eci=cat("P_eci"), variables=variables,
                     iterations=int(sum(s.iterations for s in sols)),
                     chi2=float(sum(s.chi2 for s in sols)), wall_s=float(sum(s.wall_s for s in sols)),
                     residuals=residuals, online_x_eci=cat("online_x_eci"),

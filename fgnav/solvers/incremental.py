@@ -105,12 +105,17 @@ def _process_factors(lay, k, dt, q, model, t0_j2000_s):
     return out
 
 
-def _isam2_params(opt: IncrementalOptions) -> gtsam.ISAM2Params:
+def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
+    """iSAM2's parameters; the relinearization threshold of a further variable (``lay``) is
+    its prior sigma: the models that use one so far are linear in it (a bias), so its value
+    never asks for relinearization."""
     params = gtsam.ISAM2Params()
     params.setFactorization("QR")
     thresholds = np.array([opt.relinearize_position_m] * 3 + [opt.relinearize_velocity_mps] * 3)
     tmap = gtsam.ISAM2ThresholdMap()
     tmap.insert(("x", thresholds))
+    for v in (lay.extra if lay is not None else ()):
+        tmap.insert((v.symbol, np.full(v.dim, v.prior_sigma)))
     params.setRelinearizeThreshold(tmap)
     params.relinearizeSkip = opt.relinearize_skip
     params.enablePartialRelinearizationCheck = opt.partial_relinearization_check
@@ -148,9 +153,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
         # harvest_s at a time, outside the latency (see _harvest).
         lag_internal = inc.lag_s + inc.harvest_s
-        smoother = gtsam.IncrementalFixedLagSmoother(lag_internal, _isam2_params(inc))
+        smoother = gtsam.IncrementalFixedLagSmoother(lag_internal, _isam2_params(inc, lay))
     else:
-        isam = gtsam.ISAM2(_isam2_params(inc))
+        isam = gtsam.ISAM2(_isam2_params(inc, lay))
     # Holding a Python reference to the internal linearization point spares the copy of all
     # values on every CustomFactor call during relinearization (measured: the copy made the latency
     # ~7x).

@@ -31,6 +31,7 @@ class SmootherOptions:
     reject_probability: float = 1.0 - 1e-6  # after a robust solve: chi2 gate for rejection
     gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
     init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
+    estimate: tuple[str, ...] = ()  # graph variables beyond the orbit state, e.g. ("refraction-bias",)
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
