@@ -120,18 +120,38 @@ def so3_exp(omega):
 
 
 def so3_log(R):
-    """Rotation vector ``Log(R)`` in rad, shape (..., 3), for rotation angles below pi."""
+    """Rotation vector ``Log(R)`` in rad, shape (..., 3), for any rotation (angle in [0, pi]).
+
+    ``theta = atan2(|v|/2, (tr R - 1)/2)`` with ``v = vee(R - R^T) = 2 sin(theta) a``; below
+    ``pi - 1e-3`` the vector is ``theta v / (2 sin theta)`` (series ``1/2 + theta^2/12`` near 0).
+    Near pi ``v`` vanishes and carries no axis: the axis comes from the symmetric part,
+    ``(R + R^T)/2 - cos(theta) I = (1 - cos theta) a a^T`` (its largest diagonal's column),
+    with the sign of ``v`` (Markley & Crassidis 2014, "Fundamentals of Spacecraft Attitude
+    Determination and Control", sec. 2.9.3). Exact to rounding at any angle: at
+    ``pi - 1e-8`` the quotient form alone was off by 2e8 rad.
+    """
     R = np.asarray(R, dtype=float)
     tr = np.trace(R, axis1=-2, axis2=-1)
-    cos_t = np.clip((tr - 1.0) / 2.0, -1.0, 1.0)
-    theta = np.arccos(cos_t)
     v = np.stack([R[..., 2, 1] - R[..., 1, 2],
                   R[..., 0, 2] - R[..., 2, 0],
                   R[..., 1, 0] - R[..., 0, 1]], axis=-1)
+    sin2 = np.linalg.norm(v, axis=-1)              # 2 sin(theta)
+    cos_t = np.clip((tr - 1.0) / 2.0, -1.0, 1.0)
+    theta = np.arctan2(sin2 / 2.0, cos_t)
     small = theta < 1e-6
     t = np.where(small, 1.0, theta)
-    scale = np.where(small, 0.5 + theta**2 / 12.0, t / (2.0 * np.sin(t)))
-    return scale[..., None] * v
+    scale = np.where(small, 0.5 + theta**2 / 12.0, t / np.where(sin2 > 0, sin2, 1.0))
+    w = scale[..., None] * v
+    near_pi = theta > np.pi - 1e-3
+    if np.any(near_pi):
+        Rn, vn, tn = R[near_pi], v[near_pi], theta[near_pi]
+        Bs = 0.5 * (Rn + np.swapaxes(Rn, -1, -2)) - np.cos(tn)[:, None, None] * np.eye(3)
+        j = np.argmax(np.diagonal(Bs, axis1=-2, axis2=-1), axis=-1)
+        col = Bs[np.arange(len(j)), :, j]
+        axis = col / np.linalg.norm(col, axis=-1, keepdims=True)
+        sign = np.where(np.sum(axis * vn, axis=-1) < 0, -1.0, 1.0)
+        w[near_pi] = (sign * tn)[:, None] * axis
+    return w
 
 
 def so3_right_jacobian_inv(omega):

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.attitude import attitude_residual
+from factors.geometry import so3_exp
 from fgnav.models.registry import model, prior_kinds
 from fgnav.models.variables import Layout
 
@@ -29,12 +31,43 @@ def layout_of(p) -> Layout:
     return getattr(p, "layout", None) or Layout()
 
 
-def is_solved(kind: str) -> bool:
-    """True for the kinds whose rows enter the graphs (not, e.g., ``attitude`` rows)."""
+def enters(p, kind: str) -> bool:
+    """True for the families of ``p`` whose rows enter its graphs (not, e.g., ``attitude``
+    rows unless the attitude is estimated: :meth:`MeasurementModel.enters`)."""
     try:
-        return model(kind).solved
+        return model(kind).enters(layout_of(p))
     except KeyError:
         return False
+
+
+def initial_block(p, x_orbit) -> tuple[np.ndarray, np.ndarray]:
+    """First guesses of the block values (N, n) from orbit states (N, 6): each further variable
+    from the rows that measure it (``MeasurementModel.initial``, e.g. attitude rows) at their
+    epochs, held from the last such epoch in between (and back to the first epoch), else its
+    prior mean. Also returns ``measured`` (N, len(extra)) bool: epochs with such a row."""
+    lay = layout_of(p)
+    X = lay.initial(np.asarray(x_orbit, dtype=float)[..., :6])
+    measured = np.zeros((len(X), len(lay.extra)), bool)
+    for i, v in enumerate(lay.extra):
+        sl = lay.slices[v.name]
+        k_all, val_all = [], []
+        for kind, fam in p.families.items():
+            mdl = model(kind)
+            if mdl.initial is None or not mdl.enters(lay):
+                continue
+            vals = mdl.initial(fam).get(v.name)
+            if vals is not None:
+                k_all.append(fam.k)
+                val_all.append(np.asarray(vals, dtype=float).reshape(len(fam), v.dim))
+        if not k_all:
+            continue
+        k_all, val_all = np.concatenate(k_all), np.concatenate(val_all)
+        order = np.argsort(k_all, kind="stable")
+        k_all, val_all = k_all[order], val_all[order]
+        last = np.searchsorted(k_all, np.arange(len(X)), side="right") - 1   # last row at or before
+        X[:, sl] = val_all[np.maximum(last, 0)]
+        measured[np.unique(k_all), i] = True
+    return X, measured
 
 
 def linearize_family(p, kind, fam, X):
@@ -45,11 +78,15 @@ def linearize_family(p, kind, fam, X):
 
 
 def _block(p, X):
-    """``X`` as block values of the pass's layout (orbit-only (N, 6) input is padded with the
-    other variables' prior means)."""
+    """``X`` as block values of the pass's layout (orbit-only (N, 6) states of every epoch get
+    the further variables' first guesses, :func:`initial_block`)."""
     lay = layout_of(p)
     X = np.asarray(X, dtype=float)
-    return X if X.shape[-1] == lay.n else lay.initial(X[..., :6])
+    if X.shape[-1] == lay.n:
+        return X
+    if X.ndim == 2 and len(X) == p.n_epochs:
+        return initial_block(p, X)[0]
+    return lay.initial(X[..., :6])
 
 
 @dataclass
@@ -66,15 +103,22 @@ class Rows:
 
 def variable_prior_rows(p, X):
     """Priors of the variables after the orbit state at the first epoch,
-    ``b_0 ~ N(prior_mean, prior_sigma^2)``: ``(k (R,), A (R, n), b (R,), tags (R,))``."""
+    ``b_0 ~ N(prior_mean, prior_sigma^2)`` (a rotation: ``Log(R_0) ~ N(0, prior_sigma^2 I)``
+    about the identity, ``factors.random_walk.make_rot3_prior_factor``):
+    ``(k (R,), A (R, n), b (R,), tags (R,))``."""
     lay = layout_of(p)
     ks, As, bs, tags = [], [], [], []
     for v in lay.extra:
         sl = lay.slices[v.name]
         A = np.zeros((v.dim, lay.n))
-        A[:, sl] = np.eye(v.dim) / v.prior_sigma
+        if v.manifold == "rot3":
+            e, H = attitude_residual(so3_exp(X[0, sl])[None], np.eye(3)[None])
+            A[:, sl] = H[0] / v.prior_sigma
+            bs.append(-e[0] / v.prior_sigma)
+        else:
+            A[:, sl] = np.eye(v.dim) / v.prior_sigma
+            bs.append(-(X[0, sl] - v.prior_mean) / v.prior_sigma)
         As.append(A)
-        bs.append(-(X[0, sl] - v.prior_mean) / v.prior_sigma)
         ks.append(np.zeros(v.dim, dtype=int))
         tags.append(np.full(v.dim, f"prior_{v.name}", dtype=object))
     if not As:
@@ -93,7 +137,7 @@ def linearize_all(p, X, robust=None, rejected=None) -> Rows:
     n = layout_of(p).n
     ks, As, bs, res, tags, wts = [], [], [], {}, [], {}
     for kind, fam in p.families.items():
-        if not is_solved(kind):
+        if not enters(p, kind):
             continue
         mdl = model(kind)
         A, b, _ = mdl.linearize(fam, X, layout_of(p))

@@ -38,7 +38,7 @@ import numpy as np
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import rows_at_first_state
-from fgnav.graph import PRIOR_KINDS, block_values, is_solved, orbit_rows
+from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family, orbit_rows
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
@@ -469,6 +469,9 @@ def filter_normalized_innovations(p, sol, model) -> dict:
     measurement Jacobians are taken at the predicted states; rows sharing an epoch all use
     the epoch's prediction (the sequential updates make the later ones smaller: the test
     stays conservative). The innovations themselves are the filter's (``sol.residuals``).
+    Further variables (a bias, an attitude) are predicted by their random walk,
+    ``P^-_k = P_{k-1} + psd dt``, block-diagonal with the orbit (the filter's cross-covariance
+    is not kept in the solution).
     """
     X, P = sol.x_eci, sol.P_eci
     N = p.n_epochs
@@ -484,14 +487,27 @@ def filter_normalized_innovations(p, sol, model) -> dict:
         X_pred[1:] = X1
         P_pred[1:] = Phi @ P[:-1] @ np.swapaxes(Phi, 1, 2) + process_noise(dt, sol.extras.get(
             "q_m2_s3", 0.0) or 1e-30)
+    lay = p.layout
+    P_blk = np.zeros((N, lay.n, lay.n))
+    P_blk[:, :6, :6] = P_pred
+    V_pred = {}
+    for v in lay.extra:
+        if v.name not in sol.variables:
+            continue
+        vals, Pv = sol.variables[v.name]
+        sl = lay.slices[v.name]
+        V_pred[v.name] = (np.concatenate([vals[:1], vals[:-1]]), None)
+        P_blk[0, sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
+        if N > 1:
+            P_blk[1:, sl, sl] = Pv[:-1] + np.eye(v.dim) * (v.step_sigma(dt) ** 2)[:, None, None]
     out = {}
     for kind, r in sol.residuals.items():
-        if not is_solved(kind) or kind in PRIOR_KINDS or kind not in p.families:
+        if not enters(p, kind) or kind in PRIOR_KINDS or kind not in p.families:
             out[kind] = r
             continue
         fam = p.families[kind]
-        _, A, _, _ = orbit_rows(p, kind, fam, X_pred, sol.variables)
-        S = A @ P_pred[fam.k] @ np.swapaxes(A, 1, 2) + np.eye(A.shape[1])
+        _, A, _, _ = linearize_family(p, kind, fam, block_values(p, X_pred, V_pred))
+        S = A @ P_blk[fam.k] @ np.swapaxes(A, 1, 2) + np.eye(A.shape[1])
         b = np.asarray(r, dtype=float)
         ok = np.all(np.isfinite(b), axis=1)
         z = np.full_like(b, np.nan)

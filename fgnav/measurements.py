@@ -57,6 +57,10 @@ class Pass:
     arc_priors: list = field(default_factory=list)
     gap_notes: list = field(default_factory=list)
     layout: Layout = field(default_factory=Layout)  # per-epoch graph variables (orbit first)
+    # Families that enter the graphs only when a variable they need is estimated (body-frame
+    # directions, attitude rows: the attitude); until then they enter through a conversion
+    # (body -> ECI with the measured attitude), see build_pass and with_estimates.
+    deferred: dict[str, Family] = field(default_factory=dict)
 
     @property
     def n_epochs(self) -> int:
@@ -98,10 +102,16 @@ def build_pass(log) -> Pass:
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings))
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
-        if len(i) and (mdl.solved or kind == ATTITUDE.kind):
-            p.families[kind] = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i],
-                                      line=lines[i])
-    att = p.families.get(ATTITUDE.kind)
+        if not len(i):
+            continue
+        fam = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i], line=lines[i])
+        if mdl.requires is None and (mdl.solved or kind == ATTITUDE.kind):
+            p.families[kind] = fam
+        elif mdl.requires is not None:
+            p.deferred[kind] = fam
+    att = p.deferred.get(ATTITUDE.kind)
+    if att is not None:
+        p.families[ATTITUDE.kind] = att   # rows of their own kind (used for body -> ECI)
     att_at = {} if att is None else {int(kk): j for j, kk in enumerate(att.k)}
     for body_kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == body_kind)
@@ -127,12 +137,42 @@ def build_pass(log) -> Pass:
     return p
 
 
+def _without_lines(fam: Family, lines: np.ndarray) -> Family | None:
+    """The family without the rows from the given source lines (None if nothing is left)."""
+    keep = np.flatnonzero(~np.isin(fam.line, lines))
+    return fam.subset(keep) if len(keep) else None
+
+
+def _with_variable(p: Pass, name: str) -> Pass:
+    """The deferred families that need the variable ``name`` join the graphs, and the rows
+    that stood in for them (body-frame rows converted to ECI) leave."""
+    fams = dict(p.families)
+    deferred = dict(p.deferred)
+    for kind, fam in p.deferred.items():
+        mdl = MODELS[kind]
+        if mdl.requires != name:
+            continue
+        if mdl.body_frame_of and mdl.body_frame_of in fams:
+            rest = _without_lines(fams[mdl.body_frame_of], fam.line)
+            if rest is None:
+                fams.pop(mdl.body_frame_of)
+            else:
+                fams[mdl.body_frame_of] = rest
+        fams[kind] = fam
+        deferred.pop(kind)
+    order = {k: i for i, k in enumerate(MODELS)}
+    fams = dict(sorted(fams.items(), key=lambda kv: order.get(kv[0], len(order))))
+    return dataclasses.replace(p, families=fams, deferred=deferred)
+
+
 def with_estimates(p: Pass, estimate=()) -> Pass:
     """The pass with the graph variables named in ``estimate`` (e.g. ``refraction-bias``)
     added to every epoch's block; each must be declared by a model with rows in the pass."""
     variables = [ORBIT]
     for name in estimate or ():
         v = variable(name)
+        if any(MODELS[k].requires == v.name for k in p.deferred):
+            p = _with_variable(p, v.name)
         users = [k for k in p.families if v in MODELS[k].optional_variables]
         if not users:
             declared = [k for k, m in MODELS.items() if v in m.optional_variables]
@@ -216,12 +256,12 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
     remap = np.searchsorted(t_new, p.t_s)
     inserted = np.ones(len(t_new), bool)
     inserted[remap] = False
-    fams = {kind: Family(k=remap[f.k], values=f.values, sigma=f.sigma, line=f.line)
-            for kind, f in p.families.items()}
+    fams, deferred = ({kind: Family(k=remap[f.k], values=f.values, sigma=f.sigma, line=f.line)
+                       for kind, f in group.items()} for group in (p.families, p.deferred))
     n_ins = len(t_new) - p.n_epochs
     longest = float(dt[gaps].max())
     return dataclasses.replace(
-        p, t_s=t_new, families=fams, inserted=inserted,
+        p, t_s=t_new, families=fams, deferred=deferred, inserted=inserted,
         breaks=tuple(int(remap[b]) for b in p.breaks),
         warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
                                f"longer than {gap_factor * step:g} s (longest "
@@ -245,13 +285,18 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
     ``prior = (x (6,), sigma_position_m, sigma_velocity_mps)`` adds ``prior_position`` /
     ``prior_velocity`` rows at the first epoch (placed first in their families).
     """
-    fams, rows_of = {}, {}
+    fams, rows_of, deferred = {}, {}, {}
     for kind, f in p.families.items():
         rows = np.flatnonzero((f.k >= k0) & (f.k < k1))
         if len(rows):
             fams[kind] = f.subset(rows)
             fams[kind].k = fams[kind].k - k0
             rows_of[kind] = rows
+    for kind, f in p.deferred.items():
+        rows = np.flatnonzero((f.k >= k0) & (f.k < k1))
+        if len(rows):
+            deferred[kind] = f.subset(rows, None)
+            deferred[kind].k = deferred[kind].k - k0
     if prior is not None:
         x, s_r, s_v = prior
         for kind, xyz, s in ((PRIOR_POSITION.kind, x[:3], s_r), (PRIOR_VELOCITY.kind, x[3:], s_v)):
@@ -264,6 +309,7 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
             fams[kind] = new
             rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
     sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source, layout=p.layout,
+               deferred=deferred,
                inserted=None if p.inserted is None else p.inserted[k0:k1])
     return sub, rows_of
 

@@ -128,3 +128,20 @@ def test_tangent_basis_kernel_equals_numpy_version(rng):
     for v in u:
         tangent_basis_kernel(v, B)
         np.testing.assert_allclose(B, tangent_basis(v), atol=1e-15, rtol=0)
+
+
+def test_so3_log_is_exact_near_pi():
+    """Log(Exp(w)) = w at every angle up to pi (at pi exactly, w or -w: the same rotation);
+    the quotient theta v / (2 sin theta) alone was off by 2e8 rad at pi - 1e-8."""
+    from factors.geometry import so3_exp, so3_log
+
+    rng = np.random.default_rng(3)
+    for eps in (1e-2, 1.0001e-3, 9.999e-4, 1e-6, 1e-8, 1e-12, 0.0):
+        ax = rng.normal(size=(50, 3))
+        ax /= np.linalg.norm(ax, axis=1, keepdims=True)
+        w = (np.pi - eps) * ax
+        back = so3_log(so3_exp(w))
+        err = np.abs(back - w).max(axis=1)
+        if eps == 0.0:
+            err = np.minimum(err, np.abs(back + w).max(axis=1))
+        assert err.max() < 1e-11, eps

@@ -14,38 +14,44 @@ import gtsam
 import numpy as np
 import pytest
 
-from fgnav.graph import factors_for_rows, linearize_family
+from fgnav.graph import factors_for_rows, initial_block, linearize_family
 from fgnav.measurements import build_pass, with_estimates
 from fgnav.models.registry import MODELS
+from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate import faults as F
 from fgnav.sun_earth_moon import preprocess_log
 
-SCENARIOS = {  # which built-in scenario carries each family
-    "gto-transfer": ("prior_position", "prior_velocity", "earth_direction"),
-    "geo-limb": ("limb_radius",),
-    "leo-sun-earth-moon": ("altitude", "earth_direction"),
-    "refraction-leo": ("refraction",),
+_REFRACTION = load_scenario("refraction-leo").sensors[0]
+CASES = {  # id: (scenario, options, families checked, graph variables beyond the orbit)
+    "gto": ("gto-transfer", {}, ("prior_position", "prior_velocity", "earth_direction"), ()),
+    "geo-limb": ("geo-limb", {}, ("limb_radius",), ()),
+    "leo-sun-earth-moon": ("leo-sun-earth-moon", {}, ("altitude", "earth_direction"), ()),
+    "refraction": ("refraction-leo", {}, ("refraction",), ()),
+    "refraction-bias": ("refraction-leo", {}, ("refraction",), ("refraction-bias",)),
+    # attitude rows (from the refraction heads' clear stars) + Earth directions in the body
+    # frame, with the attitude a Rot3 variable per epoch
+    "attitude": ("refraction-leo",
+                 {"sensors": (_REFRACTION, SensorSpec("earth_direction_body", sigma_deg=0.02))},
+                 ("attitude", "earth_direction_body", "refraction"), ("attitude",)),
 }
-ESTIMATES = {"refraction-leo": ("refraction-bias",)}  # graph variables beyond the orbit state
 
 
 def test_every_model_that_enters_the_graphs_is_covered():
-    covered = {k for kinds in SCENARIOS.values() for k in kinds}
+    covered = {k for _, _, kinds, _ in CASES.values() for k in kinds}
     solved = {k for k, m in MODELS.items() if m.solved}
-    assert solved <= covered, f"add a scenario carrying {sorted(solved - covered)} to SCENARIOS"
+    assert solved <= covered, f"add a case carrying {sorted(solved - covered)} to CASES"
 
 
 def _cases():
-    for scenario, kinds in SCENARIOS.items():
+    for case, (_, _, kinds, _) in CASES.items():
         for kind in kinds:
-            yield pytest.param(scenario, kind, (), id=f"{scenario}-{kind}")
-            for est in ESTIMATES.get(scenario, ()):
-                yield pytest.param(scenario, kind, (est,), id=f"{scenario}-{kind}-{est}")
+            yield pytest.param(case, kind, id=f"{case}-{kind}")
 
 
-@pytest.mark.parametrize("scenario, kind, estimate", _cases())
-def test_batch_and_isam2_routes_give_the_same_whitened_rows(scenario, kind, estimate):
-    log, t, x = F.clean(scenario, duration_h=0.5)
+@pytest.mark.parametrize("case, kind", _cases())
+def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
+    scenario, opts, _, estimate = CASES[case]
+    log, t, x = F.clean(scenario, duration_h=0.5, **opts)
     if len(log.select("sun_direction_body")):  # body-frame rows: to ECI by TRIAD attitude
         log = preprocess_log(log)[0]
     p = with_estimates(build_pass(log), estimate)
@@ -54,8 +60,10 @@ def test_batch_and_isam2_routes_give_the_same_whitened_rows(scenario, kind, esti
     rng = np.random.default_rng(7)
     # a state off the truth: 2 km and 1 m/s per axis (and 50 units on any further variable),
     # so the Jacobians are not evaluated at the zero-residual point
-    X_eval = lay.initial(x[np.searchsorted(t, p.t_s)])
-    X_eval += rng.normal(0, 1, X_eval.shape) * np.array([2e3] * 3 + [1.0] * 3 + [50.0] * (lay.n - 6))
+    X_eval = initial_block(p, x[np.searchsorted(t, p.t_s)])[0]
+    scale = np.concatenate([[2e3] * 3, [1.0] * 3] + [np.full(v.dim, 0.01 if v.manifold == "rot3"
+                                                             else 50.0) for v in lay.extra])
+    X_eval += rng.normal(0, 1, X_eval.shape) * scale   # 0.01 rad on an attitude
     k_b, A_b, b_b, _ = linearize_family(p, kind, fam, X_eval)
     rows = np.unique(np.linspace(0, len(fam) - 1, 6).astype(int))
     for j in rows:
@@ -63,13 +71,15 @@ def test_batch_and_isam2_routes_give_the_same_whitened_rows(scenario, kind, esti
         factor, = factors_for_rows(p, kind, np.array([j]), k, None, X_eval[k, :6])
         values = gtsam.Values()
         for v in lay.variables:
-            values.insert(v.key(k), X_eval[k, lay.slices[v.name]])
+            w = X_eval[k, lay.slices[v.name]]
+            values.insert(v.key(k), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
         lin = factor.linearize(values)
         A_i, b_i = lin.jacobian()
         # the factor's columns in the layout's order (GTSAM orders them by key)
         cols = {int(key): i for i, key in enumerate(lin.keys())}
+        dims = {v.key(k): v.dim for v in lay.variables}
         A_layout = np.zeros((A_i.shape[0], lay.n))
-        off = np.cumsum([0] + [len(values.atVector(int(key))) for key in lin.keys()])
+        off = np.cumsum([0] + [dims[int(key)] for key in lin.keys()])
         for v in lay.variables:
             if v.key(k) in cols:
                 i = cols[v.key(k)]

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.dynamics import process_noise, propagate
-from fgnav.graph import PRIOR_KINDS, is_solved, orbit_rows
+from fgnav.graph import PRIOR_KINDS, enters, orbit_rows
 from fgnav.time import j2000_seconds
 
 
@@ -112,7 +112,7 @@ def nis_smoother(p, sol) -> tuple[np.ndarray, np.ndarray]:
     """
     out, dofs = [], []
     for kind in p.families:
-        if kind in PRIOR_KINDS or not is_solved(kind):
+        if kind in PRIOR_KINDS or not enters(p, kind):
             continue
         k, A, b = _family_rows(p, kind, sol.x_eci, sol.variables)
         r = -b
@@ -147,7 +147,7 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
     b_by_k: dict[int, list] = {}
 
     for kind in p.families:
-        if kind in PRIOR_KINDS or not is_solved(kind):
+        if kind in PRIOR_KINDS or not enters(p, kind):
             continue
         k, A, b = _family_rows(p, kind, Xp, sol.variables)
         for j in range(len(k)):

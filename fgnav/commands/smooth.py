@@ -26,8 +26,10 @@ def add_solver_options(p):
                         "quantile P of its dimension (e.g. 0.9999)")
     p.add_argument("--estimate", action="append", default=[], metavar="VARIABLE",
                    help="also estimate this graph variable, per epoch as a random walk (repeatable): "
-                        "refraction-bias (the atmosphere model's tangent-height bias, m); written "
-                        "to variables.csv and summary.json 'variables'")
+                        "refraction-bias (the atmosphere model's tangent-height bias, m); attitude "
+                        "(R_eci_from_body, a Rot3: attitude rows become its priors and body-frame "
+                        "directions factors on orbit and attitude); written to variables.csv and "
+                        "summary.json 'variables'")
 
 
 # Which methods each method-specific option applies to (the others would ignore it).

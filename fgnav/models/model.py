@@ -14,7 +14,11 @@ gives:
   (``fgnav.solvers.ekf_numba``) and the packed data it reads;
 * ``simulate``: the sensor simulator (``fgnav.simulate`` protocol: chunks of rows);
 * flags for the consumers: ``prior``, ``observes_orbit``, ``geocentric_direction``,
-  ``eci_ray``, ``range_m``, ``body_frame_of``.
+  ``eci_ray``, ``range_m``; ``requires`` (a variable without which the rows stay out of the
+  graphs: an attitude row is a prior on the attitude variable) and ``body_frame_of`` (the
+  ECI kind its rows become, with the measured attitude, until then);
+* ``initial(fam)``: first guesses of further variables from the rows (variable name ->
+  (M, d) block values, e.g. a measured attitude), used where a row exists at an epoch.
 
 Whitening follows GTSAM's convention (``factors.adapters.whiten``): rows ``A = H/sigma``,
 ``b = -e/sigma`` minimize ``|A dx - b|^2``.
@@ -55,11 +59,18 @@ class MeasurementModel:
     geocentric_direction: bool = False
     range_m: Callable | None = None
     body_frame_of: str | None = None
+    requires: str | None = None
+    initial: Callable | None = None
 
     @property
     def solved(self) -> bool:
-        """True when the model enters the graphs (has a residual)."""
+        """True when the model can enter the graphs (has a residual)."""
         return self.residual is not None
+
+    def enters(self, layout: Layout) -> bool:
+        """True when the model's rows enter the graphs of a pass solved with ``layout``: it
+        has a residual, and the variable it ``requires`` (if any) is estimated."""
+        return self.residual is not None and (self.requires is None or layout.has(self.requires))
 
     @property
     def robust(self) -> bool:

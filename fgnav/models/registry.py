@@ -13,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
-from factors.direction import (earth_direction_residual, earth_direction_row_kernel,
+from factors.attitude import attitude_residual, make_attitude_prior_factor
+from factors.direction import (body_direction_residual, earth_direction_residual,
+                               earth_direction_row_kernel, make_body_direction_factor,
                                make_earth_direction_factor)
-from factors.geometry import so3_exp, tangent_basis
+from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
                            prior_velocity_kernel, state_prior_residual)
@@ -31,7 +33,8 @@ from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_read
                                     limb_radius_readings)
 
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
-           "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "PRIOR_POSITION",
+           "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
+           "PRIOR_POSITION",
            "PRIOR_VELOCITY"]
 
 
@@ -193,20 +196,58 @@ REFRACTION = MeasurementModel(
     eci_ray=True)
 
 
-# ---- attitude and body-frame directions (turned into ECI rows before the graph) --------------
+# ---- attitude and body-frame directions ----------------------------------------------------
+# Without --estimate attitude, attitude rows rotate the body-frame directions into ECI before
+# the graph (their variances added); with it, they are priors on a Rot3 variable per epoch and
+# the body-frame rows are factors on (orbit, attitude).
+
+ATTITUDE_VARIABLE = Variable(
+    "attitude", "a", 3, "rad", manifold="rot3", components=("att_x", "att_y", "att_z"),
+    psd=1e-4, prior_sigma=10.0,
+    description="R_eci_from_body as a rotation vector, rad (random walk on SO(3))")
+"""The spacecraft attitude per epoch: between epochs a random walk on SO(3) of spectral
+density 1e-4 rad^2/s (0.03 rad per 10 s: an Earth-pointing LEO body turns 0.011 rad in 10 s
+in ECI); no prior worth the name (10 rad): the attitude rows give it."""
+
+
+def _attitude_residual(fam, v):
+    e, H_R = attitude_residual(v[ATTITUDE_VARIABLE.name], fam.values["R_eci_from_body"])
+    return e, {ATTITUDE_VARIABLE.name: H_R}
+
 
 ATTITUDE = MeasurementModel(
     kind="attitude", dim=3, unit="rad",
     summary="rotation vector of R_eci_from_body (a solved attitude)",
-    values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i))})
+    values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i))},
+    residual=_attitude_residual, variables=(), optional_variables=(ATTITUDE_VARIABLE,),
+    requires=ATTITUDE_VARIABLE.name,
+    initial=lambda fam: {ATTITUDE_VARIABLE.name: so3_log(fam.values["R_eci_from_body"])},
+    factor=lambda fam, j, keys, noise: make_attitude_prior_factor(
+        keys[ATTITUDE_VARIABLE.name], fam.values["R_eci_from_body"][j], noise))
+
+
+def _body_residual(fam, v):
+    M = len(fam)
+    e, H_r, H_R = body_direction_residual(v["orbit"][:, :3], v[ATTITUDE_VARIABLE.name],
+                                          np.zeros((M, 3)), fam.values["u_body"])
+    return e, {"position": H_r, ATTITUDE_VARIABLE.name: H_R}
+
+
+def _body_factor(fam, j, keys, noise):
+    return make_body_direction_factor(keys["orbit"], keys[ATTITUDE_VARIABLE.name], np.zeros(3),
+                                      fam.values["u_body"][j], noise)
 
 
 def _body(kind, target, observes, keys, into=None):
+    earth = into is not None
     return MeasurementModel(
         kind=kind, dim=2, unit="rad", observes_orbit=observes,
         summary=f"unit vector to the {target}, body frame",
         values=lambda log, i: {"u_body": _xyz(log, i)}, simulate=simulate_body_direction_rows,
-        scenario_keys=keys, body_frame_of=into)
+        scenario_keys=keys, body_frame_of=into,
+        residual=_body_residual if earth else None, factor=_body_factor if earth else None,
+        optional_variables=(ATTITUDE_VARIABLE,) if earth else (),
+        requires=ATTITUDE_VARIABLE.name if earth else None)
 
 
 EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),

@@ -27,8 +27,9 @@ import numpy as np
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from factors.random_walk import random_walk_residual
-from fgnav.graph import PRIOR_KINDS, layout_of, linearize_all
+from factors.geometry import so3_exp
+from factors.random_walk import random_walk_residual, rot3_random_walk_residual
+from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
@@ -70,8 +71,9 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     ``|A0 dx_k + A1 dx_{k+1} - b|^2``.
 
     Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
-    motion factor, ``factors.motion``); each further vector variable its random walk
-    (``factors.random_walk``), ``w [-I, I]``, ``b = -w (b_{k+1} - b_k)``, ``w = 1/sqrt(psd dt)``.
+    motion factor, ``factors.motion``); each further variable its random walk
+    (``factors.random_walk``): a vector ``w [-I, I]``, ``b = -w (b_{k+1} - b_k)``, a rotation
+    ``w [H_k, H_{k+1}]``, ``b = -w Log(R_k^T R_{k+1})``, with ``w = 1/sqrt(psd dt)``.
     """
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
@@ -87,10 +89,11 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     A1[:, :6, :6] = W
     b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
     for v in lay.extra:
-        if v.manifold != "vector":
-            raise NotImplementedError(f"{v.name}: a random walk on {v.manifold} is not modelled")
         sl = lay.slices[v.name]
-        e, H0, H1 = random_walk_residual(Xs[:-1, sl], Xs[1:, sl])
+        if v.manifold == "rot3":
+            e, H0, H1 = rot3_random_walk_residual(so3_exp(Xs[:-1, sl]), so3_exp(Xs[1:, sl]))
+        else:
+            e, H0, H1 = random_walk_residual(Xs[:-1, sl], Xs[1:, sl])
         w = 1.0 / v.step_sigma(dt)
         A0[:, sl, sl] = w[:, None, None] * H0
         A1[:, sl, sl] = w[:, None, None] * H1
@@ -245,7 +248,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         # The filtered trajectory is a first guess close enough for Gauss-Newton at the
         # target process noise: 3 iterations instead of 7 on gto-transfer (1.2 s vs 3.3 s at
         # 14,400 epochs, same solution to 0.2 mm). Continuation from the prior if it fails.
-        Xs = lay.initial(x_ekf)
+        Xs = initial_block(p, x_ekf)[0]
         try:
             lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
         except (NotObservableError, ModelDomainError):
@@ -253,7 +256,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         if converged:
             q_stages = [options.q_m2_s3]
     if not converged:
-        Xs = lay.initial(initial_guess(p, model, t0_j2000)) if x_init is None else _as_block(lay, x_init)
+        Xs = initial_block(p, initial_guess(p, model, t0_j2000))[0] if x_init is None else \
+            _as_block(p, x_init)
         for stage, q in enumerate(q_stages):
             final = stage == len(q_stages) - 1
             # A redescending kernel (Cauchy) needs a good guess: Huber (convex) until the last
@@ -286,10 +290,10 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                             **robust_counts(options, lin.weights)})
 
 
-def _as_block(lay, x):
+def _as_block(p, x):
     """Block values (N, n) from ``x`` given as (N, n) or as orbit states (N, 6)."""
     x = np.array(x, dtype=float)
-    return x if x.shape[-1] == lay.n else lay.initial(x[..., :6])
+    return x if x.shape[-1] == layout_of(p).n else initial_block(p, x)[0]
 
 
 def _ekf_first_guess(p: Pass, options: SmootherOptions):

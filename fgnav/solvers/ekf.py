@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from factors.dynamics import propagate, process_noise
-from fgnav.graph import is_solved, layout_of, linearize_family
+from fgnav.graph import enters, initial_block, layout_of, linearize_family
 from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
 from fgnav.measurements import Pass, rows_by_epoch
@@ -37,7 +37,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     per_epoch = rows_by_epoch(p)
     lay = layout_of(p)
     n = lay.n
-    x = lay.initial(first_state(p, model, t0_j2000)[None])[0]
+    x0 = first_state(p, model, t0_j2000)
+    x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
     P = np.zeros((n, n))
     P[:6, :6] = prior_covariance(p)
     for v in lay.extra:
@@ -62,7 +63,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             for v in lay.extra:
                 P[lay.slices[v.name], lay.slices[v.name]] += np.eye(v.dim) * v.step_sigma(dt) ** 2
         for kind, rows in per_epoch[k]:
-            if not is_solved(kind):
+            if not enters(p, kind):
                 continue
             mdl = model_of(kind)
             if mdl.prior and k == 0:

@@ -65,7 +65,8 @@ def _code(mdl) -> int | None:
 
 def _unsupported(p) -> list[str]:
     """The families of ``p`` that enter the graphs but have no row kernel here."""
-    return [k for k in p.families if k in MODELS and MODELS[k].solved and _code(MODELS[k]) is None]
+    return [k for k in p.families
+            if k in MODELS and MODELS[k].enters(p.layout) and _code(MODELS[k]) is None]
 
 
 def numba_supports(p) -> bool:
@@ -280,7 +281,7 @@ def pack_pass(p) -> Packed:
     row = 0
     for fi, (kind, fam) in enumerate(p.families.items()):
         mdl = MODELS.get(kind)
-        if mdl is None or not mdl.solved:
+        if mdl is None or not mdl.enters(p.layout):
             continue
         code = _code(mdl)
         M = len(fam)

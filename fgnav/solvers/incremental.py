@@ -54,9 +54,10 @@ import numpy as np
 
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
 from factors.motion import make_motion_factor, motion_residual
-from factors.random_walk import make_random_walk_factor, make_vector_prior_factor
+from factors.random_walk import (make_random_walk_factor, make_rot3_prior_factor,
+                                 make_rot3_random_walk_factor, make_vector_prior_factor)
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import factors_for_rows, is_solved, layout_of, linearize_family
+from fgnav.graph import enters, factors_for_rows, initial_block, layout_of, linearize_family
 from fgnav.models.registry import model as model_of
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
@@ -74,18 +75,25 @@ X = gtsam.symbol_shorthand.X
 
 
 def _insert_block(values, lay, k, block):
-    """Insert epoch ``k``'s variables (block values (n,)) into a ``gtsam.Values``."""
+    """Insert epoch ``k``'s variables (block values (n,)) into a ``gtsam.Values`` (a rotation
+    as ``gtsam.Rot3`` from its rotation vector)."""
     values.insert(X(k), np.asarray(block[:6], dtype=float))
     for v in lay.extra:
-        values.insert(v.key(k), np.asarray(block[lay.slices[v.name]], dtype=float))
+        w = np.asarray(block[lay.slices[v.name]], dtype=float)
+        values.insert(v.key(k), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
 
 
-def _read_block(vector_at, lay, k):
-    """Epoch ``k``'s block values (n,) from ``vector_at(key)`` (an estimate's ``atVector`` or
-    iSAM2's ``calculateEstimateVector``)."""
+def _read_block(source, lay, k):
+    """Epoch ``k``'s block values (n,) from an estimate (``gtsam.Values``) or from iSAM2 / the
+    fixed-lag smoother (``calculateEstimate*``); rotations as rotation vectors."""
+    if isinstance(source, gtsam.Values):
+        vec, rot = source.atVector, source.atRot3
+    else:
+        vec, rot = source.calculateEstimateVector, source.calculateEstimateRot3
     if not lay.extra:
-        return np.asarray(vector_at(X(k)), dtype=float)
-    return np.concatenate([vector_at(X(k))] + [vector_at(v.key(k)) for v in lay.extra])
+        return np.asarray(vec(X(k)), dtype=float)
+    return np.concatenate([vec(X(k))] + [gtsam.Rot3.Logmap(rot(v.key(k))) if v.manifold == "rot3"
+                                         else vec(v.key(k)) for v in lay.extra])
 
 
 def _timestamps(lay, k, t):
@@ -97,11 +105,15 @@ def _process_factors(lay, k, dt, q, model, t0_j2000_s):
     """The factors from epoch ``k - 1`` to ``k``: the orbit's motion factor and each further
     variable's random walk (at ``k = 0``: the further variables' priors)."""
     if k == 0:
-        return [make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
+        return [make_rot3_prior_factor(v.key(0), np.eye(3), v.prior_sigma) if v.manifold == "rot3"
+                else make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
                 for v in lay.extra]
     out = [make_motion_factor(X(k - 1), X(k), dt, q, model, t0_j2000_s)]
     for v in lay.extra:
-        out.append(make_random_walk_factor(v.key(k - 1), v.key(k), float(v.step_sigma(dt)), v.dim))
+        sigma = float(v.step_sigma(dt))
+        out.append(make_rot3_random_walk_factor(v.key(k - 1), v.key(k), sigma)
+                   if v.manifold == "rot3" else
+                   make_random_walk_factor(v.key(k - 1), v.key(k), sigma, v.dim))
     return out
 
 
@@ -147,7 +159,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     lay = layout_of(p)
     per_epoch = rows_by_epoch(p)
     # The first guess of state 0 comes from the priors (propagated back if they are later).
-    x_prev = lay.initial(first_state(p, model, t0_j2000)[None])[0]
+    x_first = first_state(p, model, t0_j2000)
+    # further variables: first guesses from the rows that measure them (attitude rows)
+    V0, measured = initial_block(p, np.broadcast_to(x_first, (N, 6)))
+    x_prev = V0[0].copy()
     fixed_lag = method == "fixed-lag"
     if fixed_lag:
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
@@ -178,7 +193,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
 
     def add_epoch_factors(graph, k, guess, kept_only):
         for kind, rows in per_epoch[k]:
-            if not is_solved(kind):  # e.g. 'attitude' rows: used by build_pass, not factors
+            if not enters(p, kind):  # e.g. 'attitude' rows: used by build_pass, not factors
                 continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
@@ -206,7 +221,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             _insert_block(values, lay, k, x_est[k])
         isam.update(graph, values)
         held_lp = isam.getLinearizationPoint()
-        x_prev = _read_block(isam.calculateEstimateVector, lay, k_start - 1)
+        x_prev = _read_block(isam, lay, k_start - 1)
     _warm_up(p, per_epoch, options, model, t0_j2000, x_prev[:6], kernel)
     with _gc_paused():
         for k in range(k_start, N):
@@ -220,6 +235,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             guess = x_prev.copy()
             if k > 0:
                 guess[:6], Phi_k = propagate(x_prev[:6], dt, model, t0_j2000 + p.t_s[k - 1])
+            for i, v in enumerate(lay.extra):
+                if measured[k, i]:
+                    guess[lay.slices[v.name]] = V0[k, lay.slices[v.name]]
             for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
                                       t0_j2000 + p.t_s[max(k - 1, 0)]):
                 graph.add(f)
@@ -233,13 +251,13 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     smoother.update(graph, values, _timestamps(lay, k, float(p.t_s[k])))
                     if held_lp is None:
                         held_lp = smoother.getISAM2().getLinearizationPoint()
-                    x_prev = _read_block(smoother.calculateEstimateVector, lay, k)
+                    x_prev = _read_block(smoother, lay, k)
                     P = smoother.marginalCovariance(X(k))
                 else:
                     isam.update(graph, values)
                     if held_lp is None:
                         held_lp = isam.getLinearizationPoint()
-                    x_prev = _read_block(isam.calculateEstimateVector, lay, k)
+                    x_prev = _read_block(isam, lay, k)
                     P = isam.marginalCovariance(X(k))
             except RuntimeError as exc:
                 raise NotObservableError(
@@ -252,7 +270,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             if checkpoint and ((k + 1) % checkpoint_every == 0 or k == N - 1):
                 est = isam.calculateEstimate()
                 _save_checkpoint(checkpoint, fingerprint, k + 1, online_x, online_P, latency,
-                                 np.array([_read_block(est.atVector, lay, j) for j in range(k + 1)]),
+                                 np.array([_read_block(est, lay, j) for j in range(k + 1)]),
                                  rejected_rows)
             if progress is not None:
                 progress(k)
@@ -274,7 +292,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         # marginals in O(N) from the same elimination (isam.marginalCovariance of an old
         # state costs ~0.1-0.25 s each).
         x_final, lin, P_final, polish_iterations = polish_chain(
-            p, np.array([_read_block(est.atVector, lay, k) for k in range(N)]), options.q_m2_s3, model,
+            p, np.array([_read_block(est, lay, k) for k in range(N)]), options.q_m2_s3, model,
             t0_j2000, kernel, rejected_rows if gate is not None else None)
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
@@ -318,13 +336,11 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     a flight computer does this at start-up, not inside the first epoch's latency.
     """
     values = gtsam.Values()
-    values.insert(X(0), x0)
     graph = gtsam.NonlinearFactorGraph()
     lay = layout_of(p)
-    for v in lay.extra:
-        values.insert(v.key(0), np.full(v.dim, v.prior_mean))
+    _insert_block(values, lay, 0, lay.initial(np.asarray(x0)[None])[0])
     for kind, rows in per_epoch[0]:
-        if is_solved(kind):
+        if enters(p, kind):
             for f in factors_for_rows(p, kind, rows[:1], 0, kernel, x0):
                 graph.add(f)
     if p.n_epochs > 1:
@@ -357,13 +373,13 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
     est = isam.calculateBestEstimate() if oldest < k_end and t_s[oldest] < t_due else None
     j = oldest
     while j < k_end and t_s[j] < t_due:
-        lagged_x[j] = _read_block(est.atVector, lay, j)
+        lagged_x[j] = _read_block(est, lay, j)
         lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
         for v in lay.extra:
             sl = lay.slices[v.name]
             lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
         if j + 1 < k_end:
-            lagged_next[j] = _read_block(est.atVector, lay, j + 1)
+            lagged_next[j] = _read_block(est, lay, j + 1)
         j += 1
     isam.deleteCachedShortcuts()
     return j
