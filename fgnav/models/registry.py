@@ -26,7 +26,7 @@ from fgnav.errors import UserError
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
 from fgnav.simulate.body_directions import simulate_body_direction_rows
-from fgnav.simulate.refraction_sim import simulate_refraction_rows
+from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
 from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
                                     limb_radius_readings)
 
@@ -189,7 +189,7 @@ REFRACTION = MeasurementModel(
     sigma=_refraction_sigma, optional_variables=(REFRACTION_BIAS,),
     simulate=simulate_refraction_rows,
     scenario_keys=("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
-                   "vmag_max", "azimuths_deg", "boresight_tangent_km"),
+                   "vmag_max", "azimuths_deg", "boresight_tangent_km") + MODEL_BIAS_KEYS,
     eci_ray=True)
 
 

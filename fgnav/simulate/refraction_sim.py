@@ -47,7 +47,7 @@ from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
            "simulate_refraction_rows", "SIGMA_FLOOR_RAD", "has_model_bias",
-           "refraction_bias_path_m"]
+           "refraction_bias_path_m", "MODEL_BIAS_KEYS"]
 
 UNREFRACTED_MIN_HEIGHT_M = 100e3
 """A star whose straight ray passes higher than this above R_e counts as unrefracted, m."""
@@ -90,6 +90,12 @@ def true_tangent_height_m(q_m, los_m, model, dh_model_m=0.0, r_earth_m=R_EARTH_M
         if np.all(np.abs(step) < 1e-4):
             break
     return h
+
+
+MODEL_BIAS_KEYS = ("model_bias_m", "model_bias_drift_m_per_h",
+                   "model_bias_random_walk_m_per_sqrt_h")
+"""The scenario keys of the atmosphere-model bias path (:func:`refraction_bias_path_m`): its
+value at the pass start (m), its drift (m/h) and its random walk (m/sqrt(h))."""
 
 
 def has_model_bias(spec):
