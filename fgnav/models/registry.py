@@ -32,7 +32,8 @@ from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_read
 
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "PRIOR_POSITION",
-           "PRIOR_VELOCITY"]
+           "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE", "REFRACTION",
+           "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY"]
 
 
 def _xyz(log, i):
