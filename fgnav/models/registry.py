@@ -10,6 +10,8 @@ format's columns and value checks stay in ``fgnav.io.log_csv`` (the format's def
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
@@ -25,7 +27,8 @@ from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
-from fgnav.simulate.body_directions import simulate_body_direction_rows
+from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
+                                            simulate_body_direction_rows, sun_target)
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
 from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
                                     limb_radius_readings)
@@ -202,19 +205,20 @@ ATTITUDE = MeasurementModel(
     values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i))})
 
 
-def _body(kind, target, observes, keys, into=None):
+def _body(kind, target, observes, keys, seen, into=None):
     return MeasurementModel(
         kind=kind, dim=2, unit="rad", observes_orbit=observes,
         summary=f"unit vector to the {target}, body frame",
-        values=lambda log, i: {"u_body": _xyz(log, i)}, simulate=simulate_body_direction_rows,
+        values=lambda log, i: {"u_body": _xyz(log, i)},
+        simulate=functools.partial(simulate_body_direction_rows, target=seen),
         scenario_keys=keys, body_frame_of=into)
 
 
 EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
-                             into=EARTH_DIRECTION.kind)
-SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",))
+                             earth_centre_target, into=EARTH_DIRECTION.kind)
+SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",), sun_target)
 MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
-                            ("sigma_deg", "min_sun_elongation_deg"))
+                            ("sigma_deg", "min_sun_elongation_deg"), moon_target)
 
 
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
