@@ -130,8 +130,9 @@ def refraction_bias_path_m(spec, t_s, rng):
 def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-seed004",
                              catalogue=None, bias_m=None):
     """Rows of the refraction sensor ``spec`` at epochs ``t_s`` (``pass_sim`` protocol):
-    a list of ``(kind, t, xyz, sigma[, extra])`` chunks, kinds ``refraction`` and
-    ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator;
+    a list of ``(kind, t, xyz, sigma[, extra])`` chunks: the refracted stars under the
+    sensor's kind (``spec.kind``, ``refraction``) and the attitude from the unrefracted ones
+    (``attitude``). ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator;
     ``bias_m`` the atmosphere-model bias ``b(t)`` at ``t_s`` ((N,) m, from
     :func:`refraction_bias_path_m`; None = 0), added to every star's model error."""
     if catalogue is None:
@@ -187,7 +188,7 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
     if t_r:
         tt = np.concatenate(t_r)
         g = np.concatenate(g_r)
-        chunks.append(("refraction", tt, np.concatenate(s_r), sig_g,
+        chunks.append((spec.kind, tt, np.concatenate(s_r), sig_g,
                        {"gamma": g, "sigma_model_m": np.full(len(tt), float(spec.sigma_model_m))}))
     if t_a:
         chunks.append(("attitude", np.array(t_a), np.array(w_a), np.array(sig_a)))
