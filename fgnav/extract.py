@@ -62,6 +62,8 @@ from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import log_from_arrays, read_log
 from fgnav.io.text import read_utf8_text
+from fgnav.models.registry import (ATTITUDE, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LIMB_RADIUS,
+                                   prior_kinds)
 from fgnav.progress import progress
 from fgnav.time import format_utc, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat
@@ -322,9 +324,9 @@ def _priors_log(priors_path, index_path: Path):
             return None
         raise UserError(f"{p}: no such priors log")
     log = read_log(p)
-    idx = np.concatenate([log.select("prior_position"), log.select("prior_velocity")])
+    idx = np.concatenate([log.select(kind) for kind in prior_kinds()])
     if priors_path is not None and not len(idx):
-        raise UserError(f"{p}: no prior_position / prior_velocity rows")
+        raise UserError(f"{p}: no {' / '.join(prior_kinds())} rows")
     return log, np.sort(idx)
 
 
@@ -421,14 +423,14 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
     nan = np.nan
     for ep in products:
         if rows == "eci" and ep.u_eci is not None:
-            add("earth_direction", ep.epoch, ep.u_eci, ep.sigma_dir_rad)
+            add(EARTH_DIRECTION.kind, ep.epoch, ep.u_eci, ep.sigma_dir_rad)
         if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
             w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
-            add("earth_direction_body", ep.epoch, ep.u_body, math.sqrt(w[-1]))
-            add("attitude", ep.epoch, so3_log(ep.R_eci_from_body),
+            add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
+            add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
                 math.sqrt(np.max(np.diag(ep.P_att_rad2))))
         if ep.rho_rad is not None:
-            add("limb_radius", ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
+            add(LIMB_RADIUS.kind, ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
     if not kinds:
         raise UserError(f"{index_path}: no measurement could be extracted from {len(entries)} frames "
                         f"(failures: {failures})")

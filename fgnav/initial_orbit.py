@@ -84,6 +84,7 @@ from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError
 from fgnav.graph import linearize_all
 from fgnav.measurements import Family, Pass, covering_sigmas, prior_covariance, prior_state
+from fgnav.models.registry import ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds
 from fgnav.solvers.first_guess import initial_guess
 
 __all__ = ["InitialOrbit", "initial_orbit", "prior_consistency", "propagate_orbit", "trajectory",
@@ -93,8 +94,13 @@ __all__ = ["InitialOrbit", "initial_orbit", "prior_consistency", "propagate_orbi
 MAX_EPOCHS = 240          # epochs of the subsample the refinement uses
 MIN_DIRECTION_EPOCHS = 4  # 6 unknowns, 2 rows per direction: 3 epochs, plus one to check
 PRIOR_GATE_PROBABILITY = 1.0 - 1e-6
-RANGE_KINDS = ("limb_radius", "altitude")
-_FIT_KINDS = ("earth_direction",) + RANGE_KINDS
+DIRECTION_KINDS = tuple(k for k, m in MODELS.items() if m.geocentric_direction)
+"""Kinds whose rows are the unit vector spacecraft -> Earth centre in ECI (values ``u_eci``)."""
+RANGE_KINDS = tuple(k for k, m in MODELS.items() if m.range_m is not None)
+"""Kinds whose rows give the geocentric distance |r| (the model's ``range_m``)."""
+_FIT_KINDS = DIRECTION_KINDS + RANGE_KINDS
+_BODY_DIRECTION_KINDS = tuple(k for k, m in MODELS.items() if m.body_frame_of in DIRECTION_KINDS)
+_PRIOR_ROWS = f"'{PRIOR_POSITION.kind}' and '{PRIOR_VELOCITY.kind}' rows"
 _E_GRID = np.array([0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9])
 _M0_GRID = np.linspace(-np.pi, np.pi, 24, endpoint=False)
 
@@ -125,18 +131,29 @@ class InitialOrbit:
 
 def iod_support(p: Pass) -> tuple[bool, str]:
     """Whether :func:`initial_orbit` can start from this pass, and a sentence saying why."""
-    fam = p.families.get("earth_direction")
-    n_dir = 0 if fam is None else len(np.unique(fam.k))
+    n_dir = len(np.unique(_geocentric_directions(p)[0]))
     if n_dir >= MIN_DIRECTION_EPOCHS:
         ranges = [k for k in RANGE_KINDS if p.count(k)]
         return True, (f"an initial orbit can be computed from {n_dir} direction epochs"
                       + (f" and the {'/'.join(ranges)} rows" if ranges else ""))
-    others = sorted(k for k in p.families if k not in ("prior_position", "prior_velocity"))
+    others = sorted(k for k in p.families if k not in prior_kinds())
     return False, (f"no initial orbit from {', '.join(others) or 'no measurements'}"
-                   f"{f' ({n_dir} direction epochs)' if n_dir else ''}: it needs earth_direction "
-                   f"(or earth_direction_body + attitude) rows at {MIN_DIRECTION_EPOCHS} or more "
-                   f"epochs, optionally with limb_radius/altitude rows; otherwise add "
-                   f"'prior_position' and 'prior_velocity' rows")
+                   f"{f' ({n_dir} direction epochs)' if n_dir else ''}: it needs "
+                   f"{'/'.join(DIRECTION_KINDS)} (or {'/'.join(_BODY_DIRECTION_KINDS)} + "
+                   f"{ATTITUDE.kind}) rows at {MIN_DIRECTION_EPOCHS} or more epochs, optionally "
+                   f"with {'/'.join(RANGE_KINDS)} rows; otherwise add {_PRIOR_ROWS}")
+
+
+def _geocentric_directions(p: Pass) -> tuple[np.ndarray, np.ndarray]:
+    """Epoch indices (M,) and unit vectors spacecraft -> Earth centre, ECI (M, 3), of every
+    geocentric-direction row of the pass (stably sorted by epoch)."""
+    fams = [p.families[k] for k in DIRECTION_KINDS if k in p.families]
+    if not fams:
+        return np.zeros(0, dtype=int), np.zeros((0, 3))
+    k = np.concatenate([f.k for f in fams])
+    u = np.concatenate([f.values["u_eci"] for f in fams])
+    order = np.argsort(k, kind="stable")
+    return k[order], u[order]
 
 
 # ------------------------------------------------------------------------- Kepler pieces
@@ -294,12 +311,8 @@ def _range_positions(p: Pass, u_by_k: dict):
         fam = p.families.get(kind)
         if fam is None:
             continue
-        if kind == "limb_radius":
-            rho = fam.values["rho_rad"]
-            ok = (rho > 0) & (rho < np.pi / 2)
-            rng = np.where(ok, fam.values["r_limb_m"] / np.sin(np.where(ok, rho, 1.0)), np.nan)
-        else:
-            rng = fam.values["r_ref_m"] + fam.values["h_m"]
+        with np.errstate(divide="ignore", invalid="ignore"):   # kept only when finite, > 0
+            rng = np.asarray(MODELS[kind].range_m(fam), dtype=float)
         for k, r in zip(fam.k.tolist(), rng.tolist()):
             if k in u_by_k and np.isfinite(r) and r > 0:
                 ks.append(k)
@@ -461,15 +474,13 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
         raise UserError(f"{p.source}: the initial orbit fit failed ({exc}); add "
-                        f"'prior_position' and 'prior_velocity' rows") from exc
+                        f"{_PRIOR_ROWS}") from exc
 
 
 def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> InitialOrbit:
     mu = model.mu
-    fam = p.families["earth_direction"]
-    order = np.argsort(fam.k, kind="stable")
-    k_dir = fam.k[order]
-    r_hat = -fam.values["u_eci"][order]
+    k_dir, u_dir = _geocentric_directions(p)
+    r_hat = -u_dir
     r_hat = r_hat / np.linalg.norm(r_hat, axis=1)[:, None]
     # one direction per epoch for the geometry (the first, if several)
     first = np.concatenate([[True], np.diff(k_dir) > 0])
@@ -478,7 +489,7 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> In
     k_dir, r_hat = k_dir[seg], r_hat[seg]
     if len(k_dir) < MIN_DIRECTION_EPOCHS:
         raise UserError(f"{p.source}: too few direction epochs in one session for an initial "
-                        f"orbit; add 'prior_position' and 'prior_velocity' rows")
+                        f"orbit; add {_PRIOR_ROWS}")
     u_by_k = {k: -r for k, r in zip(k_dir.tolist(), r_hat)}
     t_dir = p.t_s[k_dir]
     # the epochs of the refinement: an even subsample of those with fit rows in the session
@@ -517,7 +528,7 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> In
         best = None if fit is None else (how, fit)
     if best is None:
         raise UserError(f"{p.source}: no initial orbit could be fitted to the directions "
-                        f"({p.counts()}); add 'prior_position' and 'prior_velocity' rows")
+                        f"({p.counts()}); add {_PRIOR_ROWS}")
     how, (x, r, A, cost) = best
     rms = math.sqrt(cost / len(r))
     N = A.T @ A
@@ -529,8 +540,8 @@ def _initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float, near_k) -> In
     P = 0.5 * (P + P.T) * max(1.0, rms ** 2)
     if not (np.all(np.isfinite(P)) and np.all(np.linalg.eigvalsh(P) > 0)):
         raise UserError(f"{p.source}: the directions alone do not determine the orbit "
-                        f"({p.counts()} over {p.t_s[-1] - p.t_s[0]:.0f} s): add 'prior_position' "
-                        f"and 'prior_velocity' rows, range-type rows or a longer arc")
+                        f"({p.counts()} over {p.t_s[-1] - p.t_s[0]:.0f} s): add {_PRIOR_ROWS}, "
+                        f"range-type rows or a longer arc")
     return InitialOrbit(k_ref=k_ref, x_eci=x, P_eci=P, method=f"{how}+lm", n_used=len(k_sub),
                         t_span_s=(float(t_dir[0]), float(t_dir[-1])),
                         rms_whitened=rms)
@@ -598,12 +609,12 @@ MAX_TEST_RMS = 1.5       # the prior is tested only against a fit at the noise l
 
 def has_prior(p: Pass) -> bool:
     """Whether the pass has both ``prior_position`` and ``prior_velocity`` rows."""
-    return p.count("prior_position") > 0 and p.count("prior_velocity") > 0
+    return p.count(PRIOR_POSITION.kind) > 0 and p.count(PRIOR_VELOCITY.kind) > 0
 
 
 def strip_prior(p: Pass) -> Pass:
     """The pass without its ``prior_position`` / ``prior_velocity`` rows."""
-    fams = {k: f for k, f in p.families.items() if k not in ("prior_position", "prior_velocity")}
+    fams = {k: f for k, f in p.families.items() if k not in prior_kinds()}
     return Pass(epoch0=p.epoch0, t_s=p.t_s, families=fams, source=p.source,
                 warnings=list(p.warnings), layout=p.layout)
 
@@ -615,9 +626,9 @@ def with_start_prior(p: Pass, x0: np.ndarray, P0: np.ndarray) -> Pass:
     q = strip_prior(p)
     sig_r, sig_v = covering_sigmas(P0)
     one = np.zeros(1, dtype=int)
-    q.families = {"prior_position": Family(k=one, values={"xyz": x0[None, :3].copy()},
+    q.families = {PRIOR_POSITION.kind: Family(k=one, values={"xyz": x0[None, :3].copy()},
                                            sigma=np.array([sig_r]), line=np.zeros(1, dtype=int)),
-                  "prior_velocity": Family(k=one, values={"xyz": x0[None, 3:].copy()},
+                  PRIOR_VELOCITY.kind: Family(k=one, values={"xyz": x0[None, 3:].copy()},
                                            sigma=np.array([sig_v]), line=np.zeros(1, dtype=int)),
                   **q.families}
     return q
@@ -638,7 +649,7 @@ class Start:
         """Record the start in ``sol.extras["initial_orbit"]``; drop the residuals of a
         synthetic start prior (not a measurement of the log)."""
         if self.synthetic_prior:
-            for kind in ("prior_position", "prior_velocity"):
+            for kind in prior_kinds():
                 sol.residuals.pop(kind, None)
         sol.extras["initial_orbit"] = self.info
         return sol

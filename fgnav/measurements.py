@@ -125,21 +125,25 @@ def build_pass(log) -> Pass:
         ja = np.array([att_at[int(k_of_row[j])] for j in i])
         u_eci = np.einsum("mij,mj->mi", att.values["R_eci_from_body"][ja], xyz[i])
         sig = np.hypot(sigma[i], att.sigma[ja])
-        new = Family(k=k_of_row[i], values={"u_eci": u_eci}, sigma=sig, line=lines[i])
+        # from_body marks the rows that stand in for the body-frame rows (with_estimates)
+        new = Family(k=k_of_row[i], values={"u_eci": u_eci, "from_body": np.ones(len(i), bool)},
+                     sigma=sig, line=lines[i])
         old = p.families.get(mdl.body_frame_of)
         if old is not None:
             order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
+            was = old.values.get("from_body", np.zeros(len(old), bool))
             new = Family(k=np.concatenate([old.k, new.k])[order],
-                         values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order]},
+                         values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order],
+                                 "from_body": np.concatenate([was, new.values["from_body"]])[order]},
                          sigma=np.concatenate([old.sigma, sig])[order],
                          line=np.concatenate([old.line, new.line])[order])
         p.families[mdl.body_frame_of] = new
     return p
 
 
-def _without_lines(fam: Family, lines: np.ndarray) -> Family | None:
-    """The family without the rows from the given source lines (None if nothing is left)."""
-    keep = np.flatnonzero(~np.isin(fam.line, lines))
+def _without_body_rows(fam: Family) -> Family | None:
+    """The family without its rows converted from the body frame (None if nothing is left)."""
+    keep = np.flatnonzero(~fam.values.get("from_body", np.zeros(len(fam), bool)))
     return fam.subset(keep) if len(keep) else None
 
 
@@ -153,7 +157,7 @@ def _with_variable(p: Pass, name: str) -> Pass:
         if mdl.requires != name:
             continue
         if mdl.body_frame_of and mdl.body_frame_of in fams:
-            rest = _without_lines(fams[mdl.body_frame_of], fam.line)
+            rest = _without_body_rows(fams[mdl.body_frame_of])
             if rest is None:
                 fams.pop(mdl.body_frame_of)
             else:

@@ -32,7 +32,7 @@ from fgnav.measurements import (Pass, build_pass, check_observable, covering_sig
                                 with_estimates)
 from fgnav.models.registry import variable
 from fgnav.orbit import truth_at
-from fgnav.sun_earth_moon import preprocess_log
+from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from fgnav.solvers.batch import smooth_batch
@@ -288,7 +288,7 @@ def read_measurements(path: str | Path):
     if path.suffix.lower() in (".tdm", ".kvn"):
         return read_tdm(path)
     log = read_log(path)
-    if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
+    if uses_scheme(log):
         # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
         # ECI.
         log = preprocess_log(log)[0]

@@ -25,12 +25,14 @@ import numpy as np
 from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.text import parse_toml, read_utf8_text
+from fgnav.models.registry import MODELS, simulated_kinds
 from fgnav.orbit import elements_to_state, mean_to_true_anomaly
 from fgnav.paths import data_dir
+from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS
 from fgnav.time import parse_utc, seconds_since
 
-SENSOR_KINDS = ("earth_direction", "limb_radius", "altitude", "refraction",
-                "earth_direction_body", "sun_direction_body", "moon_direction_body")
+SENSOR_KINDS = simulated_kinds()
+"""The kinds a ``[[sensor]]`` may simulate: every registered model with a simulator."""
 
 MAX_EPOCHS = 1_000_000
 """Default limit on the sensor epochs of a simulated pass (summed over the sensors): 1e6
@@ -146,22 +148,9 @@ SENSOR_KEYS = {
     "model_bias_random_walk_m_per_sqrt_h": ("number", "m/sqrt(h)", 0.0, 1e5, True, True),
     "min_sun_elongation_deg": ("number", "deg", 0.0, 180.0, True, True),
 }
-_DIRECTION = ("sigma_deg",)
-MODEL_BIAS_KEYS = ("model_bias_m", "model_bias_drift_m_per_h",
-                   "model_bias_random_walk_m_per_sqrt_h")
-"""The refraction sensor's atmosphere-model bias keys; at most one sensor of a scenario may
-set them (the pass has one true bias, ``SimulatedPass.truth_params["refraction_bias_m"]``)."""
-SENSOR_KIND_KEYS = {
-    "earth_direction": _DIRECTION,
-    "limb_radius": _DIRECTION + ("r_limb_km",),
-    "altitude": ("sigma_m",),
-    "refraction": ("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
-                   "vmag_max", "azimuths_deg", "boresight_tangent_km") + MODEL_BIAS_KEYS,
-    "earth_direction_body": _DIRECTION,
-    "sun_direction_body": _DIRECTION,
-    "moon_direction_body": _DIRECTION + ("min_sun_elongation_deg",),
-}
-"""Keys each sensor kind takes besides ``kind`` and ``period_s``; ``sigma_deg`` and
+SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
+"""Keys each sensor kind takes besides ``kind`` and ``period_s`` (its model's
+``scenario_keys``, ``fgnav.models.registry``); ``sigma_deg`` and
 ``sigma_m`` are required where listed."""
 _SENSOR_REQUIRED = ("sigma_deg", "sigma_m")
 
@@ -399,6 +388,7 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         raise src.error(None, 0, "sensor", "at least one [[sensor]] table (an array of tables)",
                         sensors if not isinstance(sensors, list) else None, label="sensor")
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
+    # the pass has one true bias (SimulatedPass.truth_params["refraction_bias_m"])
     biased = [i for i, s in enumerate(sensors) if any(k in s for k in MODEL_BIAS_KEYS)]
     if len(biased) > 1:
         i = biased[1]

@@ -40,6 +40,8 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import UserError
 from fgnav.io.log_csv import log_from_arrays
+from fgnav.models.registry import (ALTITUDE, ATTITUDE, EARTH_DIRECTION, EARTH_DIRECTION_BODY,
+                                   MOON_DIRECTION_BODY, SUN_DIRECTION_BODY, prior_kinds)
 from fgnav.time import j2000_seconds
 
 __all__ = ["SemEpochs", "earth_relative_body_vector", "sem_epochs", "preprocess_log"]
@@ -124,6 +126,16 @@ def sem_epochs(t_s, t0_j2000_s, L_ws_body, L_wm_body, L_we_body, h_m, *, sigma_s
     return SemEpochs(t, R, P_att, u, C2, sig_iso, h, r_fix, P_fix)
 
 
+_SUN, _MOON, _EARTH, _ALT = (SUN_DIRECTION_BODY.kind, MOON_DIRECTION_BODY.kind,
+                             EARTH_DIRECTION_BODY.kind, ALTITUDE.kind)
+
+
+def uses_scheme(log) -> bool:
+    """Whether a log holds body-frame Sun or Moon directions, which only this scheme's
+    preprocessing (:func:`preprocess_log`) turns into rows the smoothers use."""
+    return bool(len(log.select(_SUN)) or len(log.select(_MOON)))
+
+
 def _rows(log, kind):
     i = log.select(kind)
     return i, np.asarray(log.t_s)[i]
@@ -143,7 +155,7 @@ def preprocess_log(log, *, first="sun"):
     xyz = np.asarray(log.xyz, dtype=float)
     sig = np.asarray(log.sigma, dtype=float)
     found = {}
-    for kind in ("sun_direction_body", "moon_direction_body", "earth_direction_body", "altitude"):
+    for kind in (_SUN, _MOON, _EARTH, _ALT):
         i, t = _rows(log, kind)
         if not len(i):
             raise UserError(f"{log.path}: the Sun/Earth/Moon scheme needs '{kind}' rows")
@@ -153,21 +165,20 @@ def preprocess_log(log, *, first="sun"):
     if not common:
         raise UserError(f"{log.path}: no epoch has Sun, Moon, Earth directions and altitude together")
     ix = {k: np.array([found[k][t] for t in common]) for k in found}
-    r_ref = xyz[ix["altitude"], 1]
+    r_ref = xyz[ix[_ALT], 1]
     if np.ptp(r_ref) > 0:
         raise UserError(f"{log.path}: altitude rows must share one reference radius")
     ep = sem_epochs(np.array(common), float(j2000_seconds(log.epoch0)),
-                    xyz[ix["sun_direction_body"]], xyz[ix["moon_direction_body"]],
-                    xyz[ix["earth_direction_body"]], xyz[ix["altitude"], 0],
-                    sigma_sun_rad=sig[ix["sun_direction_body"]],
-                    sigma_moon_rad=sig[ix["moon_direction_body"]],
-                    sigma_earth_rad=sig[ix["earth_direction_body"]][:, None, None],
-                    sigma_h_m=sig[ix["altitude"]][:, None, None], r_ref_m=float(r_ref[0]),
+                    xyz[ix[_SUN]], xyz[ix[_MOON]], xyz[ix[_EARTH]], xyz[ix[_ALT], 0],
+                    sigma_sun_rad=sig[ix[_SUN]], sigma_moon_rad=sig[ix[_MOON]],
+                    sigma_earth_rad=sig[ix[_EARTH]][:, None, None],
+                    sigma_h_m=sig[ix[_ALT]][:, None, None], r_ref_m=float(r_ref[0]),
                     first=first)
-    keep = np.flatnonzero(np.isin(log.kind, ("prior_position", "prior_velocity", "altitude")))
+    keep = np.flatnonzero(np.isin(log.kind, prior_kinds() + (_ALT,)))
     n = len(common)
     att_sig = np.sqrt(np.linalg.eigvalsh(ep.P_att_rad2)[:, -1])
-    kinds = np.concatenate([np.asarray(log.kind)[keep], ["earth_direction"] * n, ["attitude"] * n])
+    kinds = np.concatenate([np.asarray(log.kind)[keep], [EARTH_DIRECTION.kind] * n,
+                            [ATTITUDE.kind] * n])
     t = np.concatenate([t_all[keep], ep.t_s, ep.t_s])
     X = np.concatenate([xyz[keep], ep.u_earth_eci, so3_log(ep.R_eci_from_body)])
     S = np.concatenate([sig[keep], ep.sigma_earth_rad, att_sig])

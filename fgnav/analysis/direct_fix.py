@@ -39,6 +39,7 @@ import numpy as np
 from factors.constants import R_EARTH_M
 from factors.refraction import (refraction_residual, refraction_sigma_m,
                                 tangent_height_from_refraction_m)
+from fgnav.models.registry import REFRACTION
 from fgnav.sun_earth_moon import preprocess_log
 
 __all__ = ["cone_axis", "cone_fix_candidates", "refine_refraction_fix", "refraction_direct_fix",
@@ -190,7 +191,7 @@ class DirectFixes:
 def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
     """Seed 004 fixes at every epoch of the pass ``p`` with >= 3 refraction rows;
     ``x_ref`` (N, 6) reference states (e.g. ``fgnav.solvers.batch.initial_guess``)."""
-    fam = p.families.get("refraction")
+    fam = p.families.get(REFRACTION.kind)
     ks, rs, Ps = [], [], []
     if fam is not None:
         order = np.argsort(fam.k, kind="stable")

@@ -35,6 +35,7 @@ import numpy as np
 
 from fgnav.analysis.direct_fix import refraction_direct_fixes, sem_direct_fixes
 from fgnav.measurements import build_pass
+from fgnav.models.registry import REFRACTION
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.sun_earth_moon import preprocess_log
@@ -97,7 +98,7 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
     """
     base = load_scenario(scenario).with_options(duration_h=duration_h)
     options = SmootherOptions() if q_m2_s3 is None else SmootherOptions(q_m2_s3=q_m2_s3)
-    (i_ref, spec), = [(i, s) for i, s in enumerate(base.sensors) if s.kind == "refraction"]
+    (i_ref, spec), = [(i, s) for i, s in enumerate(base.sensors) if s.kind == REFRACTION.kind]
     rows = []
     for case in cases:
         D, sm = spec.gamma_halfwidth_arcsec, spec.sigma_model_m
@@ -115,7 +116,7 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
         at = _truth_lookup(sim)
         xg = initial_guess(p, options.motion_model(), float(j2000_seconds(p.epoch0)))
         row = {"case": case, "gamma_halfwidth_arcsec": D, "sigma_model_m": sm, "settle_s": settle_s,
-               "epochs": p.n_epochs, "refracted_stars": p.count("refraction")}
+               "epochs": p.n_epochs, "refracted_stars": p.count(REFRACTION.kind)}
         row.update(_fix_stats(refraction_direct_fixes(p, xg), at))
         est = _estimate(p, at, options, settle_s)
         for method, m in est.items():

@@ -19,6 +19,7 @@ import numpy as np
 from factors.constants import DEG
 from fgnav.constants import MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import UserError
+from fgnav.models.registry import EARTH_DIRECTION, LIMB_RADIUS
 from fgnav.orbit import elements_to_state
 from fgnav.scenarios import Scenario, SensorSpec, load_scenario
 
@@ -76,8 +77,8 @@ def visibility_scenario(orbit: str, sigma_deg: float = 0.01, step_s: float = 10.
     """A scenario whose UV ring gives geocentric direction + limb radius (both ``sigma_deg``)
     every ``step_s``: ``gto-transfer`` or one of :data:`VISIBILITY_ORBITS` (altitudes above
     ``R_EARTH_M``; prior 1 km / 0.1 m/s per axis, random)."""
-    sensors = (SensorSpec("earth_direction", sigma_deg=sigma_deg),
-               SensorSpec("limb_radius", sigma_deg=sigma_deg, r_limb_km=6375.0))
+    sensors = (SensorSpec(EARTH_DIRECTION.kind, sigma_deg=sigma_deg),
+               SensorSpec(LIMB_RADIUS.kind, sigma_deg=sigma_deg, r_limb_km=6375.0))
     if orbit == "gto-transfer":
         return load_scenario("gto-transfer").with_options(sensors=sensors, step_s=step_s,
                                                           prior_position_sigma_m=1000.0,

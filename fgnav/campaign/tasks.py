@@ -102,6 +102,7 @@ def _scenario(name: str, *, step_s=None, duration_h=None, sigma_deg=None, prior_
     """A built-in scenario with options replaced; ``sigma_deg`` sets every Earth-direction sensor."""
     from dataclasses import replace
 
+    from fgnav.models.registry import MODELS
     from fgnav.scenarios import load_scenario
 
     scn = load_scenario(name).with_options(step_s=step_s, duration_h=duration_h,
@@ -109,8 +110,8 @@ def _scenario(name: str, *, step_s=None, duration_h=None, sigma_deg=None, prior_
                                            prior_velocity_sigma_mps=prior_velocity_sigma_mps,
                                            prior_mode=prior_mode)
     if sigma_deg is not None:
-        sensors = tuple(replace(s, sigma_deg=float(sigma_deg)) if s.kind == "earth_direction" else s
-                        for s in scn.sensors)
+        sensors = tuple(replace(s, sigma_deg=float(sigma_deg))
+                        if MODELS[s.kind].geocentric_direction else s for s in scn.sensors)
         scn = scn.with_options(sensors=sensors)
     return scn
 
@@ -216,6 +217,7 @@ def visibility(p: VisibilityParams):
     from fgnav.errors import UserError
     from fgnav.io.log_csv import log_from_arrays
     from fgnav.measurements import build_pass
+    from fgnav.models.registry import prior_kinds
     from fgnav.pipeline import accuracy_metrics, solve
     from fgnav.simulate.pass_sim import simulate_pass
 
@@ -241,7 +243,7 @@ def visibility(p: VisibilityParams):
 
     row["n_epochs_all"], row["position_rms_all_m"], row["final_position_all_m"] = metrics(sim.log)
     log = sim.log
-    prior = np.isin(log.kind, ("prior_position", "prior_velocity"))
+    prior = np.isin(log.kind, prior_kinds())
     keep = prior | np.isin(log.t_s, sim.t_s[vis])
     row["n_epochs_ring"], row["position_rms_ring_m"], row["final_position_ring_m"] = 0, float("nan"), float("nan")
     if keep.sum() > prior.sum():

@@ -71,8 +71,9 @@ def _no_prior(log) -> dict:
     from fgnav.measurements import build_pass
 
     try:
-        if len(log.select("sun_direction_body")) or len(log.select("moon_direction_body")):
-            from fgnav.sun_earth_moon import preprocess_log
+        from fgnav.sun_earth_moon import preprocess_log, uses_scheme
+
+        if uses_scheme(log):
             log = preprocess_log(log)[0]
         p = build_pass(log)
     except UserError as exc:

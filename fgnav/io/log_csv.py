@@ -92,7 +92,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -116,19 +116,6 @@ _RENORM_TOL = 1e-12
 EPOCH_OUTLIER_DAYS = 30.0
 """An epoch further than this from the median epoch of the file is an error, days."""
 
-SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
-    "prior_position": (1e-3, 1e9, "m"),
-    "prior_velocity": (1e-6, 1e5, "m/s"),
-    "earth_direction": (1e-9, 1.0, "rad"),
-    "limb_radius": (1e-9, 1.0, "rad"),
-    "earth_direction_body": (1e-9, 1.0, "rad"),
-    "attitude": (1e-9, math.pi, "rad"),
-    "altitude": (1e-3, 1e7, "m"),
-    "sun_direction_body": (1e-9, 1.0, "rad"),
-    "moon_direction_body": (1e-9, 1.0, "rad"),
-    "refraction": (1e-9, 1.0, "rad"),
-}
-"""Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""
 PRIOR_MIN_RADIUS_M = 6378137.0
 """A ``prior_position`` closer to the Earth's centre than this (m) is an error."""
 MAX_DISTANCE_M = 1e13
@@ -137,25 +124,104 @@ unit or typing error, and its square would overflow the solvers' arithmetic."""
 MAX_SPEED_MPS = 1e6
 """Largest ``prior_velocity`` component (m/s)."""
 
-DIRECTION_KINDS = ("earth_direction", "earth_direction_body", "sun_direction_body",
-                   "moon_direction_body", "refraction")
 
-# Per kind: (usage of x, y, z, gamma, sigma_model_m), 'r' required, 'o' optional, '' empty;
-# and a short description used in messages.
-_KIND_SPEC: dict[str, tuple[tuple[str, str, str, str, str], str]] = {
-    "prior_position": (("r", "r", "r", "", ""), "a priori position, m, EME2000"),
-    "prior_velocity": (("r", "r", "r", "", ""), "a priori velocity, m/s, EME2000"),
-    "earth_direction": (("r", "r", "r", "", ""), "unit vector to Earth centre, EME2000"),
-    "limb_radius": (("r", "r", "", "", ""), "x = limb angular radius, rad; y = limb radius, m"),
-    "earth_direction_body": (("r", "r", "r", "", ""), "unit vector to Earth centre, body"),
-    "attitude": (("r", "r", "r", "", ""), "rotation vector of R_eci_from_body, rad"),
-    "altitude": (("r", "r", "", "", ""), "x = height above sphere, m; y = sphere radius, m"),
-    "sun_direction_body": (("r", "r", "r", "", ""), "unit vector to the Sun, body"),
-    "moon_direction_body": (("r", "r", "r", "", ""), "unit vector to the Moon, body"),
-    "refraction": (("r", "r", "r", "r", "o"),
-                   "star unit vector, EME2000; gamma, rad; sigma_model_m, m"),
+# ---- value checks of a kind beyond its columns, sigma and unit vector (the format's rules) ----
+
+def _check_prior_position(x, y, z, sigma_model):
+    if not PRIOR_MIN_RADIUS_M <= math.hypot(x, y, z) <= MAX_DISTANCE_M:
+        raise _RowError("out_of_range", "x,y,z", f"a position outside the Earth and within "
+                        f"{MAX_DISTANCE_M:g} m ({PRIOR_MIN_RADIUS_M:.0f} m <= |r| <= "
+                        f"{MAX_DISTANCE_M:g} m)", f"|r| = {math.hypot(x, y, z)!r} m")
+
+
+def _check_prior_velocity(x, y, z, sigma_model):
+    if not math.hypot(x, y, z) <= MAX_SPEED_MPS:
+        raise _RowError("out_of_range", "x,y,z", f"a velocity within {MAX_SPEED_MPS:g} m/s",
+                        f"|v| = {math.hypot(x, y, z)!r} m/s")
+
+
+def _check_distances(x, y):
+    if not (abs(x) <= MAX_DISTANCE_M and y <= MAX_DISTANCE_M):
+        raise _RowError("out_of_range", "x,y", f"values within {MAX_DISTANCE_M:g} m",
+                        f"{_fmt_found(x)}, {_fmt_found(y)}")
+
+
+def _check_limb_radius(x, y, z, sigma_model):
+    _check_distances(x, y)
+    if not 0.0 < x < math.pi / 2:
+        raise _RowError("out_of_range", "x", "a limb angular radius in (0, pi/2) rad",
+                        _fmt_found(x))
+    if not y > 0.0:
+        raise _RowError("out_of_range", "y", "a limb-sphere radius > 0 m", _fmt_found(y))
+
+
+def _check_altitude(x, y, z, sigma_model):
+    _check_distances(x, y)
+    if not y > 0.0:
+        raise _RowError("out_of_range", "y", "a reference radius > 0 m", _fmt_found(y))
+    if not x + y > 0.0:
+        raise _RowError("out_of_range", "x", "a height above the centre (x + y > 0), m",
+                        _fmt_found(x))
+
+
+def _check_refraction(x, y, z, sigma_model):
+    if not math.isnan(sigma_model) and not sigma_model >= 0.0:
+        raise _RowError("out_of_range", "sigma_model_m", "a model 1-sigma >= 0 m",
+                        _fmt_found(sigma_model))
+
+
+class _Kind(NamedTuple):
+    """One kind of the format: how it uses the value columns, what its sigma may be.
+
+    usage : per column x, y, z, gamma, sigma_model_m: ``"r"`` required, ``"o"`` optional,
+        ``""`` must be empty.
+    what : a short description used in messages.
+    sigma_min, sigma_max, unit : the accepted 1-sigma range and its unit.
+    unit_vector : x, y, z is a unit vector (checked, renormalized within ``UNIT_TOL``).
+    check : further value checks ``(x, y, z, sigma_model_m) -> None`` (raise a row error).
+    """
+
+    usage: tuple[str, str, str, str, str]
+    what: str
+    sigma_min: float
+    sigma_max: float
+    unit: str
+    unit_vector: bool = False
+    check: Callable | None = None
+
+
+_XYZ = ("r", "r", "r", "", "")
+_XY = ("r", "r", "", "", "")
+_ANGLE = (1e-9, 1.0, "rad")
+_KIND_SPEC: dict[str, _Kind] = {
+    "prior_position": _Kind(_XYZ, "a priori position, m, EME2000", 1e-3, 1e9, "m",
+                            check=_check_prior_position),
+    "prior_velocity": _Kind(_XYZ, "a priori velocity, m/s, EME2000", 1e-6, 1e5, "m/s",
+                            check=_check_prior_velocity),
+    "earth_direction": _Kind(_XYZ, "unit vector to Earth centre, EME2000", *_ANGLE,
+                             unit_vector=True),
+    "limb_radius": _Kind(_XY, "x = limb angular radius, rad; y = limb radius, m", *_ANGLE,
+                         check=_check_limb_radius),
+    "earth_direction_body": _Kind(_XYZ, "unit vector to Earth centre, body", *_ANGLE,
+                                  unit_vector=True),
+    "attitude": _Kind(_XYZ, "rotation vector of R_eci_from_body, rad", 1e-9, math.pi, "rad"),
+    "altitude": _Kind(_XY, "x = height above sphere, m; y = sphere radius, m", 1e-3, 1e7, "m",
+                      check=_check_altitude),
+    "sun_direction_body": _Kind(_XYZ, "unit vector to the Sun, body", *_ANGLE, unit_vector=True),
+    "moon_direction_body": _Kind(_XYZ, "unit vector to the Moon, body", *_ANGLE,
+                                 unit_vector=True),
+    "refraction": _Kind(("r", "r", "r", "r", "o"),
+                        "star unit vector, EME2000; gamma, rad; sigma_model_m, m", *_ANGLE,
+                        unit_vector=True, check=_check_refraction),
 }
+"""The kinds of the format, one entry each (the module docstring's table): the one place
+that defines a kind's columns and value checks."""
 KINDS = tuple(_KIND_SPEC)
+SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
+    k: (s.sigma_min, s.sigma_max, s.unit) for k, s in _KIND_SPEC.items()}
+"""Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""
+DIRECTION_KINDS = tuple(k for k, s in _KIND_SPEC.items() if s.unit_vector)
+"""Kinds whose x, y, z is a unit vector."""
 
 _NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
 _NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
@@ -228,13 +294,13 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
     spec = _KIND_SPEC.get(kind)
     if spec is None:
         raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
-    usage, what = spec
+    what = spec.what
     v = np.asarray(v, dtype=float)
     x, y, z, sigma, _gamma, sigma_model = (float(a) for a in v)  # Python floats: no overflow
     for j, col in enumerate(_VALUE_COLUMNS):                      # warnings below
         if np.isinf(v[j]):
             raise _RowError("not_finite", col, "a finite number", _fmt_found(v[j]))
-    cols_usage = dict(zip(("x", "y", "z", "gamma", "sigma_model_m"), usage))
+    cols_usage = dict(zip(("x", "y", "z", "gamma", "sigma_model_m"), spec.usage))
     for col, use in cols_usage.items():
         j = _VALUE_COLUMNS.index(col)
         if use == "r" and np.isnan(v[j]):
@@ -246,23 +312,12 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
         raise _RowError("missing_value", "sigma", "a 1-sigma > 0", "empty field")
     if not sigma > 0.0:
         raise _RowError("bad_sigma", "sigma", "a 1-sigma > 0", _fmt_found(sigma))
-    lo, hi, unit = SIGMA_RANGE[kind]
+    lo, hi, unit = spec.sigma_min, spec.sigma_max, spec.unit
     if not lo <= sigma <= hi:
         raise _RowError("bad_sigma", "sigma", f"a 1-sigma within {lo:g}..{hi:g} {unit} for "
                         f"{kind}", _fmt_found(sigma))
-    if kind == "prior_position" and not PRIOR_MIN_RADIUS_M <= math.hypot(x, y, z) <= MAX_DISTANCE_M:
-        raise _RowError("out_of_range", "x,y,z", f"a position outside the Earth and within "
-                        f"{MAX_DISTANCE_M:g} m ({PRIOR_MIN_RADIUS_M:.0f} m <= |r| <= "
-                        f"{MAX_DISTANCE_M:g} m)", f"|r| = {math.hypot(x, y, z)!r} m")
-    if kind == "prior_velocity" and not math.hypot(x, y, z) <= MAX_SPEED_MPS:
-        raise _RowError("out_of_range", "x,y,z", f"a velocity within {MAX_SPEED_MPS:g} m/s",
-                        f"|v| = {math.hypot(x, y, z)!r} m/s")
-    if kind in ("limb_radius", "altitude") and not (abs(x) <= MAX_DISTANCE_M and
-                                                    y <= MAX_DISTANCE_M):
-        raise _RowError("out_of_range", "x,y", f"values within {MAX_DISTANCE_M:g} m",
-                        f"{_fmt_found(x)}, {_fmt_found(y)}")
     renorm = False
-    if kind in DIRECTION_KINDS:
+    if spec.unit_vector:
         n = math.hypot(x, y, z)
         if not abs(1.0 - n) <= UNIT_TOL:
             raise _RowError("not_unit", "x,y,z", f"a unit vector (| |u| - 1 | <= {UNIT_TOL:g})",
@@ -271,21 +326,8 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
             v = v.copy()
             v[:3] /= n
             renorm = True
-    if kind == "limb_radius":
-        if not 0.0 < x < math.pi / 2:
-            raise _RowError("out_of_range", "x", "a limb angular radius in (0, pi/2) rad",
-                            _fmt_found(x))
-        if not y > 0.0:
-            raise _RowError("out_of_range", "y", "a limb-sphere radius > 0 m", _fmt_found(y))
-    if kind == "altitude":
-        if not y > 0.0:
-            raise _RowError("out_of_range", "y", "a reference radius > 0 m", _fmt_found(y))
-        if not x + y > 0.0:
-            raise _RowError("out_of_range", "x", "a height above the centre (x + y > 0), m",
-                            _fmt_found(x))
-    if kind == "refraction" and not math.isnan(sigma_model) and not sigma_model >= 0.0:
-        raise _RowError("out_of_range", "sigma_model_m", "a model 1-sigma >= 0 m",
-                        _fmt_found(sigma_model))
+    if spec.check is not None:
+        spec.check(x, y, z, sigma_model)
     return v, renorm
 
 

@@ -47,6 +47,7 @@ import numpy as np
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE, _sort_rows
 from fgnav.io.oem import _KVN_RE, _epoch, _header_line, _number, _read_lines
+from fgnav.models.registry import EARTH_DIRECTION
 from fgnav.time import seconds_since
 
 __all__ = ["read_tdm"]
@@ -65,10 +66,10 @@ def _sigma_from_comment(path, lineno, comment):
         raise InputFormatError(path, lineno, "sigma_deg", "COMMENT sigma_deg=<1-sigma in deg, "
                                "a number > 0>", m.group(1)) from None
 
-    lo, hi, _ = SIGMA_RANGE["earth_direction"]
+    lo, hi, _ = SIGMA_RANGE[EARTH_DIRECTION.kind]
     if not lo <= math.radians(s) <= hi:
         raise InputFormatError(path, lineno, "sigma_deg", f"a 1-sigma within {math.degrees(lo):.3g}.."
-                               f"{math.degrees(hi):.3g} deg (the range of an earth_direction)",
+                               f"{math.degrees(hi):.3g} deg (the range of an {EARTH_DIRECTION.kind})",
                                m.group(1))
     return math.radians(s)
 
@@ -247,7 +248,7 @@ def read_tdm(path, sigma_rad: float | None = None):
     V = np.full((len(ns), 6), np.nan)
     V[:, :3] = np.array(rows_u)
     V[:, 3] = rows_sigma
-    kind = np.array(["earth_direction"] * len(ns), dtype=object)
+    kind = np.array([EARTH_DIRECTION.kind] * len(ns), dtype=object)
     ns, V, kind, line, w = _sort_rows(ns, V, kind, np.array(rows_line, dtype=np.int64), path)
     if w:
         warnings.append(w)

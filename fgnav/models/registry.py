@@ -10,6 +10,8 @@ format's columns and value checks stay in ``fgnav.io.log_csv`` (the format's def
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
@@ -27,15 +29,16 @@ from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
-from fgnav.simulate.body_directions import simulate_body_direction_rows
-from fgnav.simulate.refraction_sim import simulate_refraction_rows
+from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
+                                            simulate_body_direction_rows, sun_target)
+from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
 from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
                                     limb_radius_readings)
 
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
-           "PRIOR_POSITION",
-           "PRIOR_VELOCITY"]
+           "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
+           "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY"]
 
 
 def _xyz(log, i):
@@ -192,7 +195,7 @@ REFRACTION = MeasurementModel(
     sigma=_refraction_sigma, optional_variables=(REFRACTION_BIAS,),
     simulate=simulate_refraction_rows,
     scenario_keys=("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
-                   "vmag_max", "azimuths_deg", "boresight_tangent_km"),
+                   "vmag_max", "azimuths_deg", "boresight_tangent_km") + MODEL_BIAS_KEYS,
     eci_ray=True)
 
 
@@ -238,12 +241,13 @@ def _body_factor(fam, j, keys, noise):
                                       fam.values["u_body"][j], noise)
 
 
-def _body(kind, target, observes, keys, into=None):
+def _body(kind, target, observes, keys, seen, into=None):
     earth = into is not None
     return MeasurementModel(
         kind=kind, dim=2, unit="rad", observes_orbit=observes,
         summary=f"unit vector to the {target}, body frame",
-        values=lambda log, i: {"u_body": _xyz(log, i)}, simulate=simulate_body_direction_rows,
+        values=lambda log, i: {"u_body": _xyz(log, i)},
+        simulate=functools.partial(simulate_body_direction_rows, target=seen),
         scenario_keys=keys, body_frame_of=into,
         residual=_body_residual if earth else None, factor=_body_factor if earth else None,
         optional_variables=(ATTITUDE_VARIABLE,) if earth else (),
@@ -251,10 +255,10 @@ def _body(kind, target, observes, keys, into=None):
 
 
 EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
-                             into=EARTH_DIRECTION.kind)
-SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",))
+                             earth_centre_target, into=EARTH_DIRECTION.kind)
+SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",), sun_target)
 MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
-                            ("sigma_deg", "min_sun_elongation_deg"))
+                            ("sigma_deg", "min_sun_elongation_deg"), moon_target)
 
 
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (

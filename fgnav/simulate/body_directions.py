@@ -28,7 +28,8 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.simulate.noise import perturb_directions
 from fgnav.time import j2000_seconds
 
-__all__ = ["lvlh_R_eci_from_body", "occulted_by_earth", "simulate_body_direction_rows"]
+__all__ = ["lvlh_R_eci_from_body", "occulted_by_earth", "simulate_body_direction_rows",
+           "earth_centre_target", "sun_target", "moon_target"]
 
 
 def lvlh_R_eci_from_body(x_eci):
@@ -60,28 +61,40 @@ def occulted_by_earth(r_eci_m, p_target_eci_m, r_earth_m=R_EARTH_M):
     return (np.arccos(np.clip(cos_sep, -1.0, 1.0)) < rho) & (dn > np.sqrt(rn ** 2 - r_earth_m ** 2))
 
 
-def simulate_body_direction_rows(spec, t_s, x_true, epoch0, rng):
+def earth_centre_target(spec, r_eci_m, t_j2000_s):
+    """The Earth's centre: position (N, 3) ECI, m (zeros) and always seen."""
+    return np.zeros_like(r_eci_m), np.ones(len(r_eci_m), dtype=bool)
+
+
+def sun_target(spec, r_eci_m, t_j2000_s):
+    """The Sun (``factors.ephemeris``), seen unless the Earth hides it (eclipse)."""
+    p = sun_position_eci_m(t_j2000_s)
+    return p, ~occulted_by_earth(r_eci_m, p)
+
+
+def moon_target(spec, r_eci_m, t_j2000_s):
+    """The Moon (``factors.ephemeris``), seen unless the Earth hides it or it is closer than
+    ``spec.min_sun_elongation_deg`` to the Sun (stray light)."""
+    p = moon_position_eci_m(t_j2000_s)
+    s = sun_position_eci_m(t_j2000_s)
+    d_m, d_s = p - r_eci_m, s - r_eci_m
+    cos_el = np.sum(d_m * d_s, axis=1) / (np.linalg.norm(d_m, axis=1) * np.linalg.norm(d_s, axis=1))
+    return p, ~occulted_by_earth(r_eci_m, p) & (cos_el < np.cos(spec.min_sun_elongation_deg * DEG))
+
+
+def simulate_body_direction_rows(spec, t_s, x_true, epoch0, rng, *, target):
     """Rows ``(kind, t, xyz, sigma)`` of one body-direction sensor (``pass_sim`` protocol).
 
-    ``spec.kind`` is ``earth_direction_body``, ``sun_direction_body`` or
-    ``moon_direction_body``; ``spec.sigma_deg`` the 1σ per tangent axis (deg);
-    ``x_true`` (N, 6) the truth at ``t_s`` (s from ``epoch0``).
+    ``target(spec, r_eci_m, t_j2000_s) -> (p (N, 3), seen (N,))``: where the observed body is
+    (ECI, m) and when the sensor sees it (:func:`earth_centre_target`, :func:`sun_target`,
+    :func:`moon_target`; the measurement model chooses it); ``spec.kind`` labels the rows;
+    ``spec.sigma_deg`` the 1σ per tangent axis (deg); ``x_true`` (N, 6) the truth at ``t_s``
+    (s from ``epoch0``).
     """
     r = x_true[:, :3]
     R = lvlh_R_eci_from_body(x_true)
     t_j = float(j2000_seconds(epoch0)) + np.asarray(t_s, dtype=float)
-    if spec.kind == "earth_direction_body":
-        p = np.zeros_like(r)
-        seen = np.ones(len(r), dtype=bool)
-    elif spec.kind == "sun_direction_body":
-        p = sun_position_eci_m(t_j)
-        seen = ~occulted_by_earth(r, p)
-    else:
-        p = moon_position_eci_m(t_j)
-        s = sun_position_eci_m(t_j)
-        d_m, d_s = p - r, s - r
-        cos_el = np.sum(d_m * d_s, axis=1) / (np.linalg.norm(d_m, axis=1) * np.linalg.norm(d_s, axis=1))
-        seen = ~occulted_by_earth(r, p) & (cos_el < np.cos(spec.min_sun_elongation_deg * DEG))
+    p, seen = target(spec, r, t_j)
     d = p - r
     u_body = np.einsum("nji,nj->ni", R, d / np.linalg.norm(d, axis=1, keepdims=True))
     sig = spec.sigma_deg * DEG

@@ -13,6 +13,7 @@ import dataclasses
 import numpy as np
 
 from fgnav.io.log_csv import log_from_arrays
+from fgnav.models.registry import EARTH_DIRECTION, PRIOR_POSITION, prior_kinds
 from fgnav.orbit import integrate_truth
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.noise import perturb_directions
@@ -42,7 +43,7 @@ def _direction_rows(fraction, seed, salt, opts):
     at random (the draw seeded by ``salt + seed``)."""
     log, t, x = clean(seed=seed, **opts)
     rng = np.random.default_rng(salt + seed)
-    rows = np.flatnonzero(log.kind == "earth_direction")
+    rows = np.flatnonzero(log.kind == EARTH_DIRECTION.kind)
     bad = rng.choice(rows, int(round(fraction * len(rows))), replace=False)
     return log, t, x, log.xyz.copy(), bad, rng
 
@@ -66,7 +67,7 @@ def wrong_prior(offset_m=1e8, sigma_m=1e4, seed=0, **opts):
     """The prior position moved by ``offset_m`` along the radial direction, 1-sigma ``sigma_m``."""
     log, t, x = clean(seed=seed, **opts)
     xyz, sigma = log.xyz.copy(), log.sigma.copy()
-    i = np.flatnonzero(log.kind == "prior_position")
+    i = np.flatnonzero(log.kind == PRIOR_POSITION.kind)
     r = xyz[i]
     xyz[i] = r + offset_m * r / np.linalg.norm(r, axis=1, keepdims=True)
     sigma[i] = sigma_m
@@ -75,7 +76,7 @@ def wrong_prior(offset_m=1e8, sigma_m=1e4, seed=0, **opts):
 
 def without_prior(seed=0, **opts):
     log, t, x = clean(seed=seed, **opts)
-    keep = ~np.isin(log.kind, ["prior_position", "prior_velocity"])
+    keep = ~np.isin(log.kind, prior_kinds())
     return with_rows(log, keep=keep), t, x
 
 
@@ -102,7 +103,7 @@ def manoeuvre(dv_mps=0.5, at_fraction=0.5, seed=0, scenario="gto-transfer", **op
                             drag=scn.truth_drag or None, srp=scn.truth_srp or None)
     rng = np.random.default_rng(3000 + seed)
     xyz = log.xyz.copy()
-    rows = np.flatnonzero((log.kind == "earth_direction") & (log.t_s >= t[j]))
+    rows = np.flatnonzero((log.kind == EARTH_DIRECTION.kind) & (log.t_s >= t[j]))
     r = x[np.searchsorted(t, log.t_s[rows]), :3]
     xyz[rows] = perturb_directions(-r / np.linalg.norm(r, axis=1, keepdims=True),
                                    log.sigma[rows], rng)

@@ -39,6 +39,7 @@ from factors.constants import DEG, R_LIMB_UV_M
 from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.io.log_csv import log_from_arrays
+from fgnav.models.registry import EARTH_DIRECTION, LIMB_RADIUS, prior_kinds
 from fgnav.orbit import truth_at
 from fgnav.progress import progress
 from fgnav.simulate.limb_render import LimbScene, render_limb
@@ -163,7 +164,7 @@ def _r_limb_of(scenario, cfg: ImageConfig) -> float:
     if cfg.r_limb_m is not None:
         return float(cfg.r_limb_m)
     for s in scenario.sensors:
-        if s.kind == "limb_radius":
+        if s.kind == LIMB_RADIUS.kind:
             return float(s.r_limb_km) * 1e3
     return float(R_LIMB_UV_M)
 
@@ -258,13 +259,13 @@ def ideal_log_like(log, epoch0, t_truth_s: np.ndarray, x_truth: np.ndarray, seed
     r = truth_at(np.asarray(t_truth_s, float), np.asarray(x_truth, float), t)[:, :3]
     rn = np.linalg.norm(r, axis=1)
     xyz = np.array(log.xyz, float)
-    d = np.flatnonzero(log.kind == "earth_direction")
+    d = np.flatnonzero(log.kind == EARTH_DIRECTION.kind)
     if len(d):
         xyz[d] = perturb_directions(-r[d] / rn[d, None], log.sigma[d], rng)
-    lr = np.flatnonzero(log.kind == "limb_radius")
+    lr = np.flatnonzero(log.kind == LIMB_RADIUS.kind)
     if len(lr):
         xyz[lr, 0] = np.arcsin(xyz[lr, 1] / rn[lr]) + log.sigma[lr] * rng.standard_normal(len(lr))
-    other = set(np.unique(log.kind)) - {"earth_direction", "limb_radius", "prior_position", "prior_velocity"}
+    other = set(np.unique(log.kind)) - {EARTH_DIRECTION.kind, LIMB_RADIUS.kind, *prior_kinds()}
     if other:
         raise UserError(f"ideal_log_like: kinds {sorted(other)} are not supported")
     return log_from_arrays(log.epoch0, log.t_s, log.kind, xyz, log.sigma, path="<ideal>")

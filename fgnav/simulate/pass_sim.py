@@ -1,12 +1,12 @@
 """Simulate a pass: truth from the independent integrator, measurements with seeded noise.
 
 Truth comes from ``fgnav.orbit.integrate_truth`` (scipy DOP853, its own force model), never
-from the estimator's propagator. Noise:
+from the estimator's propagator. Each ``[[sensor]]`` is simulated by its measurement model's
+simulator (``fgnav.models.registry.MODELS[kind].simulate``, called in the scenario's sensor
+order with one shared seeded Generator, so a seed gives the same log). Noise:
 
-* direction: the true unit vector rotated by a random angle, ``u = cos(t) u0 + sin(t) d``,
-  tangent-plane components ``n ~ N(0, sigma^2 I_2)``, ``t = |n|``, ``d = B^T n / t``;
-* limb angular radius: ``rho = arcsin(R_limb/|r|) + sigma n``;
-* altimeter: ``h = |r| - R_ref + sigma n``;
+* direction, limb angular radius, altimeter: :mod:`fgnav.simulate.sensors`;
+* body-frame Sun / Moon / Earth directions: :mod:`fgnav.simulate.body_directions`;
 * refraction: :mod:`fgnav.simulate.refraction_sim`; an atmosphere-model bias path ``b(t)``
   (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`) draws its random walk
   from its own stream, ``numpy.random.default_rng([seed, REFRACTION_BIAS_STREAM])``, so
@@ -22,15 +22,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fgnav.constants import DEG, R_EARTH_M
-from fgnav.io.log_csv import MeasurementLog, log_from_arrays
-from fgnav.orbit import integrate_truth
 from fgnav.errors import UserError
+from fgnav.io.log_csv import MeasurementLog, log_from_arrays
+from fgnav.models.registry import MODELS, PRIOR_POSITION, PRIOR_VELOCITY, REFRACTION_BIAS
+from fgnav.orbit import integrate_truth
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
-from fgnav.simulate.noise import perturb_directions
-from fgnav.simulate.refraction_sim import (has_model_bias, refraction_bias_path_m,
-                                           simulate_refraction_rows)
-from fgnav.simulate.body_directions import simulate_body_direction_rows
+from fgnav.simulate.refraction_sim import has_model_bias, refraction_bias_path_m
 from fgnav.time import j2000_seconds, parse_utc
 
 
@@ -90,38 +87,20 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
         err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
     else:
         err = np.array([sp] * 3 + [sv] * 3)
-    add("prior_position", np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
-    add("prior_velocity", np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
+    add(PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
+    add(PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
     for spec, t in zip(scn.sensors, t_by_sensor):
         idx = np.searchsorted(t_all, t)
-        r = x_true[idx, :3]
-        rn = np.linalg.norm(r, axis=1)
-        if spec.kind == "earth_direction":
-            s = spec.sigma_deg * DEG
-            add("earth_direction", t, perturb_directions(-r / rn[:, None], np.full(len(t), s), rng), s)
-        elif spec.kind == "limb_radius":
-            s = spec.sigma_deg * DEG
-            r_limb = spec.r_limb_km * 1e3
-            rho = np.arcsin(r_limb / rn) + s * rng.standard_normal(len(t))
-            add("limb_radius", t, np.column_stack([rho, np.full(len(t), r_limb), np.full(len(t), np.nan)]), s)
-        elif spec.kind == "altitude":
-            h = rn - R_EARTH_M + spec.sigma_m * rng.standard_normal(len(t))
-            add("altitude", t, np.column_stack([h, np.full(len(t), R_EARTH_M), np.full(len(t), np.nan)]),
-                spec.sigma_m)
-        elif spec.kind == "refraction":
-            b_all = None
-            if has_model_bias(spec):
-                b_all = refraction_bias_path_m(
-                    spec, t_all, np.random.default_rng([seed, REFRACTION_BIAS_STREAM]))
-            chunks = simulate_refraction_rows(spec, t, x_true[idx], epoch0, rng,
-                                              bias_m=None if b_all is None else b_all[idx])
-            if b_all is not None and any(c[0] == "refraction" for c in chunks):
-                truth_params["refraction_bias_m"] = b_all
-            for chunk in chunks:
-                add(*chunk)
-        elif spec.kind in ("earth_direction_body", "sun_direction_body", "moon_direction_body"):
-            for chunk in simulate_body_direction_rows(spec, t, x_true[idx], epoch0, rng):
-                add(*chunk)
+        bias = {}
+        if has_model_bias(spec):   # only a refraction sensor takes the bias keys
+            b_all = refraction_bias_path_m(
+                spec, t_all, np.random.default_rng([seed, REFRACTION_BIAS_STREAM]))
+            bias = {"bias_m": b_all[idx]}
+        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias)
+        if bias and any(c[0] == spec.kind for c in chunks):
+            truth_params[REFRACTION_BIAS.components[0]] = b_all
+        for chunk in chunks:
+            add(*chunk)
     t_cat = np.concatenate(ts)
     order = np.argsort(t_cat, kind="stable")
     extra = None

@@ -47,7 +47,7 @@ from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
            "simulate_refraction_rows", "SIGMA_FLOOR_RAD", "has_model_bias",
-           "refraction_bias_path_m"]
+           "refraction_bias_path_m", "MODEL_BIAS_KEYS"]
 
 UNREFRACTED_MIN_HEIGHT_M = 100e3
 """A star whose straight ray passes higher than this above R_e counts as unrefracted, m."""
@@ -92,6 +92,12 @@ def true_tangent_height_m(q_m, los_m, model, dh_model_m=0.0, r_earth_m=R_EARTH_M
     return h
 
 
+MODEL_BIAS_KEYS = ("model_bias_m", "model_bias_drift_m_per_h",
+                   "model_bias_random_walk_m_per_sqrt_h")
+"""The scenario keys of the atmosphere-model bias path (:func:`refraction_bias_path_m`): its
+value at the pass start (m), its drift (m/h) and its random walk (m/sqrt(h))."""
+
+
 def has_model_bias(spec):
     """True when the refraction sensor ``spec`` has a non-zero atmosphere-model bias."""
     return bool(spec.model_bias_m or spec.model_bias_drift_m_per_h
@@ -124,8 +130,9 @@ def refraction_bias_path_m(spec, t_s, rng):
 def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-seed004",
                              catalogue=None, bias_m=None):
     """Rows of the refraction sensor ``spec`` at epochs ``t_s`` (``pass_sim`` protocol):
-    a list of ``(kind, t, xyz, sigma[, extra])`` chunks, kinds ``refraction`` and
-    ``attitude``. ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator;
+    a list of ``(kind, t, xyz, sigma[, extra])`` chunks: the refracted stars under the
+    sensor's kind (``spec.kind``, ``refraction``) and the attitude from the unrefracted ones
+    (``attitude``). ``x_true`` (N, 6) truth at ``t_s``; ``rng`` a numpy Generator;
     ``bias_m`` the atmosphere-model bias ``b(t)`` at ``t_s`` ((N,) m, from
     :func:`refraction_bias_path_m`; None = 0), added to every star's model error."""
     if catalogue is None:
@@ -181,7 +188,7 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
     if t_r:
         tt = np.concatenate(t_r)
         g = np.concatenate(g_r)
-        chunks.append(("refraction", tt, np.concatenate(s_r), sig_g,
+        chunks.append((spec.kind, tt, np.concatenate(s_r), sig_g,
                        {"gamma": g, "sigma_model_m": np.full(len(tt), float(spec.sigma_model_m))}))
     if t_a:
         chunks.append(("attitude", np.array(t_a), np.array(w_a), np.array(sig_a)))

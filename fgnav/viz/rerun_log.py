@@ -33,6 +33,7 @@ import numpy as np
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
+from fgnav.models.registry import eci_ray_kinds
 from fgnav.orbit import rtn_frame
 from fgnav.time import format_utc
 
@@ -232,8 +233,9 @@ def _as_datetime_ns(epoch0, t_s):
     return e0 + np.round(np.asarray(t_s) * 1e9).astype("timedelta64[ns]")
 
 
-#: Log kinds (``fgnav.io.log_csv``) whose x, y, z is a unit direction in ECI.
-ECI_DIRECTION_KINDS = ("earth_direction", "refraction")
+#: Log kinds whose x, y, z is a unit direction in ECI (drawn as rays): the registered
+#: models flagged ``eci_ray`` (``fgnav.models.registry.eci_ray_kinds``).
+ECI_DIRECTION_KINDS = eci_ray_kinds()
 
 
 def _direction_measurements(measurements, epoch0=None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
