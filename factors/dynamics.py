@@ -369,6 +369,25 @@ def _dt_q(dt_s, q_m2_s3):
     return dt, q
 
 
+@njit(cache=True)
+def process_noise_terms(dt, q):
+    """The three distinct entries of :func:`process_noise` per axis, ``(q |dt|^3/3,
+    q dt |dt|/2, q |dt|)`` (the one definition: the numpy function and the compiled EKF call it)."""
+    T = abs(dt)
+    return q * T * T * T / 3.0, q * dt * T / 2.0, q * T
+
+
+@njit(cache=True)
+def _process_noise_many(dt, q, out):
+    for n in range(dt.shape[0]):
+        pp, pv, vv = process_noise_terms(dt[n], q[n])
+        for i in range(3):
+            out[n, i, i] = pp
+            out[n, i, 3 + i] = pv
+            out[n, 3 + i, i] = pv
+            out[n, 3 + i, 3 + i] = vv
+
+
 def process_noise(dt_s, q_m2_s3):
     """White-acceleration process noise covariance, SI: scalar dt -> (6,6), (N,) -> (N,6,6).
 
@@ -376,12 +395,13 @@ def process_noise(dt_s, q_m2_s3):
     Bar-Shalom et al., *Estimation with Applications to Tracking*, eq. 6.2.2-12). For dt > 0
     it is q [[dt^3/3, dt^2/2], [dt^2/2, dt]]; a negative dt (backward step) keeps Q SPD and
     flips the sign of the position-velocity correlation, as the noise integral requires.
+    Entries from :func:`process_noise_terms`.
     """
     dt, q = _dt_q(dt_s, q_m2_s3)
-    T = np.abs(dt)
-    blk = np.stack([np.stack([T ** 3 / 3.0, dt * T / 2.0], -1),
-                    np.stack([dt * T / 2.0, T], -1)], -2) * q[..., None, None]
-    return np.kron(blk, np.eye(3)) if blk.ndim == 2 else np.einsum("nij,kl->nikjl", blk, np.eye(3)).reshape(-1, 6, 6)
+    out = np.zeros((dt.size, 6, 6))
+    _process_noise_many(np.ascontiguousarray(dt, dtype=float).reshape(-1),
+                        np.ascontiguousarray(q, dtype=float).reshape(-1), out)
+    return out[0] if dt.ndim == 0 else out.reshape(dt.shape + (6, 6))
 
 
 def process_noise_sqrt_information(dt_s, q_m2_s3):

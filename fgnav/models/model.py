@@ -26,6 +26,7 @@ Whitening follows GTSAM's convention (``factors.adapters.whiten``): rows ``A = H
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -35,6 +36,14 @@ from factors.adapters import whiten
 from fgnav.models.variables import Layout, Variable
 
 __all__ = ["MeasurementModel"]
+
+
+@functools.lru_cache(maxsize=256)
+def _touched(mdl, layout: Layout) -> tuple[Variable, ...]:
+    """The variables of ``layout`` that ``mdl`` touches, in the layout's order (cached: the
+    online route asks at every epoch)."""
+    names = mdl.variables_in(layout)
+    return tuple(v for v in layout.variables if v.name in names)
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,7 +118,7 @@ class MeasurementModel:
 
     def keys(self, layout: Layout, k: int) -> dict[str, int]:
         """GTSAM keys of the variables this model touches at epoch ``k``."""
-        return {v.name: v.key(k) for v in layout.variables if v.name in self.variables_in(layout)}
+        return {v.name: v.key(k) for v in _touched(self, layout)}
 
     def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None) -> list:
         """GTSAM factors (iSAM2 route) of the given rows at epoch ``k``.
@@ -119,11 +128,15 @@ class MeasurementModel:
         depends on geometry (as in the batch route).
         """
         keys = self.keys(layout, k)
+        rows = np.asarray(rows, dtype=int)
+        if self.sigma is None:   # the online route's hot path: no per-row family copies
+            sigmas = np.asarray(fam.sigma, dtype=float)[rows]
+        else:
+            x = None if x_guess is None else np.broadcast_to(
+                np.asarray(x_guess, dtype=float)[:6], (len(rows), 6))
+            sigmas = self.noise_sigma(fam.subset(rows, 0), x)
         out = []
-        for j in rows:
-            sub = fam.subset(np.array([j]), 0)
-            sig = float(self.noise_sigma(sub, None if x_guess is None
-                                         else np.asarray(x_guess, dtype=float)[None, :6])[0])
+        for j, sig in zip(rows.tolist(), sigmas.tolist()):
             noise = sig
             if robust is not None and self.robust:
                 import gtsam  # the EKF baseline imports this module without GTSAM

@@ -34,7 +34,7 @@ from numba import njit
 
 from factors.altimeter import altitude_kernel
 from factors.direction import earth_direction_row_kernel
-from factors.dynamics import propagate_nb
+from factors.dynamics import process_noise_terms, propagate_nb
 from factors.limb import limb_radius_kernel
 from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.measurements import prior_covariance
@@ -184,10 +184,7 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
                 x[i] = x1[i]
             # P <- Phi P Phi^T + Q
             _sandwich(Phi, P, T, P)
-            adt = abs(dt)
-            qpp = q * adt * adt * adt / 3.0
-            qpv = q * dt * adt / 2.0
-            qvv = q * adt
+            qpp, qpv, qvv = process_noise_terms(dt, q)
             for i in range(3):
                 P[i, i] += qpp
                 P[i, 3 + i] += qpv

@@ -191,17 +191,21 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         raise UserError(f"--checkpoint-every must be an epoch count >= 1, got {checkpoint_every}")
     fingerprint = _fingerprint(p, options, inc, method)
 
+    # the models whose rows enter the graph (not, e.g., 'attitude' rows with the attitude known)
+    models = {kind: model_of(kind) for kind in p.families if enters(p, kind)}
+
     def add_epoch_factors(graph, k, guess, kept_only):
         for kind, rows in per_epoch[k]:
-            if not enters(p, kind):  # e.g. 'attitude' rows: used by build_pass, not factors
+            mdl = models.get(kind)
+            if mdl is None:
                 continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
-            elif gate is not None and model_of(kind).robust:
+            elif gate is not None and mdl.robust:
                 kept = _gate_rows(p, kind, rows, guess, P_pred, gate)
                 rejected_rows[kind][np.setdiff1d(rows, kept)] = True
                 rows = kept
-            for f in factors_for_rows(p, kind, rows, k, kernel, guess[:6]):
+            for f in mdl.factors(p.families[kind], rows, k, lay, kernel, guess[:6]):
                 graph.add(f)
 
     k_start = 0
