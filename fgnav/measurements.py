@@ -105,10 +105,10 @@ def build_pass(log) -> Pass:
         if not len(i):
             continue
         fam = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i], line=lines[i])
-        if mdl.requires is None and (mdl.solved or kind == ATTITUDE.kind):
-            p.families[kind] = fam
-        elif mdl.requires is not None:
+        if mdl.requires is not None:
             p.deferred[kind] = fam
+        elif mdl.solved:
+            p.families[kind] = fam
     att = p.deferred.get(ATTITUDE.kind)
     if att is not None:
         p.families[ATTITUDE.kind] = att   # rows of their own kind (used for body -> ECI)
