@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -42,6 +43,11 @@ def main(argv: list[str] | None = None) -> int:
         print("fgnav: interrupted; outputs already written are complete, none is half-written",
               file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # the reader of stdout went away (``fgnav campaign --list | head``): stop quietly, as
+        # Unix tools do; stdout goes to /dev/null so that the interpreter's final flush is silent
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     return int(rc or 0)
 
 

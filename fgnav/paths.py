@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import os
+from importlib import resources
 from pathlib import Path
 
 
 def data_dir() -> Path:
-    """The project's ``data/`` directory (override with the FGNAV_DATA environment variable)."""
+    """The data the product needs at run time (scenarios, studies, star catalogue): the
+    package's own ``fgnav/data`` (``data/`` at the top of a checkout links to it), found with
+    ``importlib.resources`` so that an installed wheel finds it wherever it is; the
+    FGNAV_DATA environment variable overrides it."""
     env = os.environ.get("FGNAV_DATA")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parents[1] / "data"
+    return Path(str(resources.files("fgnav") / "data"))
 
 
 def cache_dir() -> Path:

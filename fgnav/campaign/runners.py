@@ -105,10 +105,13 @@ def _prepare_out(study: Study, out: Path, resume: bool) -> set:
         table.check_header()
         done = {r["run_id"] for r in table.read() if r["status"] == "ok"}
     else:
-        table.create()
         done = set()
-    # the reference figures may change between invocations: the report uses the latest
+    # the reference figures may change between invocations: the report uses the latest.
+    # Written before runs.csv is created, so that whoever finds runs.csv finds its columns
+    # (a reader used to see runs.csv a moment before study.json: "study.json: missing").
     atomic_write_text(spec, json.dumps({**study.to_json(), "reference": study.reference_json()}, indent=1) + "\n")
+    if not table.exists():
+        table.create()
     return done
 
 

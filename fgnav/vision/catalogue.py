@@ -1,6 +1,7 @@
 """Star catalogue: load the derived BSC5 file, apply proper motion, give ECI unit vectors.
 
-The catalogue lives at ``<repo>/data/catalogue/bsc5.csv`` (see its README for provenance).
+The catalogue lives at ``fgnav/data/catalogue/bsc5.csv``, inside the package (``data/`` at
+the top of a checkout links to it; see its README for provenance).
 Positions are J2000/FK5 (taken as the ECI/EME2000 frame) at epoch J2000.0; proper motion is
 applied linearly in (RA, Dec):
 ``ra(t) = ra0 + pmra* / cos(dec0) * dt``, ``dec(t) = dec0 + pmdec * dt``, dt in Julian years
@@ -18,12 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.paths import data_dir
 from fgnav.time import parse_utc
 
 __all__ = ["Catalogue", "DATA_DIR", "DEFAULT_CATALOGUE_PATH", "load_catalogue", "radec_to_unit",
            "unit_to_radec", "decimal_year", "merge_close_stars"]
 
-DATA_DIR = Path(__file__).resolve().parents[2] / "data"
+DATA_DIR = data_dir()
 DEFAULT_CATALOGUE_PATH = DATA_DIR / "catalogue" / "bsc5.csv"
 _MAS = np.pi / 180.0 / 3600.0e3
 _COLUMNS = ["hr", "ra_deg", "dec_deg", "vmag", "pmra_mas_yr", "pmdec_mas_yr"]
@@ -81,7 +83,8 @@ class Catalogue:
 def _read(path: str) -> tuple[np.ndarray, str]:
     p = Path(path)
     if not p.is_file():
-        raise UserError(f"star catalogue not found: {p} (run scripts/build_star_catalogue.py)")
+        raise UserError(f"star catalogue not found: {p} (build one with: python -m "
+                        f"fgnav.vision.catalogue_build --src <Yale BSC5 CSV> --out {p})")
     raw = p.read_bytes()
     lines = raw.decode("utf-8").splitlines()
     header = lines[0].split(",")
