@@ -242,9 +242,10 @@ def report_observability(study, rows, out):
                       "weakest_sigma_m": r["weakest_sigma_m"], "weakest_direction": r["weakest_direction"]})
     rank = "" if ref is None else f"rank {ref.rank} at every period and "
     notes = _notes(study, f"Pan & Yao 2017, table 4: {rank}a condition number growing with the period "
-                   "(its numbers are not in the source text; seed_rank: theirs). condition_raw/scaled: their eq. 9 "
-                   "with 6 blocks (window 5 T) at their initial state; window_info_*: information of the initial state "
-                   "from all samples over a fixed window (1-sigma of the weakest direction, velocity x 1000 s).")
+                   "(seed_rank: theirs; their condition numbers are not in the source text, so seed_condition is "
+                   "empty). condition_raw/scaled: their eq. 9 with 6 blocks (window 5 T) at their initial state; "
+                   "window_info_*: information of the initial state from all samples over a fixed window (1-sigma "
+                   "of the weakest direction, velocity x 1000 s).")
     files = _write_table(out, table, "Pan & Yao 2017, table 4: observability vs sample period", notes)
     fig, axes = _figure(2)
     T = [r["step_s"] for r in table]
