@@ -70,7 +70,7 @@ def _rz(a):
 
 
 def rotation_xyz(roll_rad, pitch_rad, yaw_rad):
-    """Seed 003's ``M_CB = Rx(roll) Ry(pitch) Rz(yaw)`` (sat-1 body -> sat-2 body), (3, 3).
+    """Xing et al.'s ``M_CB = Rx(roll) Ry(pitch) Rz(yaw)`` (sat-1 body -> sat-2 body), (3, 3).
 
     ``Rx, Ry, Rz`` are coordinate-transformation (passive) elementary rotations, e.g.
     ``Rz(a) = [[cos a, sin a, 0], [-sin a, cos a, 0], [0, 0, 1]]``.

@@ -12,7 +12,7 @@ altimeter height ``H``:
    ``d_wm = d_we cos(alpha) + sqrt(D^2 - d_we^2 sin^2(alpha))`` (the lecture's law of sines,
    solved directly); the same for the Sun (:func:`earth_relative_body_vector`).
 2. Two-vector attitude (TRIAD): ``C_b^i = P_N Q_M^T`` from (``r_em``, ``r_es``) in body and
-   ECI (``factors.attitude.triad``). The seed takes the Moon first; the first vector is
+   ECI (``factors.attitude.triad``). The lecture takes the Moon first; the first vector is
    matched exactly, so by default the more accurate sensor (the Sun: 1' 3σ vs 0.02° 3σ) is
    first (``first=``). Covariance ``factors.attitude.triad_covariance`` (Shuster & Oh).
 3. Direct fix ``r = -(R_e + H) C_b^i L_we`` with covariance
@@ -182,5 +182,5 @@ def preprocess_log(log, *, first="sun"):
     t = np.concatenate([t_all[keep], ep.t_s, ep.t_s])
     X = np.concatenate([xyz[keep], ep.u_earth_eci, so3_log(ep.R_eci_from_body)])
     S = np.concatenate([sig[keep], ep.sigma_earth_rad, att_sig])
-    out = log_from_arrays(log.epoch0, t, kinds, X, S, path=f"{log.path} (seed-001 preprocessed)")
+    out = log_from_arrays(log.epoch0, t, kinds, X, S, path=f"{log.path} (Sun/Earth/Moon preprocessed)")
     return out, ep

@@ -2,7 +2,7 @@
 
 Target: extraction and fit of a 2048x2048 frame < 50 ms. Frame: Wu et al. limb
 optics (f = 18 mm, 11 µm) on the full detector, Earth centre on the boresight at 8,000 km
-(limb radius ~826 px), limb signal 2,000 e-, seed detector noise.
+(limb radius ~826 px), limb signal 2,000 e-, Wu et al.'s detector noise.
 
 Usage: python scripts/bench_vision_limb.py [--repeat N]
 """

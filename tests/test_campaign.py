@@ -86,7 +86,7 @@ def test_reference_run_writes_table_and_curves(tiny, reference):
     for name in ("table.csv", "table.md", "plot.png", "study.json"):
         assert (out / name).stat().st_size > 0
     assert len(list((out / "curves").glob("*.npz"))) == 8
-    # the smaller noise navigates better (seed 002 table 2's trend), for both methods
+    # the smaller noise navigates better (the trend of Pan & Yao 2017, table 2), for both methods
     by = {(r["sigma_deg"], r["method"], r["seed"]): r for r in rows}
     for m in ("batch", "ekf"):
         small = sum(by[(0.01, m, s)]["position_rms_m"] for s in (0, 1))

@@ -101,7 +101,7 @@ def test_observability_rank_from_the_study(tmp_path):
 def test_period_statement_from_the_study(tmp_path):
     s = _study(tmp_path, "seed002-period", (("shorter period is better", "shorter is worse"),))
     rows = _report(s, tmp_path / "a", _navigate_row(1000.0, 0.1))
-    assert {r["seed_value"] for r in rows} == {"not in source text; seed: shorter is worse"}
+    assert {r["seed_value"] for r in rows} == {"not in the source text; Pan & Yao 2017: shorter is worse"}
 
 
 def test_visibility_band_from_the_study(tmp_path):

@@ -57,7 +57,7 @@ def test_altitude_factor_linearizes_like_numpy(rng):
 
 
 def test_ins_cns_lecture_direct_fix_from_altimeter_and_triad(rng):
-    """Seed 001's direct fix r = -(R_e + H) C_b^i L_we^b (TRIAD attitude from Sun and Moon)
+    """The INS/CNS lecture's direct fix r = -(R_e + H) C_b^i L_we^b (TRIAD attitude from Sun and Moon)
     reproduces the position exactly from noise-free measurements, and its residuals vanish."""
     r = random_positions_m(rng, 1, R_EARTH_M + 400e3, R_EARTH_M + 600e3)[0]
     R_true = random_rotations(rng, 1)[0]  # C_b^i = R_eci_from_body
@@ -127,7 +127,7 @@ def test_triad_first_vector_is_exact(rng):
 
 
 def test_triad_covariance_against_monte_carlo(rng):
-    """Seed 001 sensors: Sun sensor 1' (3 sigma) as the second vector, UV Moon direction
+    """The INS/CNS lecture's sensors: Sun sensor 1' (3 sigma) as the second vector, UV Moon direction
     0.02 deg (3 sigma) as the first; the Monte Carlo covariance of Log(R_true^T R_hat) matches
     triad_covariance within sampling error."""
     R = random_rotations(rng, 1)[0]

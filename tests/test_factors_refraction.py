@@ -125,7 +125,7 @@ def test_jacobian_at_random_geometry(rng):
 
 
 def test_li_patent_error_budget_monte_carlo(rng):
-    """Seed 004 claim 1 step 4: gamma error uniform on [-D, D], atmosphere-model error added
+    """Li et al. 2017, claim 1 step 4: gamma error uniform on [-D, D], atmosphere-model error added
     to the tangent height. Simulated as a real atmosphere equal to the model shifted in
     height by the model error (so the inverse model returns h + dh_model), the residual at
     the true position has the standard deviation refraction_sigma_m gives with the

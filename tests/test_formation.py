@@ -57,7 +57,7 @@ def test_covariance_two_epochs(study):
     assert s["relative_change"] < 1e-2
     assert c["relative_change"] > 1.0
     assert c["relative_change"] > 100 * s["relative_change"]
-    # y, z cofactor entries ~ R^2 Q_az = 1e6 (seed prints ~1e9: see the report)
+    # y, z cofactor entries ~ R^2 Q_az = 1e6 (Xing et al. print ~1e9: see the report)
     assert 0.9e6 < c["max_abs_cofactor"] < 1.1e6
 
 
@@ -80,7 +80,7 @@ def test_solutions_agree_between_parameterizations():
 
 
 def test_monte_carlo_coverage(study):
-    """5,000 runs: 68.27 % +- 2 % of range errors inside +-1 sigma (seed: 67.5 %, 120 runs)."""
+    """5,000 runs: 68.27 % +- 2 % of range errors inside +-1 sigma (Xing et al.: 67.5 %, 120 runs)."""
     assert study["runs"] == 5000
     assert abs(study["coverage_1sigma"] - 0.6827) < 0.02
 

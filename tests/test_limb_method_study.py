@@ -1,4 +1,4 @@
-"""Seed 000, table 3 (limb completeness vs Earth-centre accuracy) and table 5 (direct
+"""Wu et al., table 3 (limb completeness vs Earth-centre accuracy) and table 5 (direct
 positioning error vs altitude and angle error). Reduced Monte Carlo by default; the full
 500-run table and the 200-frame covariance credibility run are slow-marked."""
 
@@ -70,7 +70,7 @@ def test_covariance_credibility_full():
 
 
 def test_table5_closed_forms_match_simulation():
-    """Seed 000, table 5 definitions: the closed forms agree with a direct simulation of
+    """Wu et al., table 5 definitions: the closed forms agree with a direct simulation of
     r_hat = -(R / sin(rho_hat)) u_hat (independent of the closed forms)."""
     rows = table5()
     rng = np.random.default_rng(0)

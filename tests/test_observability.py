@@ -49,7 +49,7 @@ def test_observability_matrix_matches_central_differences():
 
 
 def test_pan_yao_table4_rank_six_at_every_period():
-    """Seed 002 table 4: the system is observable (rank 6) at T = 0.1, 1, 10, 100 s."""
+    """Pan & Yao 2017, table 4: the system is observable (rank 6) at T = 0.1, 1, 10, 100 s."""
     for T in (0.1, 1.0, 10.0, 100.0):
         assert analyze_observability(observability_matrix(X0, T, 6)).rank == 6
     # two direction samples (4 rows) cannot observe 6 states

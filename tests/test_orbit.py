@@ -30,7 +30,7 @@ def _wrap(a):
 
 
 def test_pan_yao_elements_reproduce_r0_v0():
-    """Seed 002: a = 26,332,437.9 m, e = 0.72, i = 90 deg, RAAN = 0, argp = 13.75 deg.
+    """Pan & Yao 2017: a = 26,332,437.9 m, e = 0.72, i = 90 deg, RAAN = 0, argp = 13.75 deg.
 
     The stated M = 1.89 deg does NOT reproduce the stated r0/v0 (76 km off); r0/v0 encode
     M = 1.82195 deg (nu = 15.953 deg). With that M the elements give r0 to 0.08 m and v0 to

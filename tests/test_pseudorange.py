@@ -87,8 +87,8 @@ def test_rotation_convention():
 
 
 def test_xing_printed_design_matrix():
-    """Seed 003 prints A (Cartesian) and A' (spherical) at its epoch-1 estimate
-    (R = 999.917 m, az = -0.00519 rad, el = 0.014 rad, M21 = I); ours match to its rounding."""
+    """Xing et al. print A (Cartesian) and A' (spherical) at their epoch-1 estimate
+    (R = 999.917 m, az = -0.00519 rad, el = 0.014 rad, M21 = I); ours match to their rounding."""
     A_seed = np.array([[.9999, -.005, .0129, 1], [.9999, -.004, .0129, 1],
                        [.9999, -.004, .0139, 1], [.9999, -.005, .0149, -1],
                        [.9999, -.006, .0149, -1], [.9999, -.006, .0139, -1]])

@@ -113,7 +113,7 @@ def test_simulated_noise_matches_graph_sigma(short_sim):
 
 
 def test_cone_closed_form_exact_on_axis_and_refined_fix_exact():
-    """Seed 004 steps 51-56: with three stars symmetric about nadir (Earth centre on the cone
+    """Li et al. 2017, steps 51-56: with three stars symmetric about nadir (Earth centre on the cone
     axis) the closed form is exact; in general the refined fix recovers the position."""
     r = np.array([3.0e6, -5.5e6, 2.9e6])
     s = np.array([_grazing_star(r, 30e3, a) for a in (0.3, 0.3 + 2 * np.pi / 3, 0.3 + 4 * np.pi / 3)])

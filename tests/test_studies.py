@@ -24,7 +24,7 @@ def _table(out: Path) -> list[dict]:
 
 
 def test_pan_yao_visibility_band():
-    """Seed 002 eq. 1 (sec. 1.2): a 120-160 deg ring sees the whole Earth for 98.3-985.6 km,
+    """Pan & Yao 2017, eq. 1 (sec. 1.2): a 120-160 deg ring sees the whole Earth for 98.3-985.6 km,
     and 1,000-36,000 km needs a 17-120 deg ring."""
     lo, hi = visibility_band_m()
     assert lo / 1e3 == pytest.approx(SEED_BAND_KM[0], abs=0.05)
@@ -61,7 +61,7 @@ def test_wu_table5_study(tmp_path):
 
 
 def test_pan_yao_observability_study(tmp_path):
-    """Seed 002 table 4: rank 6 at every sample period (seed column beside ours)."""
+    """Pan & Yao 2017, table 4: rank 6 at every sample period (their column, seed_rank, beside ours)."""
     out = tmp_path / "obs"
     assert main(["campaign", "seed002-observability", "--out", str(out), "--workers", "1", "--quiet"]) == 0
     rows = _table(out)
@@ -88,7 +88,7 @@ def test_gto_nees_study_smoother_consistent(tmp_path):
 
 @pytest.mark.slow
 def test_pan_yao_table2_noise_study(tmp_path):
-    """Seed 002 table 2: errors grow with the noise; the smoother beats the EKF's RMS."""
+    """Pan & Yao 2017, table 2: errors grow with the noise; the smoother beats the EKF's RMS."""
     out = tmp_path / "noise"
     run_campaign(load_study("seed002-noise"), out, workers=2)
     rows = _table(out)
@@ -104,7 +104,7 @@ def test_pan_yao_table2_noise_study(tmp_path):
 
 @pytest.mark.slow
 def test_pan_yao_table3_period_study(tmp_path):
-    """Seed 002 table 3: the shorter the sample period, the smaller the error."""
+    """Pan & Yao 2017, table 3: the shorter the sample period, the smaller the error."""
     out = tmp_path / "period"
     run_campaign(load_study("seed002-period"), out, workers=2)
     rows = _table(out)

@@ -55,7 +55,7 @@ def test_scenario_is_the_seed_orbit_and_force_model():
 
 
 def test_triangle_removes_the_moon_parallax():
-    """Seed 001's triangle gives the Earth->Moon vector in the body frame exactly; the raw
+    """The INS/CNS lecture's triangle gives the Earth->Moon vector in the body frame exactly; the raw
     spacecraft->Moon direction differs from it by the LEO parallax (~1 deg)."""
     t, r, R, rs, rm, Ls, Lm, Le = _geometry(4)
     d_we = np.linalg.norm(r, axis=1)

@@ -111,7 +111,7 @@ def test_ellipsoid_render_and_cr_with_shape_matrix():
 
 
 def test_wu_tables_1_and_2_geometry():
-    """Seed 000 table 1 (Earth apparent diameter, R = 6,375 km, d = 100 km) and table 2
+    """Wu et al., table 1 (Earth apparent diameter, R = 6,375 km, d = 100 km) and table 2
     (limb angle from a sub-aperture boresight tilted 23.75°)."""
     alts = [4000, 8000, 10000, 16000, 20000, 36000]
     np.testing.assert_allclose(earth_apparent_diameter_deg(alts),

@@ -58,7 +58,7 @@ def cone_axis(s_eci):
 
 
 def cone_fix_candidates(s_eci, d_m):
-    """Seed 004 steps 51-56: the (up to two) positions (K, 3) m, ECI, whose Earth centre
+    """Li et al. 2017, steps 51-56: the (up to two) positions (K, 3) m, ECI, whose Earth centre
     is at distance ``a_i cos(eta) = d_i`` (m, (3,)) from each star line (module docstring)."""
     s = np.asarray(s_eci, dtype=float)
     s = s / np.linalg.norm(s, axis=1, keepdims=True)
@@ -116,7 +116,7 @@ def _sigma_h(r, s, gamma, sigma_gamma_rad, sigma_model_m, model):
 
 def refraction_direct_fix(s_eci, gamma_rad, sigma_gamma_rad, sigma_model_m, r_ref_eci_m,
                           model="exponential-seed004"):
-    """Seed 004's three-star fix at one epoch.
+    """Li et al. 2017's three-star fix at one epoch.
 
     ``s_eci`` (n, 3) catalogue directions of the refracted stars (n >= 3), ``gamma_rad``
     (n,) measured angles, their 1σ ``sigma_gamma_rad`` and model 1σ ``sigma_model_m``
@@ -189,7 +189,7 @@ class DirectFixes:
 
 
 def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
-    """Seed 004 fixes at every epoch of the pass ``p`` with >= 3 refraction rows;
+    """Li et al. 2017 fixes at every epoch of the pass ``p`` with >= 3 refraction rows;
     ``x_ref`` (N, 6) reference states (e.g. ``fgnav.solvers.batch.initial_guess``)."""
     fam = p.families.get(REFRACTION.kind)
     ks, rs, Ps = [], [], []
@@ -215,7 +215,7 @@ def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
 
 
 def sem_direct_fixes(log, first="sun"):
-    """Seed 001 direct fixes ``r = -(R_e + H) C_b^i L_we`` of a raw Sun/Earth/Moon log
+    """The INS/CNS lecture's direct fixes ``r = -(R_e + H) C_b^i L_we`` of a raw Sun/Earth/Moon log
     (:func:`fgnav.sun_earth_moon.preprocess_log`); ``k`` indexes the fix epochs themselves."""
     _, ep = preprocess_log(log, first=first)
     return DirectFixes(np.arange(len(ep.t_s)), ep.t_s, ep.r_fix_eci_m, ep.P_fix_m2)

@@ -1,15 +1,15 @@
-"""Seed 000 studies: table 3 (limb completeness vs centre accuracy) and table 5 (direct
+"""Wu et al.'s studies: table 3 (limb completeness vs centre accuracy) and table 5 (direct
 positioning error vs altitude and geocentric-vector angle error).
 
 Table 3 (Wu et al., sec. 4.1). Monte Carlo on rendered limb frames
 (:mod:`fgnav.simulate.limb_render`) through one Wu et al. sub-aperture (f = 18 mm, 11 µm,
 Φ9.8 mm = 891 px image circle), Earth centre on the boresight at 20,000 km altitude (the
-whole limb, rho = 14.0°, 408 px, fits in the 30.5° field), seed detector (90 ke- full
+whole limb, rho = 14.0°, 408 px, fits in the 30.5° field), Wu et al.'s detector (90 ke- full
 well, 1.43 e- read noise, 16 bit), Gaussian PSF 1 px. Cases: full circle; one arc of
-2/3, 1/2, 1/3 of the limb starting at position angle 15° (from image +u towards +v; the
-seed gives no orientation: this one puts the dominant error axes where Wu et al.'s x/y
+2/3, 1/2, 1/3 of the limb starting at position angle 15° (from image +u towards +v; Wu et
+al. give no orientation: this one puts the dominant error axes where Wu et al.'s x/y
 split has them); four symmetric 75° arcs centred on the diagonals (the four
-sub-apertures of fig. 9). The seed does not state its image
+sub-apertures of fig. 9). Wu et al. do not state their image
 noise; the limb signal is the one calibrated parameter (:data:`TABLE3_SIGNAL_E` = 5 e-
 per pixel, i.e. a very faint / short-exposure UV limb, SNR ~2 per pixel), chosen so that
 the ellipse fit on the full circle gives Wu et al.'s ~0.08 px scatter. The arcs are
@@ -20,7 +20,7 @@ mean direction (deg). The angle RMS about the truth, the mean predicted 1-sigma,
 normalized-error variances (covariance credibility) are reported beside.
 
 Table 5 (Wu et al., sec. 4.3). Definition of "direct positioning error" used here: the
-position is ``r = -(R/sin rho) u`` (seed eq. 12); with the true range and ``u`` off by the
+position is ``r = -(R/sin rho) u`` (Wu et al. eq. 12); with the true range and ``u`` off by the
 angle error ``dtheta`` the error is ``|r_hat - r| = 2 |r| sin(dtheta/2) ~ |r| dtheta``
 (``ours_direction_km``). Adding the range error from the limb radius, with a 1-sigma rho
 error of ``dtheta/2`` (a full-circle fit determines the radius about as well as each
@@ -57,7 +57,7 @@ TABLE3_SEED = {
     "asymmetric 1/3 arc": (3.306, 7.968, 0.597),
     "symmetric partial arcs": (0.075, 0.053, 0.006),
 }
-"""Seed 000 table 3: centre std sigma_x / sigma_y (px) and angle error 2 sigma (deg)."""
+"""Wu et al., table 3: centre std sigma_x / sigma_y (px) and angle error 2 sigma (deg)."""
 
 TABLE3_CASES = {
     "full circle": None,
@@ -81,7 +81,7 @@ TABLE5_SEED = {
     20000: (0.524, 1.676, 2.579, 3.353),
     36000: (0.834, 1.931, 2.971, 3.862),
 }
-"""Seed 000 table 5: direct positioning error (km) at angle errors 0.001/0.005/0.008/0.010°."""
+"""Wu et al., table 5: direct positioning error (km) at angle errors 0.001/0.005/0.008/0.010°."""
 
 
 def table3_frame_fixes(case: str, n_runs: int, rng: np.random.Generator, *,
@@ -158,7 +158,7 @@ def _stats(truth, fixes):
 
 def table3(n_runs: int = 500, seed: int = 0, *, cases=None, signal_e: float = TABLE3_SIGNAL_E,
            alt_m: float = TABLE3_ALT_M, methods=("ellipse", "christian-robinson")) -> list[dict]:
-    """Seed 000 table 3 by Monte Carlo (module doc). One row per (case, method).
+    """Wu et al., table 3 by Monte Carlo (module doc). One row per (case, method).
 
     Columns: case, method, n_runs, n_ok, sigma_x_px, sigma_y_px, angle_2sigma_deg (seed
     definition, about the mean), seed_sigma_x_px, seed_sigma_y_px, seed_angle_2sigma_deg,
@@ -199,7 +199,7 @@ def direct_position_error_mc(r_m: float, dtheta_rad: float, sigma_rho_rad: float
 
 def table5(alts_km=tuple(TABLE5_SEED), angle_errors_deg=TABLE5_ANGLE_ERRORS_DEG,
            r_limb_m: float = R_LIMB_UV_M) -> list[dict]:
-    """Seed 000 table 5 regenerated (module doc for the definitions). One row per
+    """Wu et al., table 5 regenerated (module doc for the definitions). One row per
     (altitude, angle error): alt_km, angle_error_deg, seed_km, ours_direction_km,
     ours_with_rho_km, lower_bound_km (= |r| sin(dtheta), the distance from the true position
     to the line of the erroneous direction: no range can do better), seed_over_bound."""

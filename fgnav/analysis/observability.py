@@ -1,7 +1,7 @@
 """Observability of the linearized orbit system over a window (Pan & Yao 2017, sec. 3.3).
 
 Pan & Yao 2017 treats the nonlinear time-varying system as piecewise linear time-invariant
-and forms the observability matrix (seed eq. 9)
+and forms the observability matrix (their eq. 9)
 
     M = [H_0; H_1 Phi(t_1, t_0); ...; H_{n-1} Phi(t_{n-1}, t_0)],   t_j = t_0 + j T,
 
@@ -13,7 +13,7 @@ residual, CONTRIBUTING.md) at the state propagated from ``x0`` (two-body + J2), 
 (the classical PWCS choice) the window is ``5 T`` long.
 
 ``cond(M)`` depends on the units of the state: the raw SI value (metres and m/s, as the
-seed computed it presumably) is reported with the unit-free value of the column-scaled
+paper computed it presumably) is reported with the unit-free value of the column-scaled
 matrix (every column normalized, Jacobi scaling). Rank is decided on the scaled matrix.
 
 The information matrix ``J = M^T M / sigma^2`` of a window and its eigen-decomposition
@@ -51,7 +51,7 @@ def _trajectory_stm(x0_eci, t_s, model, t0_j2000_s):
 
 def observability_matrix(x0_eci, period_s: float, n_samples: int = 6, model=None,
                          t0_j2000_s: float = 0.0) -> np.ndarray:
-    """Seed 002 eq. 9 for geocentric-direction measurements: (2 n, 6), rad per SI state unit.
+    """Pan & Yao 2017, eq. 9, for geocentric-direction measurements: (2 n, 6), rad per SI state unit.
 
     ``x0_eci`` (6,) [m, m/s] is the linearization point (Pan & Yao 2017 use the initial state),
     ``period_s`` the sample period T, ``n_samples`` the number of blocks.

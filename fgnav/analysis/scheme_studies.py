@@ -51,7 +51,7 @@ SEM_Q_M2_S3 = 1e-9
 """Process noise of the Sun/Earth/Moon estimators, m^2/s^3 (module docstring)."""
 
 SEM_SOURCE_FIGURES = {"direct_m": 2218.0, "ekf_position_m": 170.1429, "ekf_velocity_mps": 0.2798}
-"""Seed 001's results: direct fixes 2,218 m; EKF 170.1429 m, 0.2798 m/s."""
+"""The INS/CNS lecture's results: direct fixes 2,218 m; EKF 170.1429 m, 0.2798 m/s."""
 
 MADAN_POSITION_M = 100.0
 """MADAN (starlight refraction) orbit accuracy, 1σ, m (the INS/CNS lecture's heritage list)."""
@@ -91,7 +91,7 @@ def _truth_lookup(sim):
 
 def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2_s3=None,
                      settle_s=1800.0, cases=("both", "angle only", "model only")):
-    """Seed 004 error budget: one row (dict) per error-source case.
+    """Li et al. 2017 error budget: one row (dict) per error-source case.
 
     Each case simulates the scenario with the other source switched off (same ``seed``),
     then runs the direct fixes, the EKF and the batch smoother.
@@ -128,7 +128,7 @@ def refraction_study(seed=0, *, scenario="refraction-leo", duration_h=None, q_m2
 
 def sem_study(seed=0, *, scenario="leo-sun-earth-moon", duration_h=None, q_m2_s3=SEM_Q_M2_S3,
               settle_s=3600.0, first="sun"):
-    """Seed 001: direct fixes, EKF and smoother on one simulated pass; returns a dict."""
+    """The INS/CNS lecture's scheme: direct fixes, EKF and smoother on one simulated pass; returns a dict."""
     scn = load_scenario(scenario).with_options(duration_h=duration_h)
     sim = simulate_pass(scn, seed=seed)
     at = _truth_lookup(sim)

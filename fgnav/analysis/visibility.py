@@ -1,10 +1,10 @@
-"""Seed 002's limb-ring visibility bound (sec. 1.2, eq. 1, fig. 2).
+"""Pan & Yao 2017's limb-ring visibility bound (sec. 1.2, eq. 1, fig. 2).
 
 A UV sensor's annular (ring) field sees directions between half-angles ``theta1`` and
 ``theta2`` from its Earth-pointing boresight (a 120-160 deg ring: theta1 = 60 deg,
 theta2 = 80 deg). The limb of an Earth of radius R seen from geocentric distance ``r``
 lies at the half-angle ``rho = arcsin(R / r)`` from nadir; the whole limb is in the ring
-when ``theta1 <= rho <= theta2``, i.e. (seed eq. 1)
+when ``theta1 <= rho <= theta2``, i.e. (Pan & Yao 2017, eq. 1)
 
     R / sin(theta2) - R <= h <= R / sin(theta1) - R,       h = r - R.
 

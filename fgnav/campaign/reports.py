@@ -179,8 +179,8 @@ def _plot_navigate(table, xkey, xlabel, title, path, hline=None):
         axes[1].loglog([r[xkey] for r in t], [r["final_velocity_mps"] for r in t], "o-", label=f"{method} final")
         axes[1].loglog([r[xkey] for r in t], [r["velocity_rms_mps"] for r in t], "s--", label=f"{method} RMS")
     if hline:
-        axes[0].axhline(hline[0], color="k", lw=0.8, ls=":", label="seed bound")
-        axes[1].axhline(hline[1], color="k", lw=0.8, ls=":", label="seed bound")
+        axes[0].axhline(hline[0], color="k", lw=0.8, ls=":", label="Pan & Yao 2017 bound")
+        axes[1].axhline(hline[1], color="k", lw=0.8, ls=":", label="Pan & Yao 2017 bound")
     axes[0].set(xlabel=xlabel, ylabel="position error (km)", title=title)
     axes[1].set(xlabel=xlabel, ylabel="velocity error (m/s)")
     for a in axes:
@@ -204,11 +204,13 @@ def report_noise(study, rows, out):
 
     table = _navigate_table(rows, "sigma_deg", seed_cols)
     bound = ("." if ref is None else
-             f"; the seed states that noise <= {ref.max_sigma_deg:g} deg keeps errors < {ref.final_position_km:g} km "
-             f"and < {ref.final_velocity_mps:g} m/s (bound columns).")
-    notes = _notes(study, "Seed 002 table 2 (final errors after 4 h): its numbers are not in the source text" + bound,
-                   f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
-    files = _write_table(out, table, "Seed 002 table 2: direction noise vs navigation error", notes)
+             f"; Pan & Yao 2017 state that noise <= {ref.max_sigma_deg:g} deg keeps errors "
+             f"< {ref.final_position_km:g} km and < {ref.final_velocity_mps:g} m/s (bound columns).")
+    notes = _notes(study, "Pan & Yao 2017, table 2 (final errors after 4 h): its numbers are not in the source "
+                   "text" + bound,
+                   f"Fixed parameters: {dict(study.fixed)}; random seeds {list(study.seeds)}. Errors are means "
+                   "over the random seeds.")
+    files = _write_table(out, table, "Pan & Yao 2017, table 2: direction noise vs navigation error", notes)
     files.append(_plot_navigate(table, "sigma_deg", "direction noise 1-sigma (deg)", "Pan & Yao 2017, table 2",
                                 out / "plot.png",
                                 hline=None if ref is None else (ref.final_position_km, ref.final_velocity_mps)))
@@ -219,9 +221,11 @@ def report_period(study, rows, out):
     """Sample period vs navigation error, beside :class:`PeriodReference`'s statement."""
     ref: PeriodReference | None = study.reference
     table = _navigate_table(rows, "step_s", lambda x, r: {"seed_value": None if ref is None else ref.seed_value})
-    notes = _notes(study, "Seed 002 table 3 (sample period 0.1/1/10/100 s, 500 m / 0.05 m/s initial error, 0.01 deg).",
-                   f"Fixed parameters: {dict(study.fixed)}; seeds {list(study.seeds)}. Errors are means over seeds.")
-    files = _write_table(out, table, "Seed 002 table 3: sample period vs navigation error", notes)
+    notes = _notes(study, "Pan & Yao 2017, table 3 (sample period 0.1/1/10/100 s, 500 m / 0.05 m/s initial error, "
+                   "0.01 deg); seed_value: what they state.",
+                   f"Fixed parameters: {dict(study.fixed)}; random seeds {list(study.seeds)}. Errors are means over "
+                   "the random seeds.")
+    files = _write_table(out, table, "Pan & Yao 2017, table 3: sample period vs navigation error", notes)
     files.append(_plot_navigate(table, "step_s", "sample period (s)", "Pan & Yao 2017, table 3", out / "plot.png"))
     return files
 
@@ -237,11 +241,12 @@ def report_observability(study, rows, out):
                       "window_h": r["window_h"], "window_info_condition": r["window_info_condition"],
                       "weakest_sigma_m": r["weakest_sigma_m"], "weakest_direction": r["weakest_direction"]})
     rank = "" if ref is None else f"rank {ref.rank} at every period and "
-    notes = _notes(study, f"Seed 002 table 4: {rank}a condition number growing with the period "
-                   "(its numbers are not in the source text). condition_raw/scaled: eq. 9 with 6 blocks "
-                   "(window 5 T) at the seed's initial state; window_info_*: information of the initial state "
-                   "from all samples over a fixed window (1-sigma of the weakest direction, velocity x 1000 s).")
-    files = _write_table(out, table, "Seed 002 table 4: observability vs sample period", notes)
+    notes = _notes(study, f"Pan & Yao 2017, table 4: {rank}a condition number growing with the period "
+                   "(seed_rank: theirs; their condition numbers are not in the source text, so seed_condition is "
+                   "empty). condition_raw/scaled: their eq. 9 with 6 blocks (window 5 T) at their initial state; "
+                   "window_info_*: information of the initial state from all samples over a fixed window (1-sigma "
+                   "of the weakest direction, velocity x 1000 s).")
+    files = _write_table(out, table, "Pan & Yao 2017, table 4: observability vs sample period", notes)
     fig, axes = _figure(2)
     T = [r["step_s"] for r in table]
     axes[0].loglog(T, [r["condition_raw"] for r in table], "o-", label="cond(M), SI units")
@@ -282,11 +287,12 @@ def report_visibility(study, rows, out):
     for r in table:
         cols += [k for k in r if k not in cols]
     table = [{c: r.get(c) for c in cols} for r in table]
-    notes = _notes(study, f"Seed 002 eq. 1: a {ring[0]:g}-{ring[1]:g} deg limb ring sees the whole Earth for "
-                   f"R/sin({ring[1] / 2:g} deg) - R <= h <= R/sin({ring[0] / 2:g} deg) - R. Rows after the bands: "
+    notes = _notes(study, f"Pan & Yao 2017, eq. 1: a {ring[0]:g}-{ring[1]:g} deg limb ring sees the whole Earth for "
+                   f"R/sin({ring[1] / 2:g} deg) - R <= h <= R/sin({ring[0] / 2:g} deg) - R (seed_band_*: their "
+                   "band). Rows after the bands: "
                    "passes navigated with the ring's direction + limb radius at every epoch (all) vs only when the "
                    "limb is inside the ring.")
-    files = _write_table(out, table, "Seed 002: limb-ring visibility bound", notes)
+    files = _write_table(out, table, "Pan & Yao 2017: limb-ring visibility bound", notes)
     r0_km, lo, hi = bands[0]
     fig, ax = _figure(1)
     h = np.linspace(50e3, 40000e3, 600)
@@ -316,9 +322,10 @@ def report_table5(study, rows, out):
         t["seed_over_bound"] = None if seed is None else float(seed / t["lower_bound_km"])
         table.append(t)
     table.sort(key=lambda r: (r["alt_km"], r["angle_error_deg"]))
-    notes = _notes(study, "Seed 000 table 5 via fgnav.analysis.limb_method_study.table5 (definitions in its docstring); "
-                   "ours_mc_km: Monte Carlo of r = -(R/sin rho) u with the same errors (2000 draws).")
-    files = _write_table(out, table, "Seed 000 table 5: direct positioning error", notes)
+    notes = _notes(study, "Wu et al., table 5 via fgnav.analysis.limb_method_study.table5 (definitions in its "
+                   "docstring); seed_km: their figures; ours_mc_km: Monte Carlo of r = -(R/sin rho) u with the "
+                   "same errors (2000 draws).")
+    files = _write_table(out, table, "Wu et al., table 5: direct positioning error", notes)
     fig, ax = _figure(1)
     for alt in sorted({r["alt_km"] for r in table}):
         t = [r for r in table if r["alt_km"] == alt]
@@ -327,7 +334,7 @@ def report_table5(study, rows, out):
         s = [r for r in t if r["seed_km"] is not None]
         ax.plot([r["angle_error_deg"] for r in s], [r["seed_km"] for r in s], "x:", color=line.get_color())
     ax.set(xlabel="angle error (deg)", ylabel="direct positioning error (km)",
-           title="Wu et al., table 5 (x: random seed)")
+           title="Wu et al., table 5 (x: their figures)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
     files.append(_save_plot(fig, out / "plot.png"))
@@ -373,8 +380,8 @@ def report_nees(study, rows, out):
     notes = _notes(study, "NEES of the 6-D state against truth (independent DOP853); ANEES over runs at the final and "
                    f"middle epochs with the two-sided {pct} chi-square band chi2(6R)/R; epochs_inside_band: "
                    f"fraction of epochs whose ANEES lies in that band (about {1.0 - ref.alpha:g} if consistent; "
-                   "epochs of one run are correlated). EKF rows are the filtered (causal) estimates. No seed value "
-                   "exists (the seeds give no consistency test).")
+                   "epochs of one run are correlated). EKF rows are the filtered (causal) estimates. seed_value is "
+                   "empty: the source studies give no consistency test.")
     files = _write_table(out, table, "NEES / ANEES consistency", notes)
     fig, ax = _figure(1)
     lo = hi = None

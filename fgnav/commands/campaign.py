@@ -11,7 +11,8 @@ def register(sub):
                     "OUT/runs.csv at once, so an interrupted campaign loses nothing; --resume skips "
                     "the finished runs. When all runs are done the study's table (table.csv, "
                     "table.md) and plot (plot.png) are written to OUT.")
-    p.add_argument("study", nargs="?", help="built-in study name (e.g. seed002-noise) or a study .toml")
+    p.add_argument("study", nargs="?", help="built-in study name (e.g. seed002-noise: Pan & Yao 2017, "
+                                            "table 2; --list shows all) or a study .toml")
     p.add_argument("--out", help="(required) output directory (runs.csv, table.csv/.md, plot.png)")
     p.add_argument("--workers", type=T.integer(1), default=None,
                    help="local worker processes (default: CPU count; 1 = run in this process)")

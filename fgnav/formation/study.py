@@ -69,7 +69,7 @@ def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
 
     Xing et al.'s epoch-1 geometry; each run draws six pseudorange errors N(0, sigma_m^2),
     solves by Gauss–Newton (from R = 1992 m) and compares |R_hat - R_true| with that run's
-    sigma_R = sqrt(P_RR) at its estimate (seed: 120 runs, 67.5 %; Gaussian 68.27 %).
+    sigma_R = sqrt(P_RR) at its estimate (Xing et al.: 120 runs, 67.5 %; Gaussian 68.27 %).
     Returns ``(fraction, errors (runs,), sigmas (runs,))``.
     """
     rng = np.random.default_rng(seed)

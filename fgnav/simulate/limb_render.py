@@ -61,7 +61,7 @@ class DetectorModel:
 
 
 CONFOCAL_DETECTOR = DetectorModel()
-"""Seed 000, sec. 3.2: 90 ke- peak, > 96 dB dynamic range (read noise 1.43 e-), 16 bit."""
+"""Wu et al., sec. 3.2: 90 ke- peak, > 96 dB dynamic range (read noise 1.43 e-), 16 bit."""
 
 
 @dataclass(frozen=True)

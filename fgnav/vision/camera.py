@@ -117,8 +117,8 @@ class PinholeCamera:
 
 
 CONFOCAL_STAR_CAMERA = PinholeCamera(focal_mm=50.0, pixel_um=11.0, width_px=2048, height_px=2048)
-"""Seed 000 centre (star) field: f = 50 mm on the 2048x2048, 11 µm detector (FOV ~25.7°
+"""Wu et al.'s centre (star) field: f = 50 mm on the 2048x2048, 11 µm detector (FOV ~25.7°
 over the full detector; the star field uses the central >= 8° of it)."""
 
 CONFOCAL_LIMB_CAMERA = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_px=2048, height_px=2048)
-"""Seed 000 UV limb sub-aperture optics: f = 18 mm, 11 µm pixels (FOV 30.5° per sub-aperture)."""
+"""Wu et al.'s UV limb sub-aperture optics: f = 18 mm, 11 µm pixels (FOV 30.5° per sub-aperture)."""

@@ -187,7 +187,7 @@ def conic_to_ellipse(P):
 
 
 def ellipse_to_direction(xc, yc, a, phi, f):
-    """Seed 000 eqs. 3-8 on the virtual image plane: (u_cam (3,), rho, eta, (xe, ye))."""
+    """Wu et al. eqs. 3-8 on the virtual image plane: (u_cam (3,), rho, eta, (xe, ye))."""
     cp, sp = np.cos(phi), np.sin(phi)
     xm = cp * xc + sp * yc                          # eq. 3
     ym = -sp * xc + cp * yc
@@ -225,7 +225,7 @@ def conic_point_sensitivity(aux, normals_xy):
 
 
 def horizon_ellipse(points: LimbPoints, camera: PinholeCamera, r_limb_m: float = R_LIMB_UV_M) -> HorizonFix:
-    """Seed 000 ellipse-fit horizon fix from (inlier) limb points (see module doc)."""
+    """Wu et al.'s ellipse-fit horizon fix from (inlier) limb points (see module doc)."""
     pts = points.inliers() if not np.all(points.inlier) else points
     xy, _ = _focal_plane(camera, pts.uv_px)
     f = camera.f_px

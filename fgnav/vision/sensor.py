@@ -1,4 +1,4 @@
-"""Seed 000 Earth/star confocal-plane sensor: four UV limb sub-apertures + a star field.
+"""Wu et al.'s Earth/star confocal-plane sensor: four UV limb sub-apertures + a star field.
 
 Wu et al. sec. 3.3: one 2048x2048 detector with 11 µm pixels shared by a centre star field
 (f = 50 mm, FOV >= 8°, image circle 7 mm) and four identical UV limb sub-apertures
@@ -7,7 +7,7 @@ on the diagonals). The star boresight looks away from the Earth; the limb sub-ap
 look towards it, each boresight tilted from the Earth-pointing axis so that the four
 30.5° fields together see the limb for Earth diameters 17°–78° (altitudes 36,000–4,000 km).
 
-Tilt: the limb half-angle ``omega = asin((R + d)/(R + H))`` (seed eq. 14, R = 6,375 km,
+Tilt: the limb half-angle ``omega = asin((R + d)/(R + H))`` (Wu et al. eq. 14, R = 6,375 km,
 d = 0–100 km) spans 8.5°–39°; a sub-aperture whose boresight is tilted by
 ``(8.5° + 39°)/2 = 23.75°`` from the nadir covers it with its +-15.25° half-field. This
 reproduces Wu et al.'s table 2 "lens field" column (limb angle from the sub-aperture
@@ -37,7 +37,7 @@ CONFOCAL_LIMB_FOV_RAD = 30.5 * DEG
 """Full field of one limb sub-aperture (rad)."""
 CONFOCAL_SUBAPERTURE_CAMERA = PinholeCamera(focal_mm=18.0, pixel_um=11.0, width_px=891, height_px=891)
 """One limb sub-aperture on its own: f = 18 mm, 11 µm, image circle Φ9.8 mm (891 px) in a
-891x891 window, principal point at its centre (seed eq. 15: f' = 4.9 / tan(15.25°))."""
+891x891 window, principal point at its centre (Wu et al. eq. 15: f' = 4.9 / tan(15.25°))."""
 CONFOCAL_STAR_FIELD_CAMERA = CONFOCAL_STAR_CAMERA
 """Centre star field: f = 50 mm, 11 µm pixels (the central Φ7 mm of the detector)."""
 CONFOCAL_LIMB_LAYER_M = (0.0, 100.0e3)
@@ -48,12 +48,12 @@ Wu et al.'s planned Φ17°–Φ78° limb field (its table 2 "lens field" = omega
 
 
 def limb_half_angle_rad(alt_m, r_limb_m: float = R_LIMB_UV_M, layer_m: float = 0.0):
-    """Seed eq. 14: ``omega = asin((R + d) / (R + H))`` (rad); alt_m = H above R."""
+    """Wu et al. eq. 14: ``omega = asin((R + d) / (R + H))`` (rad); alt_m = H above R."""
     return np.arcsin((r_limb_m + layer_m) / (r_limb_m + np.asarray(alt_m, float)))
 
 
 def earth_apparent_diameter_deg(alt_km, layer_km: float = 100.0) -> np.ndarray:
-    """Seed table 1: Earth apparent diameter (deg) at altitude ``alt_km`` (limb layer d)."""
+    """Wu et al. table 1: Earth apparent diameter (deg) at altitude ``alt_km`` (limb layer d)."""
     return 2.0 * np.degrees(limb_half_angle_rad(np.asarray(alt_km) * 1e3, layer_m=layer_km * 1e3))
 
 
