@@ -30,7 +30,8 @@ import numpy as np
 from factors.adapters import custom_factor, rot3_matrix, vector_state
 from factors.geometry import skew, so3_exp, so3_log, so3_right_jacobian_inv
 
-__all__ = ["so3_right_jacobian", "gyro_residual", "make_gyro_factor"]
+__all__ = ["so3_right_jacobian", "gyro_residual", "make_gyro_factor",
+           "make_gyro_factor_without_bias"]
 
 
 def so3_right_jacobian(omega):
@@ -89,3 +90,18 @@ def make_gyro_factor(key0, key1, key_b, omega_rad_s, dt_s, sigma_rad):
     dt = np.array([float(dt_s)])
     return custom_factor([key0, key1, key_b], sigma_rad,
                          functools.partial(_gyro, int(key0), int(key1), int(key_b), omega, dt), dim=3)
+
+
+def _gyro_nobias(key0, key1, omega, dt, values):
+    R0 = rot3_matrix(values, key0)[None]
+    R1 = rot3_matrix(values, key1)[None]
+    e, H0, H1, _ = gyro_residual(R0, R1, np.zeros((1, 3)), omega, dt)
+    return e[0], [H0[0], H1[0]]
+
+
+def make_gyro_factor_without_bias(key0, key1, omega_rad_s, dt_s, sigma_rad):
+    """The gyro factor with the bias known to be zero (a calibrated gyro): on two Rot3 keys."""
+    omega = np.asarray(omega_rad_s, dtype=float).reshape(1, 3)
+    dt = np.array([float(dt_s)])
+    return custom_factor([key0, key1], sigma_rad,
+                         functools.partial(_gyro_nobias, int(key0), int(key1), omega, dt), dim=3)

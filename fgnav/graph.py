@@ -99,6 +99,9 @@ class Rows:
     residuals: dict          # kind -> (M, m) whitened residuals e/sigma (no weights)
     row_kind: np.ndarray     # (R,) kind of each row ('prior_<variable>' for variable priors)
     weights: dict            # kind -> (M,) robust weight of each measurement (1 without)
+    # rows of between models (a row at epoch k on the blocks of k - 1 and k), by step k - 1:
+    # (k_step (S,), A0 (S, n), A1 (S, n), b (S,)), sorted by step
+    steps: tuple | None = None
 
 
 def variable_prior_rows(p, X):
@@ -136,12 +139,28 @@ def linearize_all(p, X, robust=None, rejected=None) -> Rows:
     X = _block(p, X)
     n = layout_of(p).n
     ks, As, bs, res, tags, wts = [], [], [], {}, [], {}
+    st_k, st_A0, st_A1, st_b = [], [], [], []
     for kind, fam in p.families.items():
         if not enters(p, kind):
             continue
         mdl = model(kind)
-        A, b, _ = mdl.linearize(fam, X, layout_of(p))
         m = mdl.dim
+        if mdl.between:
+            A0, A1, b, _ = mdl.linearize_between(fam, X, layout_of(p), p.t_s)
+            res[kind] = -b.reshape(len(fam), m)
+            w = np.ones(len(fam))
+            if robust is not None and mdl.robust:
+                w = robust.weights(np.linalg.norm(b.reshape(len(fam), m), axis=1))
+            if rejected is not None and kind in rejected:
+                w = np.where(rejected[kind], 0.0, w)
+            sw = np.sqrt(w)
+            wts[kind] = w
+            st_k.append(np.repeat(fam.k - 1, m))
+            st_A0.append((A0 * sw[:, None, None]).reshape(-1, n))
+            st_A1.append((A1 * sw[:, None, None]).reshape(-1, n))
+            st_b.append((b * sw[:, None]).reshape(-1))
+            continue
+        A, b, _ = mdl.linearize(fam, X, layout_of(p))
         res[kind] = -b.reshape(len(fam), m)  # whitened residual e/sigma
         if robust is not None and mdl.robust:
             w = robust.weights(np.linalg.norm(b.reshape(len(fam), m), axis=1))
@@ -167,8 +186,14 @@ def linearize_all(p, X, robust=None, rejected=None) -> Rows:
     tags.append(tv)
     k = np.concatenate(ks)
     order = np.argsort(k, kind="stable")
+    steps = None
+    if st_k:
+        sk = np.concatenate(st_k)
+        so = np.argsort(sk, kind="stable")
+        steps = (sk[so], np.concatenate(st_A0)[so], np.concatenate(st_A1)[so],
+                 np.concatenate(st_b)[so])
     return Rows(k[order], np.concatenate(As)[order], np.concatenate(bs)[order], res,
-                np.concatenate(tags)[order], wts)
+                np.concatenate(tags)[order], wts, steps)
 
 
 def factors_for_rows(p, kind, rows, k, robust=None, x_guess=None):
@@ -178,7 +203,7 @@ def factors_for_rows(p, kind, rows, k, robust=None, x_guess=None):
     measurement but the priors. ``x_guess``: the orbit state's first guess (6,), for noise
     that depends on geometry (as in the batch route).
     """
-    return model(kind).factors(p.families[kind], rows, k, layout_of(p), robust, x_guess)
+    return model(kind).factors(p.families[kind], rows, k, layout_of(p), robust, x_guess, p.t_s)
 
 
 def orbit_rows(p, kind, fam, x_orbit, variables=None):

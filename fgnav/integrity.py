@@ -39,6 +39,7 @@ from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family, orbit_rows
+from fgnav.models.registry import model as model_of
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
@@ -502,7 +503,8 @@ def filter_normalized_innovations(p, sol, model) -> dict:
             P_blk[1:, sl, sl] = Pv[:-1] + np.eye(v.dim) * (v.step_sigma(dt) ** 2)[:, None, None]
     out = {}
     for kind, r in sol.residuals.items():
-        if not enters(p, kind) or kind in PRIOR_KINDS or kind not in p.families:
+        if not enters(p, kind) or kind in PRIOR_KINDS or kind not in p.families or \
+                model_of(kind).between:
             out[kind] = r
             continue
         fam = p.families[kind]

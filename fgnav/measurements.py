@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.models.registry import ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, variable
+from fgnav.models.registry import (ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, VARIABLES,
+                                   variable)
 from fgnav.models.variables import ORBIT, Layout
 
 
@@ -61,6 +62,9 @@ class Pass:
     # directions, attitude rows: the attitude); until then they enter through a conversion
     # (body -> ECI with the measured attitude), see build_pass and with_estimates.
     deferred: dict[str, Family] = field(default_factory=dict)
+    # body-frame rows at epochs without an attitude row: kind -> their source lines (they
+    # enter only with the attitude estimated)
+    unconverted: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def n_epochs(self) -> int:
@@ -102,6 +106,11 @@ def build_pass(log) -> Pass:
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings))
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
+        if mdl.between and len(i) and np.any(k_of_row[i] == 0):
+            # a row at the first epoch has no interval before it in the log
+            p.warnings.append(f"{kind}: {int(np.sum(k_of_row[i] == 0))} row(s) at the first "
+                              f"epoch ignored (no earlier epoch to start the interval)")
+            i = i[k_of_row[i] > 0]
         if not len(i):
             continue
         fam = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i], line=lines[i])
@@ -117,11 +126,13 @@ def build_pass(log) -> Pass:
         i = np.flatnonzero(kinds == body_kind)
         if mdl.body_frame_of is None or not len(i):
             continue
-        missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_at]
-        if missing:
-            raise UserError(
-                f"{log.path}: {body_kind} rows need an '{ATTITUDE.kind}' row at the same epoch; "
-                f"none for line(s) {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+        has_att = np.array([int(k_of_row[j]) in att_at for j in i], dtype=bool)
+        if not has_att.all():
+            # usable only with the attitude estimated (gyro or star rows carry it across)
+            p.unconverted[body_kind] = lines[i[~has_att]]
+            i = i[has_att]
+            if not len(i):
+                continue
         ja = np.array([att_at[int(k_of_row[j])] for j in i])
         u_eci = np.einsum("mij,mj->mi", att.values["R_eci_from_body"][ja], xyz[i])
         sig = np.hypot(sigma[i], att.sigma[ja])
@@ -172,18 +183,21 @@ def _with_variable(p: Pass, name: str) -> Pass:
 def with_estimates(p: Pass, estimate=()) -> Pass:
     """The pass with the graph variables named in ``estimate`` (e.g. ``refraction-bias``)
     added to every epoch's block; each must be declared by a model with rows in the pass."""
-    variables = [ORBIT]
-    for name in estimate or ():
-        v = variable(name)
+    requested = [variable(name) for name in estimate or ()]
+    for v in requested:
         if any(MODELS[k].requires == v.name for k in p.deferred):
             p = _with_variable(p, v.name)
+    # the registry's order, whatever the order of the options
+    variables = [ORBIT] + [v for v in VARIABLES.values() if v in requested and v != ORBIT]
+    for v in variables[1:]:
         users = [k for k in p.families if v in MODELS[k].optional_variables]
         if not users:
             declared = [k for k, m in MODELS.items() if v in m.optional_variables]
+            needs = sorted({f"--estimate {VARIABLES[MODELS[k].requires].cli_name}"
+                            for k in declared if k in p.deferred and MODELS[k].requires})
             raise UserError(f"--estimate {v.cli_name}: {p.source} has no rows that depend on it "
-                            f"(it is used by {', '.join(declared)})")
-        if v not in variables:
-            variables.append(v)
+                            f"(it is used by {', '.join(declared)})"
+                            + (f"; its rows there enter with {' and '.join(needs)}" if needs else ""))
     return dataclasses.replace(p, layout=Layout(tuple(variables)))
 
 
@@ -193,6 +207,13 @@ def check_observable(p: Pass, require_prior: bool = True) -> None:
     ``require_prior=False``: the orbit will start from the measurements
     (:mod:`fgnav.initial_orbit`), so only the measurements are checked here.
     """
+    for kind, lines in p.unconverted.items():
+        if not p.layout.has(MODELS[kind].requires or ""):
+            raise UserError(
+                f"{p.source}: {kind} rows need an '{ATTITUDE.kind}' row at the same epoch, or "
+                f"the attitude estimated (--estimate attitude, with gyro or attitude rows to "
+                f"carry it); none for line(s) {list(map(int, lines[:5]))}"
+                f"{' ...' if len(lines) > 5 else ''}")
     observing = [k for k in p.families if k in MODELS and MODELS[k].observes_orbit]
     n_obs = sum(p.count(k) for k in observing)
     if not require_prior and n_obs == 0:

@@ -30,7 +30,7 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 with_estimates)
-from fgnav.models.registry import variable
+from fgnav.models.registry import ATTITUDE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
@@ -157,10 +157,16 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     returned as is.
     """
     from_data = ignore_prior or not has_prior(p)
-    check_observable(p, require_prior=not from_data)
-    if tuple(v.cli_name for v in p.layout.extra) != tuple(
-            variable(n).cli_name for n in options.estimate):
+    if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
         p = with_estimates(p, options.estimate)
+    for kind, fam in p.deferred.items():
+        mdl = MODELS[kind]
+        if mdl.body_frame_of is None and kind != ATTITUDE.kind and not p.layout.has(mdl.requires):
+            note = (f"{len(fam)} {kind} rows not used: they enter with --estimate "
+                    f"{variable(mdl.requires).cli_name}")
+            if note not in p.warnings:
+                p.warnings.append(note)
+    check_observable(p, require_prior=not from_data)
     if gap_factor is None or p.inserted is not None:
         return p
 

@@ -31,6 +31,7 @@ epoch,kind,x,y,z,sigma,gamma,sigma_model_m
 2024-03-01T00:00:20Z,moon_direction_body,0,1,0,1e-3,,
 2024-03-01T00:00:30Z,refraction,0,0.6,0.8,1e-6,1.5e-4,250
 2024-03-01T00:00:40Z,refraction,0,0.8,0.6,1e-6,1.1e-4,
+2024-03-01T00:00:40Z,gyro,1e-3,-2e-4,0,1e-6,,
 """
 
 
@@ -51,7 +52,7 @@ def test_read_valid_log_all_kinds(tmp_path):
     log = read_log(_write(tmp_path, VALID))
     assert set(log.kind) == set(KINDS)
     assert log.epoch0 == parse_utc("2024-03-01T00:00:00Z")
-    assert len(log) == 11
+    assert len(log) == 12
     np.testing.assert_array_equal(log.epochs_unique(), [0.0, 10.5, 20.0, 30.0, 40.0])
     i = log.select("prior_position")
     np.testing.assert_array_equal(log.xyz[i], [[7000000.0, -12.5, 3250.0]])

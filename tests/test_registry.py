@@ -21,13 +21,14 @@ import pytest
 from fgnav.io import log_csv
 from fgnav.graph import initial_block
 from fgnav.measurements import Pass, build_pass, with_estimates
-from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION,
+from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION, GYRO_BIAS,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    simulated_kinds, solved_models)
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers import ekf_numba
+from gyro_log import with_gyro
 
 ROOT = Path(__file__).resolve().parents[1]
 REGISTRY = "fgnav/models/registry.py"
@@ -101,7 +102,10 @@ def sim_pass():
                SensorSpec(EARTH_DIRECTION_BODY.kind, sigma_deg=0.02, period_s=60.0),
                *base.sensors)
     sim = simulate_pass(base.with_options(sensors=sensors, duration_h=0.1), seed=3)
-    p = with_estimates(build_pass(sim.log), (ATTITUDE_VARIABLE.name,))
+    # and a rate gyro between consecutive epochs (attitude rows thinned to one epoch in six)
+    log, _ = with_gyro(sim.log, sim.t_s, sim.x_true, np.array([1e-4, -5e-5, 8e-5]), 1e-6,
+                       np.random.default_rng(5))
+    p = with_estimates(build_pass(log), (ATTITUDE_VARIABLE.name, GYRO_BIAS.name))
     x_true = sim.x_true[np.searchsorted(sim.t_s, p.t_s)]
     # a plausible state off the truth (residuals well away from zero)
     rng = np.random.default_rng(11)
@@ -120,8 +124,9 @@ def _layout(mdl):
 def _block(layout, x_orbit, att):
     X = layout.initial(x_orbit)
     for i, v in enumerate(layout.extra):
-        # e.g. a 40 m refraction bias; an attitude near the measured one
-        X[:, layout.slices[v.name]] = att if v.manifold == "rot3" else 40.0 * (i + 1)
+        # an attitude near the measured one; a bias at half its prior sigma (500 m of
+        # refraction bias, 5e-4 rad/s of gyro bias)
+        X[:, layout.slices[v.name]] = att if v.manifold == "rot3" else 0.5 * v.prior_sigma
     return X
 
 
@@ -135,7 +140,7 @@ def test_the_pass_has_a_family_of_every_solved_model(sim_pass):
     assert not missing, f"add a sensor of {missing} to the sim_pass fixture"
 
 
-@pytest.mark.parametrize("kind", [m.kind for m in solved_models(MODELS)])
+@pytest.mark.parametrize("kind", [m.kind for m in solved_models(MODELS) if not m.between])
 def test_model_residual_jacobians_and_dim_agree(sim_pass, kind):
     p, x, att = sim_pass
     mdl = MODELS[kind]
@@ -162,7 +167,7 @@ def test_model_residual_jacobians_and_dim_agree(sim_pass, kind):
                                    err_msg=f"{kind}: column {c}")
 
 
-@pytest.mark.parametrize("kind", [m.kind for m in solved_models(MODELS)])
+@pytest.mark.parametrize("kind", [m.kind for m in solved_models(MODELS) if not m.between])
 def test_model_factor_linearizes_to_the_model_rows(sim_pass, kind):
     gtsam = pytest.importorskip("gtsam")
     p, x, att = sim_pass
@@ -224,3 +229,54 @@ def test_every_numba_kernel_is_dispatched_and_matches_the_numpy_rows(sim_pass):
             np.testing.assert_allclose(b[:n], b_np[j], rtol=1e-9, atol=1e-12, err_msg=mdl.kind)
             np.testing.assert_allclose(A[:n], A_np[j], rtol=1e-9,
                                        atol=1e-12 * np.abs(A_np[j]).max(), err_msg=mdl.kind)
+
+
+@pytest.mark.parametrize("kind", [m.kind for m in solved_models(MODELS) if m.between])
+def test_between_model_jacobians_and_factor(sim_pass, kind):
+    """A model whose rows join two epochs (a gyro interval): central differences in every
+    column of both blocks, and its GTSAM factor linearizes to the same rows."""
+    gtsam = pytest.importorskip("gtsam")
+    p, x, att = sim_pass
+    mdl = MODELS[kind]
+    # rows ending at odd epochs: their intervals share no epoch, so one perturbation of all
+    # of them differentiates each row alone
+    fam = p.families[kind].subset(np.flatnonzero(p.families[kind].k % 2 == 1))
+    layout = _layout(mdl)
+    X = _block(layout, x, att)
+    e, H0, H1, dt = mdl.evaluate_between(fam, X, layout, p.t_s)
+    assert e.shape == (len(fam), mdl.dim) and np.any(e != 0.0) and np.all(dt > 0)
+    steps = np.concatenate([np.full(v.dim, 1e-6 if v.manifold == "rot3" else
+                                    (1e-7 if v.unit == "rad/s" else 1.0)) for v in layout.variables])
+    for H, shift in ((H0, -1), (H1, 0)):
+        for c in range(layout.n):
+            dX = np.zeros_like(X)
+            dX[fam.k + shift, c] = steps[c]
+            e_p = mdl.evaluate_between(fam, layout.retract(X, dX), layout, p.t_s)[0]
+            e_m = mdl.evaluate_between(fam, layout.retract(X, -dX), layout, p.t_s)[0]
+            np.testing.assert_allclose((e_p - e_m) / (2 * steps[c]), H[..., c], rtol=1e-5,
+                                       atol=1e-7 * max(np.abs(H).max(), 1e-300),
+                                       err_msg=f"{kind}: block {shift}, column {c}")
+    A0, A1, b, _ = mdl.linearize_between(fam, X, layout, p.t_s)
+    for j in sorted({0, len(fam) // 2, len(fam) - 1}):
+        k = int(fam.k[j])
+        values = gtsam.Values()
+        for kk in (k - 1, k):
+            for name, key in mdl.keys(layout, kk).items():
+                _insert(gtsam, values, key, layout.variables[layout.names.index(name)],
+                        X[kk, layout.slices[name]])
+        (factor,) = mdl.factors(fam, [j], k, layout, t_s=p.t_s)
+        lin = factor.linearize(values)
+        A_g, b_g = lin.jacobian()
+        np.testing.assert_allclose(b_g, b[j], rtol=1e-9, atol=1e-12)
+        where = {}
+        for kk, A in ((k - 1, A0), (k, A1)):
+            for name, key in mdl.keys(layout, kk).items():
+                where[key] = (A[j], layout.slices[name])
+        col = 0
+        for key in lin.keys():
+            A, sl = where[key]
+            width = sl.stop - sl.start
+            np.testing.assert_allclose(A_g[:, col:col + width], A[:, sl], rtol=1e-7,
+                                       atol=1e-9 * np.abs(A).max(), err_msg=f"{kind} row {j}")
+            col += width
+        assert col == A_g.shape[1]

@@ -14,7 +14,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from fgnav.graph import factors_for_rows, initial_block, linearize_family
+from fgnav.graph import factors_for_rows, initial_block, linearize_all, linearize_family
 from fgnav.measurements import build_pass, with_estimates
 from fgnav.models.registry import MODELS
 from fgnav.scenarios import SensorSpec, load_scenario
@@ -37,7 +37,7 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
 
 
 def test_every_model_that_enters_the_graphs_is_covered():
-    covered = {k for _, _, kinds, _ in CASES.values() for k in kinds}
+    covered = {k for _, _, kinds, _ in CASES.values() for k in kinds} | {"gyro"}
     solved = {k for k, m in MODELS.items() if m.solved}
     assert solved <= covered, f"add a case carrying {sorted(solved - covered)} to CASES"
 
@@ -90,3 +90,47 @@ def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
                                    err_msg=f"{kind} row {j}: whitened Jacobian")
         np.testing.assert_allclose(b_i, b_b[j], rtol=1e-9, atol=1e-9,
                                    err_msg=f"{kind} row {j}: whitened right-hand side")
+
+
+def test_batch_and_isam2_routes_agree_between_epochs():
+    """Rows that join two epochs (a gyro interval): the batch route's step rows
+    (``Rows.steps``, stacked under the motion rows) and the iSAM2 factor on the keys of both
+    epochs give the same whitened blocks."""
+    from gyro_log import with_gyro
+
+    log, t, x = F.clean("refraction-leo", duration_h=0.2, **CASES["attitude"][1])
+    log, _ = with_gyro(log, t, x, np.array([1e-4, -5e-5, 8e-5]), 1e-6, np.random.default_rng(3))
+    p = with_estimates(build_pass(log), ("attitude", "gyro-bias"))
+    lay = p.layout
+    rng = np.random.default_rng(8)
+    X_eval = initial_block(p, x[np.searchsorted(t, p.t_s)])[0]
+    scale = np.concatenate([[2e3] * 3, [1.0] * 3] + [np.full(v.dim, 0.01 if v.manifold == "rot3"
+                                                             else 1e-4) for v in lay.extra])
+    X_eval += rng.normal(0, 1, X_eval.shape) * scale
+    rows = linearize_all(p, X_eval)
+    s_k, s_A0, s_A1, s_b = rows.steps
+    fam = p.families["gyro"]
+    order = np.argsort(fam.k, kind="stable")
+    for j in (int(order[0]), int(order[len(order) // 2]), int(order[-1])):
+        k = int(fam.k[j])
+        r = np.flatnonzero(s_k == k - 1)            # this epoch's gyro row (one per epoch)
+        factor, = factors_for_rows(p, "gyro", np.array([j]), k, None, X_eval[k, :6])
+        values = gtsam.Values()
+        for kk in (k - 1, k):
+            for v in lay.variables:
+                w = X_eval[kk, lay.slices[v.name]]
+                values.insert(v.key(kk), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
+        lin = factor.linearize(values)
+        A_i, b_i = lin.jacobian()
+        A0 = np.zeros((3, lay.n))
+        A1 = np.zeros((3, lay.n))
+        col = 0
+        for key in lin.keys():
+            for kk, A in ((k - 1, A0), (k, A1)):
+                for v in lay.variables:
+                    if v.key(kk) == key:
+                        A[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
+                        col += v.dim
+        np.testing.assert_allclose(A0, s_A0[r], rtol=1e-9, atol=1e-9 * np.abs(s_A0[r]).max())
+        np.testing.assert_allclose(A1, s_A1[r], rtol=1e-9, atol=1e-9 * np.abs(s_A1[r]).max())
+        np.testing.assert_allclose(b_i, s_b[r], rtol=1e-9, atol=1e-9)

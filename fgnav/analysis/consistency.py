@@ -25,6 +25,7 @@ import numpy as np
 
 from factors.dynamics import process_noise, propagate
 from fgnav.graph import PRIOR_KINDS, enters, orbit_rows
+from fgnav.models.registry import model as model_of
 from fgnav.time import j2000_seconds
 
 
@@ -112,7 +113,7 @@ def nis_smoother(p, sol) -> tuple[np.ndarray, np.ndarray]:
     """
     out, dofs = [], []
     for kind in p.families:
-        if kind in PRIOR_KINDS or not enters(p, kind):
+        if kind in PRIOR_KINDS or not enters(p, kind) or model_of(kind).between:
             continue
         k, A, b = _family_rows(p, kind, sol.x_eci, sol.variables)
         r = -b
@@ -147,7 +148,7 @@ def nis_ekf(p, sol, options) -> tuple[np.ndarray, np.ndarray]:
     b_by_k: dict[int, list] = {}
 
     for kind in p.families:
-        if kind in PRIOR_KINDS or not enters(p, kind):
+        if kind in PRIOR_KINDS or not enters(p, kind) or model_of(kind).between:
             continue
         k, A, b = _family_rows(p, kind, Xp, sol.variables)
         for j in range(len(k)):

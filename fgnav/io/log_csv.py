@@ -210,6 +210,8 @@ _KIND_SPEC: dict[str, _Kind] = {
     "sun_direction_body": _Kind(_XYZ, "unit vector to the Sun, body", *_ANGLE, unit_vector=True),
     "moon_direction_body": _Kind(_XYZ, "unit vector to the Moon, body", *_ANGLE,
                                  unit_vector=True),
+    "gyro": _Kind(_XYZ, "body angular rate over the interval since the previous epoch, rad/s",
+                  1e-12, 1.0, "rad/s"),
     "refraction": _Kind(("r", "r", "r", "r", "o"),
                         "star unit vector, EME2000; gamma, rad; sigma_model_m, m", *_ANGLE,
                         unit_vector=True, check=_check_refraction),

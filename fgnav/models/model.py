@@ -18,7 +18,11 @@ gives:
   graphs: an attitude row is a prior on the attitude variable) and ``body_frame_of`` (the
   ECI kind its rows become, with the measured attitude, until then);
 * ``initial(fam)``: first guesses of further variables from the rows (variable name ->
-  (M, d) block values, e.g. a measured attitude), used where a row exists at an epoch.
+  (M, d) block values, e.g. a measured attitude), used where a row exists at an epoch;
+* ``between``: a row at epoch k relates the variables of epochs k - 1 and k (a gyro interval):
+  then ``residual(fam, v0, v1, dt_s) -> (e, {variable: H0}, {variable: H1})``,
+  ``sigma(fam, dt_s)`` and ``factor(fam, j, keys0, keys1, noise, dt_s)``, with ``dt_s`` the
+  interval ``t_k - t_(k-1)`` of each row.
 
 Whitening follows GTSAM's convention (``factors.adapters.whiten``): rows ``A = H/sigma``,
 ``b = -e/sigma`` minimize ``|A dx - b|^2``.
@@ -70,6 +74,7 @@ class MeasurementModel:
     body_frame_of: str | None = None
     requires: str | None = None
     initial: Callable | None = None
+    between: bool = False
 
     @property
     def solved(self) -> bool:
@@ -110,6 +115,29 @@ class MeasurementModel:
             H[..., sl] = h
         return e, H
 
+    def evaluate_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
+        """A between model's residuals and Jacobians at the block values ``X`` (N, n):
+        ``e (M, m)``, ``H0``, ``H1`` (M, m, n) on the blocks of epochs ``k - 1`` and ``k``,
+        and the intervals ``dt_s`` (M,)."""
+        names = self.variables_in(layout)
+        v0 = layout.values_at(X, fam.k - 1)
+        v1 = layout.values_at(X, fam.k)
+        dt = np.asarray(t_s, dtype=float)[fam.k] - np.asarray(t_s, dtype=float)[fam.k - 1]
+        e, jac0, jac1 = self.residual(fam, {n: v0[n] for n in names}, {n: v1[n] for n in names}, dt)
+        e = np.asarray(e, dtype=float).reshape(len(fam), self.dim)
+        H0 = np.zeros((len(fam), self.dim, layout.n))
+        H1 = np.zeros_like(H0)
+        for H, jac in ((H0, jac0), (H1, jac1)):
+            for name, h in jac.items():
+                H[..., layout.slices[name]] = h
+        return e, H0, H1, dt
+
+    def linearize_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
+        """Whitened rows of a between model: ``A0, A1 (M, m, n)``, ``b (M, m)``, and ``e``."""
+        e, H0, H1, dt = self.evaluate_between(fam, X, layout, t_s)
+        (A0, A1), b = whiten(e, [H0, H1], self.sigma(fam, dt))
+        return A0, A1, b, e
+
     def linearize(self, fam, X: np.ndarray, layout: Layout):
         """Whitened rows of every measurement: ``A (M, m, n)``, ``b (M, m)``, and ``e``."""
         e, H = self.evaluate(fam, X, layout)
@@ -120,7 +148,22 @@ class MeasurementModel:
         """GTSAM keys of the variables this model touches at epoch ``k``."""
         return {v.name: v.key(k) for v in _touched(self, layout)}
 
-    def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None) -> list:
+    def _factors_between(self, fam, rows, k, layout, robust, keys1, t_s) -> list:
+        keys0 = self.keys(layout, k - 1)
+        dt = float(t_s[k] - t_s[k - 1])
+        sigmas = np.asarray(self.sigma(fam.subset(rows, k), np.full(len(rows), dt)), dtype=float)
+        out = []
+        for j, sig in zip(rows.tolist(), sigmas.tolist()):
+            noise = sig
+            if robust is not None and self.robust:
+                import gtsam
+
+                noise = robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, float(sig)))
+            out.append(self.factor(fam, j, keys0, keys1, noise, dt))
+        return out
+
+    def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None,
+                t_s=None) -> list:
         """GTSAM factors (iSAM2 route) of the given rows at epoch ``k``.
 
         ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping every measurement's noise
@@ -129,6 +172,8 @@ class MeasurementModel:
         """
         keys = self.keys(layout, k)
         rows = np.asarray(rows, dtype=int)
+        if self.between:
+            return self._factors_between(fam, rows, k, layout, robust, keys, t_s)
         if self.sigma is None:   # the online route's hot path: no per-row family copies
             sigmas = np.asarray(fam.sigma, dtype=float)[rows]
         else:

@@ -16,6 +16,7 @@ import numpy as np
 
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
 from factors.attitude import attitude_residual, make_attitude_prior_factor
+from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
                                earth_direction_row_kernel, make_body_direction_factor,
                                make_earth_direction_factor)
@@ -38,7 +39,8 @@ from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_read
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
-           "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY"]
+           "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
+           "GYRO", "GYRO_BIAS"]
 
 
 def _xyz(log, i):
@@ -261,9 +263,48 @@ MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
                             ("sigma_deg", "min_sun_elongation_deg"), moon_target)
 
 
+# ---- rate gyro (between two epochs) ---------------------------------------------------------
+
+GYRO_BIAS = Variable(
+    "gyro_bias", "g", 3, "rad/s", components=("gyro_bias_x", "gyro_bias_y", "gyro_bias_z"),
+    psd=1e-14, prior_sigma=1e-3,
+    description="rate gyro bias per body axis, rad/s (random walk)")
+"""The gyro bias: a random walk of 1e-14 (rad/s)^2/s (bias instability ~0.02 deg/h over an
+hour), prior 1e-3 rad/s (200 deg/h: an uncalibrated MEMS gyro) at the first epoch."""
+
+
+def _gyro_residual(fam, v0, v1, dt):
+    bias = v0[GYRO_BIAS.name] if GYRO_BIAS.name in v0 else np.zeros((len(fam), 3))
+    e, H0, H1, Hb = gyro_residual(v0[ATTITUDE_VARIABLE.name], v1[ATTITUDE_VARIABLE.name], bias,
+                                  fam.values["omega_rad_s"], dt)
+    jac0 = {ATTITUDE_VARIABLE.name: H0}
+    if GYRO_BIAS.name in v0:
+        jac0[GYRO_BIAS.name] = Hb
+    return e, jac0, {ATTITUDE_VARIABLE.name: H1}
+
+
+def _gyro_factor(fam, j, keys0, keys1, noise, dt):
+    att = ATTITUDE_VARIABLE.name
+    if GYRO_BIAS.name in keys0:
+        return make_gyro_factor(keys0[att], keys1[att], keys0[GYRO_BIAS.name],
+                                fam.values["omega_rad_s"][j], dt, noise)
+    return make_gyro_factor_without_bias(keys0[att], keys1[att], fam.values["omega_rad_s"][j],
+                                         dt, noise)
+
+
+GYRO = MeasurementModel(
+    kind="gyro", dim=3, unit="rad",
+    summary="body angular rate over the interval since the previous epoch, rad/s",
+    values=lambda log, i: {"omega_rad_s": _xyz(log, i)},
+    residual=_gyro_residual, factor=_gyro_factor, between=True,
+    sigma=lambda fam, dt: np.asarray(fam.sigma, dtype=float) * np.abs(dt),
+    variables=(), optional_variables=(ATTITUDE_VARIABLE, GYRO_BIAS),
+    requires=ATTITUDE_VARIABLE.name)
+
+
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
     PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
-    ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY)}
+    ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO)}
 """Every log kind the project reads, by kind."""
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{

@@ -19,6 +19,7 @@ from factors.dynamics import propagate, process_noise
 from fgnav.graph import enters, initial_block, layout_of, linearize_family
 from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
+from fgnav.errors import UserError
 from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution
 from fgnav.measurements import prior_covariance
@@ -37,6 +38,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     per_epoch = rows_by_epoch(p)
     lay = layout_of(p)
     n = lay.n
+    between = [kind for kind in p.families if enters(p, kind) and model_of(kind).between]
+    if between:
+        raise UserError(f"{p.source}: the EKF does not use {', '.join(between)} rows yet (rows "
+                        f"between two epochs); solve with --method batch, isam2 or fixed-lag")
     x0 = first_state(p, model, t0_j2000)
     x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
     P = np.zeros((n, n))

@@ -201,11 +201,13 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                 continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
-            elif gate is not None and mdl.robust:
+            elif gate is not None and mdl.robust and not mdl.between:
+                # (a row between two epochs is not gated: its prediction needs the joint
+                # covariance of both, which the online route does not read)
                 kept = _gate_rows(p, kind, rows, guess, P_pred, gate)
                 rejected_rows[kind][np.setdiff1d(rows, kept)] = True
                 rows = kept
-            for f in mdl.factors(p.families[kind], rows, k, lay, kernel, guess[:6]):
+            for f in mdl.factors(p.families[kind], rows, k, lay, kernel, guess[:6], p.t_s):
                 graph.add(f)
 
     k_start = 0
