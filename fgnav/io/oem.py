@@ -176,11 +176,12 @@ def _number(path, lineno, column, text, scale=1.0):
 _STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
 
 
-def _header_line(path, lineno, s, meta) -> bool:
-    """One line of a CCSDS KVN message header (OEM, TDM) before the first META_START.
+def _header_line(path, lineno, s, meta, keys=_HEADER_KEYS) -> bool:
+    """One line of a CCSDS KVN message header (OEM, TDM, AEM) before the first META_START.
 
-    Stores CREATION_DATE / ORIGINATOR / MESSAGE_ID in ``meta`` (CREATION_DATE checked as an
-    epoch); at META_START checks that the required keywords came first and returns True.
+    Stores the header keywords ``keys`` (CREATION_DATE / ORIGINATOR / MESSAGE_ID, and for an
+    AEM also CLASSIFICATION) in ``meta`` (CREATION_DATE checked as an epoch); at META_START
+    checks that the required keywords came first and returns True.
     """
     if s == "META_START":
         for k in ("CREATION_DATE", "ORIGINATOR"):
@@ -189,10 +190,9 @@ def _header_line(path, lineno, s, meta) -> bool:
                                        "META_START", "META_START")
         return True
     m = _KVN_RE.match(s)
-    if m is None or m.group(1) not in _HEADER_KEYS:
+    if m is None or m.group(1) not in keys:
         raise InputFormatError(path, lineno, m.group(1) if m else None,
-                               "a header keyword (CREATION_DATE, ORIGINATOR, MESSAGE_ID, "
-                               "COMMENT) or META_START", s)
+                               f"a header keyword ({', '.join(keys)}, COMMENT) or META_START", s)
     if m.group(1) == "CREATION_DATE":
         _epoch(path, lineno, "CREATION_DATE", m.group(2))
     meta[m.group(1)] = m.group(2)
