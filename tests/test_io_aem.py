@@ -373,3 +373,65 @@ def test_covariance_csv_errors_name_line_and_column(tmp_path, case):
     e = ei.value
     assert (e.line, e.column) == (line, column), str(e)
     assert phrase in str(e) and str(p) in str(e)
+
+
+# --- whatever the bytes, a reader ends with the data or with an error naming the file
+
+
+def _mutations():
+    from hypothesis import strategies as st
+
+    token = st.sampled_from(["", " ", "=", "nan", "inf", "-0", "1e999", "META_START", "META_STOP",
+                             "DATA_START", "DATA_STOP", "COMMENT", "2016-12-31T23:59:60",
+                             "1996-02-30T00:00:00", "\xe9", "\t", "0.5 0.5 0.5 0.5"])
+    return st.lists(st.tuples(st.integers(0, 60), st.sampled_from(["replace", "insert",
+                                                                     "delete", "token"]),
+                              token), min_size=1, max_size=4)
+
+
+def _apply(lines, muts, sep=" "):
+    lines = list(lines)
+    for i, op, tok in muts:
+        i %= len(lines) if lines else 1
+        if not lines:
+            lines = [tok]
+        elif op == "replace":
+            lines[i] = tok
+        elif op == "insert":
+            lines.insert(i, tok)
+        elif op == "delete":
+            del lines[i]
+        else:
+            parts = lines[i].split(sep)
+            parts[len(tok) % len(parts)] = tok
+            lines[i] = sep.join(parts)
+    return "\n".join(lines) + "\n"
+
+
+def test_mutated_files_give_data_or_a_format_error(tmp_path):
+    from hypothesis import HealthCheck, given, settings
+
+    write_attitude_covariance(tmp_path / "c.csv", EPOCH0, [0.0, 1.0, 2.0], _covariances(3))
+    cov_lines = (tmp_path / "c.csv").read_text().splitlines()
+    aem_lines = GOOD.splitlines()
+
+    outcomes = {"data": 0, "error": 0}
+
+    @settings(max_examples=150, deadline=None, derandomize=True,
+              suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(_mutations(), _mutations())
+    def run(muts_aem, muts_cov):
+        for reader, text, name in ((read_aem, _apply(aem_lines, muts_aem), "m.aem"),
+                                   (read_attitude_covariance,
+                                    _apply(cov_lines, muts_cov, sep=","), "m.csv")):
+            p = tmp_path / name
+            p.write_bytes(text.encode("latin-1", "replace"))
+            try:
+                reader(p)
+                outcomes["data"] += 1
+            except UserError as exc:
+                assert str(p) in str(exc)
+                outcomes["error"] += 1
+
+    run()
+    assert outcomes["error"] > 100 and outcomes["data"] > 10, outcomes
