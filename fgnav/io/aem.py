@@ -68,8 +68,8 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
-from fgnav.io.oem import (_check_meta_value, _epoch, _header_line, _kvn, _number, _read_lines,
-                          format_ccsds_epoch)
+from fgnav.io.oem import (_check_meta_value, _epoch, _header_line, _kvn, _kvn_header, _number,
+                          _read_lines, format_ccsds_epoch)
 from fgnav.time import add_seconds, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat, quat_from_matrix
 
@@ -155,17 +155,10 @@ def write_aem(path, epoch0, t_s, R_eci_from_body, *, object_name="FGNAV", object
     if names["REF_FRAME_B"] in INERTIAL_FRAMES:
         raise UserError(f"write_aem: ref_frame_b is the body frame (e.g. SC_BODY_1), found "
                         f"{ref_frame_b!r}")
-    if creation_date is None:
-        creation_date = np.datetime64("now", "us")
     ep = [format_ccsds_epoch(t) for t in t64]
     Q = aem_quaternions(R)
 
-    out = ["CCSDS_AEM_VERS = 2.0\n"]
-    for c in comments:
-        for part in str(c).splitlines() or [""]:
-            out.append(f"COMMENT {part}\n")
-    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
-    out.append(f"ORIGINATOR = {names['ORIGINATOR']}\n\n")
+    out = _kvn_header("CCSDS_AEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME_A", "REF_FRAME_B"):
         out.append(f"{k} = {names[k]}\n")

@@ -415,6 +415,20 @@ def _check_meta_value(name, value):
     return value.strip()
 
 
+def _kvn_header(version_line, comments, creation_date, originator) -> list[str]:
+    """The header of a CCSDS KVN message (OEM, AEM) as lines: the version, one ``COMMENT``
+    line per comment line, ``CREATION_DATE`` (``None``: now) and ``ORIGINATOR``, a blank line."""
+    if creation_date is None:
+        creation_date = np.datetime64("now", "us")
+    out = [version_line + "\n"]
+    for c in comments:
+        for part in str(c).splitlines() or [""]:
+            out.append(f"COMMENT {part}\n")
+    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
+    out.append(f"ORIGINATOR = {originator}\n\n")
+    return out
+
+
 def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
               object_id="UNKNOWN", originator="FGNAV", center_name="EARTH",
               ref_frame="EME2000", time_system="UTC", comments=(), creation_date=None) -> None:
@@ -449,16 +463,9 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME": ref_frame, "TIME_SYSTEM": time_system, "ORIGINATOR": originator}
     names = {k: _check_meta_value(k, v) for k, v in names.items()}
-    if creation_date is None:
-        creation_date = np.datetime64("now", "us")
     ep = [format_ccsds_epoch(t) for t in t64]
 
-    out = ["CCSDS_OEM_VERS = 2.0\n"]
-    for c in comments:
-        for part in str(c).splitlines() or [""]:
-            out.append(f"COMMENT {part}\n")
-    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
-    out.append(f"ORIGINATOR = {names['ORIGINATOR']}\n\n")
+    out = _kvn_header("CCSDS_OEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
         out.append(f"{k} = {names[k]}\n")
