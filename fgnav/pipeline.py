@@ -30,7 +30,7 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 with_estimates)
-from fgnav.models.registry import variable
+from fgnav.models.registry import ATTITUDE_VARIABLE, variable
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
@@ -384,7 +384,7 @@ def write_attitude_outputs(out: Path, sol: Solution) -> list[str]:
     from fgnav.io.aem import write_aem
     from fgnav.io.attitude_covariance import write_attitude_covariance
 
-    w, P = sol.variables["attitude"]
+    w, P = sol.variables[ATTITUDE_VARIABLE.name]
     write_aem(out / "attitude.aem", sol.epoch0, sol.t_s, so3_exp(w),
               comments=(f"fgnav {sol.method} solution: attitude at every epoch",
                         "its 3x3 covariance (body frame, rad^2) is in attitude_covariance.csv"))
@@ -436,7 +436,7 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
         if sol.variables:
             write_variables_csv(stage / "variables.csv", sol)
             names.append("variables.csv")
-        if "attitude" in sol.variables:
+        if ATTITUDE_VARIABLE.name in sol.variables:
             names += write_attitude_outputs(stage, sol)
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")

@@ -150,14 +150,15 @@ def resolve_attitude_option(args) -> None:
     """``--attitude estimate`` adds ``attitude`` to ``--estimate``; ``--attitude known`` with
     ``--estimate attitude`` contradicts it (``UserError`` naming both)."""
     from fgnav.errors import UserError
+    from fgnav.models.registry import ATTITUDE_VARIABLE
 
-    mode = getattr(args, "attitude", None)
-    estimated = "attitude" in args.estimate
-    if mode == "known" and estimated:
-        raise UserError("--attitude known contradicts --estimate attitude (which is "
+    mode = args.attitude
+    name = ATTITUDE_VARIABLE.name
+    if mode == "known" and name in args.estimate:
+        raise UserError(f"--attitude known contradicts --estimate {name} (which is "
                         "--attitude estimate); give one of them")
-    if mode == "estimate" and not estimated:
-        args.estimate = [*args.estimate, "attitude"]
+    if mode == "estimate" and name not in args.estimate:
+        args.estimate = [*args.estimate, name]
 
 
 class ProgressCallback:
