@@ -43,7 +43,7 @@ def _truth_rows(sim, epoch0, t_s):
     return idx
 
 
-@pytest.mark.parametrize("method", ["batch", "isam2"])
+@pytest.mark.parametrize("method", ["batch", "isam2", "fixed-lag", "ekf"])
 def test_attitude_aem_matches_the_true_attitude_within_its_sigma(att_log, method, capsys):
     sim, d = att_log
     out = d / f"R-{method}"
