@@ -30,7 +30,7 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 with_estimates)
-from fgnav.models.registry import ATTITUDE, MODELS, variable
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
@@ -382,8 +382,27 @@ def write_variables_csv(path: Path, sol: Solution) -> None:
     atomic_write_text(path, "\n".join(lines) + "\n")
 
 
+def write_attitude_outputs(out: Path, sol: Solution) -> list[str]:
+    """``attitude.aem`` (CCSDS AEM 2.0, the estimated R_eci_from_body as quaternions from
+    EME2000 to SC_BODY_1, :mod:`fgnav.io.aem`) and ``attitude_covariance.csv`` (its 3x3
+    body-frame covariance per epoch, :mod:`fgnav.io.attitude_covariance`) in ``out``."""
+    from factors.geometry import so3_exp
+    from fgnav.io.aem import write_aem
+    from fgnav.io.attitude_covariance import write_attitude_covariance
+
+    w, P = sol.variables[ATTITUDE_VARIABLE.name]
+    write_aem(out / "attitude.aem", sol.epoch0, sol.t_s, so3_exp(w),
+              comments=(f"fgnav {sol.method} solution: attitude at every epoch",
+                        "its 3x3 covariance (body frame, rad^2) is in attitude_covariance.csv"))
+    write_attitude_covariance(out / "attitude_covariance.csv", sol.epoch0, sol.t_s, P,
+                              comments=(f"fgnav {sol.method} solution: attitude covariance, "
+                                        "right perturbation in the body frame, rad^2",))
+    return ["attitude.aem", "attitude_covariance.csv"]
+
+
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
-    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv).
+    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv; with an
+    estimated attitude attitude.aem and attitude_covariance.csv).
 
     Nothing lost: every file is first written into a staging directory inside ``out_dir``
     and the set replaces the previous outputs only once all are complete (``os.replace``
@@ -423,6 +442,8 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
         if sol.variables:
             write_variables_csv(stage / "variables.csv", sol)
             names.append("variables.csv")
+        if ATTITUDE_VARIABLE.name in sol.variables:
+            names += write_attitude_outputs(stage, sol)
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
         return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))

@@ -116,7 +116,8 @@ def register(sub):
                        description="Smooth a logged pass (CSV v1 or CCSDS TDM) in batch, online with "
                                    "iSAM2 / a fixed-lag smoother, or filter it with the EKF baseline. "
                                    "Writes DIR/trajectory.oem (CCSDS OEM with covariances) and "
-                                   "DIR/summary.json.")
+                                   "DIR/summary.json (with --attitude estimate also "
+                                   "DIR/attitude.aem and DIR/attitude_covariance.csv).")
     p.add_argument("log", help="measurement log (.csv, v1 format; or .tdm)")
     p.add_argument("--method", default="batch", choices=["batch", "isam2", "fixed-lag", "ekf"])
     p.add_argument("--out", required=True, help="output directory")
@@ -136,8 +137,28 @@ def register(sub):
                    help="leave the log's prior_position/prior_velocity rows out and start from the "
                         "orbit the measurements give (angles-only initial orbit determination; "
                         "logs without prior rows, e.g. a CCSDS TDM, always do)")
+    p.add_argument("--attitude", choices=["known", "estimate"], default=None,
+                   help="known (default): rotate body-frame directions into ECI with the log's "
+                        "attitude rows before solving; estimate: the attitude is a graph "
+                        "variable per epoch (the same as --estimate attitude), written to "
+                        "DIR/attitude.aem (CCSDS AEM) and DIR/attitude_covariance.csv")
     add_solver_options(p)
     p.set_defaults(func=run)
+
+
+def resolve_attitude_option(args) -> None:
+    """``--attitude estimate`` adds ``attitude`` to ``--estimate``; ``--attitude known`` with
+    ``--estimate attitude`` contradicts it (``UserError`` naming both)."""
+    from fgnav.errors import UserError
+    from fgnav.models.registry import ATTITUDE_VARIABLE
+
+    mode = args.attitude
+    name = ATTITUDE_VARIABLE.name
+    if mode == "known" and name in args.estimate:
+        raise UserError(f"--attitude known contradicts --estimate {name} (which is "
+                        "--attitude estimate); give one of them")
+    if mode == "estimate" and name not in args.estimate:
+        args.estimate = [*args.estimate, name]
 
 
 class ProgressCallback:
@@ -167,6 +188,7 @@ def run(args) -> int:
     from fgnav.pipeline import read_measurements, residual_times, smooth_file, write_outputs
 
     # Every option and output path before any solving (the truth in smooth_file).
+    resolve_attitude_option(args)
     check_solver_args(args, [args.method])
     check_output_paths(args.out, rerun=args.rerun, checkpoint=args.checkpoint, resume=args.resume)
     bar = ProgressCallback(args.method, args.quiet)

@@ -176,11 +176,12 @@ def _number(path, lineno, column, text, scale=1.0):
 _STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
 
 
-def _header_line(path, lineno, s, meta) -> bool:
-    """One line of a CCSDS KVN message header (OEM, TDM) before the first META_START.
+def _header_line(path, lineno, s, meta, keys=_HEADER_KEYS) -> bool:
+    """One line of a CCSDS KVN message header (OEM, TDM, AEM) before the first META_START.
 
-    Stores CREATION_DATE / ORIGINATOR / MESSAGE_ID in ``meta`` (CREATION_DATE checked as an
-    epoch); at META_START checks that the required keywords came first and returns True.
+    Stores the header keywords ``keys`` (CREATION_DATE / ORIGINATOR / MESSAGE_ID, and for an
+    AEM also CLASSIFICATION) in ``meta`` (CREATION_DATE checked as an epoch); at META_START
+    checks that the required keywords came first and returns True.
     """
     if s == "META_START":
         for k in ("CREATION_DATE", "ORIGINATOR"):
@@ -189,10 +190,9 @@ def _header_line(path, lineno, s, meta) -> bool:
                                        "META_START", "META_START")
         return True
     m = _KVN_RE.match(s)
-    if m is None or m.group(1) not in _HEADER_KEYS:
+    if m is None or m.group(1) not in keys:
         raise InputFormatError(path, lineno, m.group(1) if m else None,
-                               "a header keyword (CREATION_DATE, ORIGINATOR, MESSAGE_ID, "
-                               "COMMENT) or META_START", s)
+                               f"a header keyword ({', '.join(keys)}, COMMENT) or META_START", s)
     if m.group(1) == "CREATION_DATE":
         _epoch(path, lineno, "CREATION_DATE", m.group(2))
     meta[m.group(1)] = m.group(2)
@@ -415,6 +415,20 @@ def _check_meta_value(name, value):
     return value.strip()
 
 
+def _kvn_header(version_line, comments, creation_date, originator) -> list[str]:
+    """The header of a CCSDS KVN message (OEM, AEM) as lines: the version, one ``COMMENT``
+    line per comment line, ``CREATION_DATE`` (``None``: now) and ``ORIGINATOR``, a blank line."""
+    if creation_date is None:
+        creation_date = np.datetime64("now", "us")
+    out = [version_line + "\n"]
+    for c in comments:
+        for part in str(c).splitlines() or [""]:
+            out.append(f"COMMENT {part}\n")
+    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
+    out.append(f"ORIGINATOR = {originator}\n\n")
+    return out
+
+
 def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
               object_id="UNKNOWN", originator="FGNAV", center_name="EARTH",
               ref_frame="EME2000", time_system="UTC", comments=(), creation_date=None) -> None:
@@ -449,16 +463,9 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME": ref_frame, "TIME_SYSTEM": time_system, "ORIGINATOR": originator}
     names = {k: _check_meta_value(k, v) for k, v in names.items()}
-    if creation_date is None:
-        creation_date = np.datetime64("now", "us")
     ep = [format_ccsds_epoch(t) for t in t64]
 
-    out = ["CCSDS_OEM_VERS = 2.0\n"]
-    for c in comments:
-        for part in str(c).splitlines() or [""]:
-            out.append(f"COMMENT {part}\n")
-    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
-    out.append(f"ORIGINATOR = {names['ORIGINATOR']}\n\n")
+    out = _kvn_header("CCSDS_OEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
         out.append(f"{k} = {names[k]}\n")

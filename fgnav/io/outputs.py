@@ -1,7 +1,8 @@
 """An output directory holds one run's set of files and no others of ours.
 
 ``fgnav smooth --out DIR`` writes a set of files (trajectory.oem, summary.json,
-residuals.csv, and for online methods online.oem and latency.csv) and ``fgnav report``
+residuals.csv, for online methods online.oem and latency.csv, with an estimated attitude
+attitude.aem and attitude_covariance.csv) and ``fgnav report``
 adds its plots and report.md/html. A later run must not leave files of an earlier one
 behind (an ``online.oem`` of an iSAM2 run beside a batch ``trajectory.oem`` would be
 plotted as if it belonged to it), and must never touch a file the user put there.
@@ -35,7 +36,7 @@ __all__ = ["MANIFEST", "STAGING_PREFIX", "SMOOTH_OUTPUTS", "REPORT_OUTPUTS", "ma
 MANIFEST = ".fgnav-outputs.json"
 STAGING_PREFIX = ".fgnav-staging-"
 SMOOTH_OUTPUTS = ("trajectory.oem", "online.oem", "residuals.csv", "latency.csv", "variables.csv",
-                  "summary.json")
+                  "attitude.aem", "attitude_covariance.csv", "summary.json")
 REPORT_OUTPUTS = ("errors_rtn.png", "sigma_rtn.png", "residuals_hist.png", "orbit_3d.png",
                   "latency.png", "report.md", "report.html")
 _STAGING_RE = re.compile(re.escape(STAGING_PREFIX) + r"(\d+)-")
