@@ -20,20 +20,17 @@ import pytest
 from factors.geometry import so3_exp, so3_log
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve, summarize
-from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.options import SmootherOptions
+from attitude_passes import body_earth_scenario
 
 ATT = replace(SmootherOptions(), estimate=("attitude",))
 
 
 @pytest.fixture(scope="module")
 def att_pass():
-    base = load_scenario("refraction-leo")
-    scn = base.with_options(duration_h=0.5, sensors=(
-        base.sensors[0], SensorSpec("earth_direction_body", sigma_deg=0.02)))
-    sim = simulate_pass(scn, seed=2)
+    sim = simulate_pass(body_earth_scenario(0.5), seed=2)
     p = build_pass(sim.log)
     assert {"attitude", "earth_direction_body"} <= set(p.deferred)
     return sim, p

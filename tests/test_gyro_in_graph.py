@@ -18,10 +18,9 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.errors import UserError
 from fgnav.measurements import build_pass
 from fgnav.pipeline import solve
-from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.options import SmootherOptions
-from gyro_log import with_gyro
+from attitude_passes import body_earth_scenario, with_gyro
 
 BIAS = np.array([1e-4, -0.5e-4, 0.8e-4])
 ESTIMATE = replace(SmootherOptions(), estimate=("attitude", "gyro-bias"))
@@ -29,10 +28,7 @@ ESTIMATE = replace(SmootherOptions(), estimate=("attitude", "gyro-bias"))
 
 @pytest.fixture(scope="module")
 def gyro_pass():
-    base = load_scenario("refraction-leo")
-    scn = base.with_options(duration_h=0.5, sensors=(
-        base.sensors[0], SensorSpec("earth_direction_body", sigma_deg=0.02)))
-    sim = simulate_pass(scn, seed=4)
+    sim = simulate_pass(body_earth_scenario(0.5), seed=4)
     merged, R = with_gyro(sim.log, sim.t_s, sim.x_true, BIAS, 1e-6, np.random.default_rng(9))
     return sim, build_pass(merged), R
 

@@ -28,7 +28,7 @@ from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers import ekf_numba
-from gyro_log import with_gyro
+from attitude_passes import with_gyro
 
 ROOT = Path(__file__).resolve().parents[1]
 REGISTRY = "fgnav/models/registry.py"

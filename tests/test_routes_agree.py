@@ -96,7 +96,7 @@ def test_batch_and_isam2_routes_agree_between_epochs():
     """Rows that join two epochs (a gyro interval): the batch route's step rows
     (``Rows.steps``, stacked under the motion rows) and the iSAM2 factor on the keys of both
     epochs give the same whitened blocks."""
-    from gyro_log import with_gyro
+    from attitude_passes import with_gyro
 
     log, t, x = F.clean("refraction-leo", duration_h=0.2, **CASES["attitude"][1])
     log, _ = with_gyro(log, t, x, np.array([1e-4, -5e-5, 8e-5]), 1e-6, np.random.default_rng(3))

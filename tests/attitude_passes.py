@@ -1,6 +1,8 @@
-"""A simulated log with rate-gyro rows (for the tests of gyro rows in the graph).
+"""Simulated passes for the tests of the attitude in the graph.
 
-The gyro reports, at every epoch of the log but the first, the true LVLH body rate over the
+:func:`body_earth_scenario`: refraction-leo (its clear stars give an attitude row per epoch)
+with an Earth sensor that reports the Earth's direction in the body frame. :func:`with_gyro`
+adds rate-gyro rows to a log: the gyro reports, at every epoch of the log but the first, the true LVLH body rate over the
 interval since the previous epoch (from the truth of the independent integrator) plus a bias
 and white noise; the log's attitude rows are thinned to one epoch in ``attitude_every``.
 """
@@ -11,7 +13,15 @@ import numpy as np
 
 from factors.geometry import so3_log
 from fgnav.io.log_csv import log_from_arrays
+from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
+
+
+def body_earth_scenario(duration_h, sigma_deg=0.02):
+    """refraction-leo with a body-frame Earth sensor of ``sigma_deg`` (1σ per axis)."""
+    base = load_scenario("refraction-leo")
+    return base.with_options(duration_h=duration_h, sensors=(
+        base.sensors[0], SensorSpec("earth_direction_body", sigma_deg=sigma_deg)))
 
 
 def with_gyro(log, t_truth, x_truth, bias_rad_s, sigma_rad_s, rng, attitude_every=6):
