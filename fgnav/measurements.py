@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.models.registry import ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, variable
+from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, MODELS, PRIOR_POSITION,
+                                   PRIOR_VELOCITY, STAR_DIRECTION_BODY, variable)
 from fgnav.models.variables import ORBIT, Layout
 
 
@@ -92,7 +93,10 @@ def build_pass(log) -> Pass:
 
     One family per kind that enters the graphs (its model's ``values`` from the log rows),
     plus the ``attitude`` rows; a body-frame kind (``body_frame_of``) joins its ECI family,
-    rotated with the attitude measured at the same epoch.
+    rotated with the attitude measured at the same epoch. A body-frame row without an
+    attitude row at its epoch is an error unless the log has star rows
+    (``star_direction_body``): those rows then wait in ``deferred`` for the attitude to be
+    estimated (:func:`with_estimates`, :func:`check_attitude`).
     """
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
@@ -118,10 +122,15 @@ def build_pass(log) -> Pass:
         if mdl.body_frame_of is None or not len(i):
             continue
         missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_at]
-        if missing:
+        if missing and STAR_DIRECTION_BODY.kind not in p.deferred:
             raise UserError(
-                f"{log.path}: {body_kind} rows need an '{ATTITUDE.kind}' row at the same epoch; "
-                f"none for line(s) {missing[:5]}{' ...' if len(missing) > 5 else ''}")
+                f"{log.path}: {body_kind} rows need the attitude: an '{ATTITUDE.kind}' row at "
+                f"the same epoch, or '{STAR_DIRECTION_BODY.kind}' rows and --estimate "
+                f"{ATTITUDE_VARIABLE.cli_name}; none for line(s) {missing[:5]}"
+                f"{' ...' if len(missing) > 5 else ''}")
+        i = np.array([j for j in i if int(k_of_row[j]) in att_at], dtype=int)
+        if not len(i):
+            continue
         ja = np.array([att_at[int(k_of_row[j])] for j in i])
         u_eci = np.einsum("mij,mj->mi", att.values["R_eci_from_body"][ja], xyz[i])
         sig = np.hypot(sigma[i], att.sigma[ja])
@@ -187,12 +196,28 @@ def with_estimates(p: Pass, estimate=()) -> Pass:
     return dataclasses.replace(p, layout=Layout(tuple(variables)))
 
 
+def check_attitude(p: Pass) -> None:
+    """Refuse a pass whose star rows would be left out of the graphs: ``star_direction_body``
+    rows observe the attitude only, so without ``--estimate attitude`` they (and the
+    body-frame rows at epochs without an ``attitude`` row) would be dropped in silence.
+    (Body-frame rows with neither ``attitude`` nor star rows are refused by
+    :func:`build_pass`: nothing would fix the rotation about each measured direction.)"""
+    if STAR_DIRECTION_BODY.kind in p.deferred:
+        raise UserError(
+            f"{p.source}: '{STAR_DIRECTION_BODY.kind}' rows observe the attitude, which is not "
+            f"estimated: add --estimate {ATTITUDE_VARIABLE.cli_name} (the attitude then is a "
+            f"graph variable per epoch, solved with the orbit from the stars and the "
+            f"body-frame rows)")
+
+
 def check_observable(p: Pass, require_prior: bool = True) -> None:
     """Refuse passes that cannot determine an orbit, with a message that says why.
 
     ``require_prior=False``: the orbit will start from the measurements
-    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here.
+    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here. The attitude
+    rows are checked first (:func:`check_attitude`).
     """
+    check_attitude(p)
     observing = [k for k in p.families if k in MODELS and MODELS[k].observes_orbit]
     n_obs = sum(p.count(k) for k in observing)
     if not require_prior and n_obs == 0:

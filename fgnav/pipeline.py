@@ -157,10 +157,10 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     returned as is.
     """
     from_data = ignore_prior or not has_prior(p)
-    check_observable(p, require_prior=not from_data)
     if tuple(v.cli_name for v in p.layout.extra) != tuple(
             variable(n).cli_name for n in options.estimate):
-        p = with_estimates(p, options.estimate)
+        p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
+    check_observable(p, require_prior=not from_data)
     if gap_factor is None or p.inserted is not None:
         return p
 
