@@ -213,3 +213,51 @@ def test_cli_refuses_body_rows_with_nothing_to_fix_the_attitude(raw_dir, tmp_pat
     err = capsys.readouterr().err
     assert EARTH_DIRECTION_BODY.kind in err and f"'{ATTITUDE.kind}' row" in err
     assert STAR_DIRECTION_BODY.kind in err
+
+
+def test_loose_route_leaves_out_frames_with_fewer_than_two_stars(sim):
+    """A frame with one star gives no attitude row; the body-frame row of its epoch then has
+    no attitude to be rotated with and leaves the loose log (the tight graph keeps both)."""
+    i, _ = _stars(sim.log)
+    t_star = sim.log.t_s[i]
+    t1, t2 = np.unique(t_star)[[3, 7]]
+    drop = np.zeros(len(sim.log), bool)
+    drop[i[t_star == t1][1:]] = True          # epoch t1: one star left
+    drop[i[t_star == t2]] = True              # epoch t2: no star at all
+    keep = ~drop
+    log = replace(sim.log, t_s=sim.log.t_s[keep], kind=sim.log.kind[keep],
+                  xyz=sim.log.xyz[keep], sigma=sim.log.sigma[keep], line=sim.log.line[keep],
+                  extra={c: v[keep] for c, v in sim.log.extra.items()})
+    loose, counts = attitude_rows_from_stars(log)
+    n_frames = len(np.unique(sim.log.t_s[i]))
+    assert counts == {"attitude_rows": n_frames - 2, "epochs_without_attitude": 1,
+                      "body_rows_dropped": 2}
+    t_att = loose.t_s[loose.select(ATTITUDE.kind)]
+    t_body = loose.t_s[loose.select(EARTH_DIRECTION_BODY.kind)]
+    assert t1 not in t_att and t2 not in t_att and t1 not in t_body and t2 not in t_body
+    assert not len(loose.select(STAR_DIRECTION_BODY.kind))
+    # each attitude row is its frame's Wahba solution, within the covering sigma of the truth
+    R_true = sim.truth_attitude()[np.searchsorted(sim.t_s, t_att)]
+    w = loose.xyz[loose.select(ATTITUDE.kind)]
+    err = np.linalg.norm(so3_log(np.swapaxes(R_true, 1, 2) @ so3_exp(w)), axis=1)
+    sig = loose.sigma[loose.select(ATTITUDE.kind)]
+    assert np.all(err < 5 * np.sqrt(3) * sig) and np.all(sig > 5 * ARCSEC)
+    # the loose pass is solvable as it is (attitude known) and with the attitude estimated
+    for opts in (SmootherOptions(third_body=True), ATT):
+        assert np.all(np.isfinite(solve(build_pass(loose), "isam2", opts).x_eci))
+
+
+def test_wahba_by_epoch_skips_frames_of_parallel_directions():
+    from fgnav.vision.attitude import wahba_by_epoch
+
+    rng = np.random.default_rng(3)
+    R = so3_exp(rng.normal(size=(1, 3)))[0]
+    b = rng.normal(size=(5, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    b[3:] = b[2]                                   # epoch 1: two copies of one direction
+    k = np.array([0, 0, 0, 1, 1])
+    r = b @ R.T
+    ep, Rs, cov = wahba_by_epoch(k, b, r, 1e-5)
+    np.testing.assert_array_equal(ep, [0])
+    np.testing.assert_allclose(Rs[0], R, atol=1e-12)
+    assert cov.shape == (1, 3, 3) and np.all(np.linalg.eigvalsh(cov[0]) > 0)
