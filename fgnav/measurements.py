@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.models.registry import (ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, VARIABLES,
-                                   variable)
+from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, MODELS, PRIOR_POSITION,
+                                   PRIOR_VELOCITY, STAR_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import ORBIT, Layout
 
 
@@ -96,7 +96,10 @@ def build_pass(log) -> Pass:
 
     One family per kind that enters the graphs (its model's ``values`` from the log rows),
     plus the ``attitude`` rows; a body-frame kind (``body_frame_of``) joins its ECI family,
-    rotated with the attitude measured at the same epoch.
+    rotated with the attitude measured at the same epoch. A body-frame row without an
+    attitude row at its epoch is an error unless the log has star rows
+    (``star_direction_body``): those rows then wait in ``deferred`` for the attitude to be
+    estimated (:func:`with_estimates`, :func:`check_attitude`).
     """
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
@@ -201,17 +204,43 @@ def with_estimates(p: Pass, estimate=()) -> Pass:
     return dataclasses.replace(p, layout=Layout(tuple(variables)))
 
 
+def check_attitude(p: Pass) -> None:
+    """Refuse a pass whose star rows would be left out of the graphs: ``star_direction_body``
+    rows observe the attitude only, so without ``--estimate attitude`` they (and the
+    body-frame rows at epochs without an ``attitude`` row) would be dropped in silence.
+    And refuse an estimated attitude that nothing fixes: with neither ``attitude`` nor star
+    rows, the rotation about each measured direction is free (gyro rows carry the attitude
+    from epoch to epoch, they do not fix it)."""
+    if p.layout.has(ATTITUDE_VARIABLE.name) and not (
+            p.count(ATTITUDE.kind) or p.count(STAR_DIRECTION_BODY.kind)):
+        users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables
+                 and k != ATTITUDE.kind] or ["no"]
+        raise UserError(
+            f"{p.source}: --estimate {ATTITUDE_VARIABLE.cli_name}: the {', '.join(users)} rows "
+            f"need the attitude, and nothing fixes it: no '{ATTITUDE.kind}' row and no "
+            f"'{STAR_DIRECTION_BODY.kind}' rows (found: {p.counts()})")
+    if STAR_DIRECTION_BODY.kind in p.deferred:
+        raise UserError(
+            f"{p.source}: '{STAR_DIRECTION_BODY.kind}' rows observe the attitude, which is not "
+            f"estimated: add --estimate {ATTITUDE_VARIABLE.cli_name} (the attitude then is a "
+            f"graph variable per epoch, solved with the orbit from the stars and the "
+            f"body-frame rows)")
+
+
 def check_observable(p: Pass, require_prior: bool = True) -> None:
     """Refuse passes that cannot determine an orbit, with a message that says why.
 
     ``require_prior=False``: the orbit will start from the measurements
-    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here.
+    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here. The attitude
+    rows are checked first (:func:`check_attitude`).
     """
+    check_attitude(p)
     for kind, lines in p.unconverted.items():
         if not p.layout.has(MODELS[kind].requires or ""):
             raise UserError(
-                f"{p.source}: {kind} rows need an '{ATTITUDE.kind}' row at the same epoch, or "
-                f"the attitude estimated (--estimate attitude, with gyro or attitude rows to "
+                f"{p.source}: {kind} rows need the attitude: an '{ATTITUDE.kind}' row at the same "
+                f"epoch, or the attitude estimated (--estimate {ATTITUDE_VARIABLE.cli_name}, with "
+                f"'{STAR_DIRECTION_BODY.kind}' or '{ATTITUDE.kind}' rows to fix it and gyro rows to "
                 f"carry it); none for line(s) {list(map(int, lines[:5]))}"
                 f"{' ...' if len(lines) > 5 else ''}")
     observing = [k for k in p.families if k in MODELS and MODELS[k].observes_orbit]

@@ -158,7 +158,7 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     """
     from_data = ignore_prior or not has_prior(p)
     if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
-        p = with_estimates(p, options.estimate)
+        p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
     for kind, fam in p.deferred.items():
         mdl = MODELS[kind]
         if mdl.body_frame_of is None and kind != ATTITUDE.kind and not p.layout.has(mdl.requires):

@@ -59,6 +59,8 @@ class SensorSpec:
     star_sigma_arcsec: float = 3.0         # centroid 1σ of an unrefracted star (attitude)
     fov_deg: float = 20.0                  # full width of each head's square field
     vmag_max: float = 6.0                  # faintest star used
+    # (star_sigma_arcsec, fov_deg, vmag_max are also the star camera's, kind
+    # star_direction_body: fgnav.simulate.star_camera, a zenith camera on the LVLH body)
     azimuths_deg: tuple = (0.0, 120.0, 240.0)  # head boresights about nadir, from velocity
     boresight_tangent_km: float = 35.0     # tangent height of the ray at the field centre
     # the real atmosphere's height shift against the refraction model, b(t) (m): b0 + drift t

@@ -18,20 +18,21 @@ HEADER = "epoch,kind,x,y,z,sigma"
 
 VALID = """\
 # a pass logged by hand
-epoch,kind,x,y,z,sigma,gamma,sigma_model_m
-2024-03-01T00:00:00Z,prior_position,7000000,-12.5,3.25e3,1000,,
-2024-03-01T00:00:00Z,prior_velocity,0,7546.05,1.5,1,,
-2024-03-01T00:00:00Z,earth_direction,-0.6,0.8,0,1e-4,,
-2024-03-01T00:00:10.5Z,limb_radius,1.1,6378137,,2e-4,,
+epoch,kind,x,y,z,sigma,gamma,sigma_model_m,star_x,star_y,star_z
+2024-03-01T00:00:00Z,prior_position,7000000,-12.5,3.25e3,1000,,,,,
+2024-03-01T00:00:00Z,prior_velocity,0,7546.05,1.5,1,,,,,
+2024-03-01T00:00:00Z,earth_direction,-0.6,0.8,0,1e-4,,,,,
+2024-03-01T00:00:10.5Z,limb_radius,1.1,6378137,,2e-4,,,,,
 
-2024-03-01T00:00:10.5Z,earth_direction_body,0,0,-1,1e-4,,
-2024-03-01T00:00:10.5Z,attitude,0.1,-0.2,0.3,5e-5,,
-2024-03-01T00:00:20Z,altitude,621000,6378137,,30,,
-2024-03-01T00:00:20Z,sun_direction_body,1,0,0,1e-3,,
-2024-03-01T00:00:20Z,moon_direction_body,0,1,0,1e-3,,
-2024-03-01T00:00:30Z,refraction,0,0.6,0.8,1e-6,1.5e-4,250
-2024-03-01T00:00:40Z,refraction,0,0.8,0.6,1e-6,1.1e-4,
-2024-03-01T00:00:40Z,gyro,1e-3,-2e-4,0,1e-6,,
+2024-03-01T00:00:10.5Z,earth_direction_body,0,0,-1,1e-4,,,,,
+2024-03-01T00:00:10.5Z,attitude,0.1,-0.2,0.3,5e-5,,,,,
+2024-03-01T00:00:20Z,altitude,621000,6378137,,30,,,,,
+2024-03-01T00:00:20Z,sun_direction_body,1,0,0,1e-3,,,,,
+2024-03-01T00:00:20Z,moon_direction_body,0,1,0,1e-3,,,,,
+2024-03-01T00:00:30Z,refraction,0,0.6,0.8,1e-6,1.5e-4,250,,,
+2024-03-01T00:00:40Z,refraction,0,0.8,0.6,1e-6,1.1e-4,,,,
+2024-03-01T00:00:40Z,star_direction_body,0.6,0,-0.8,2.5e-5,,,0.28,-0.96,0
+2024-03-01T00:00:40Z,gyro,1e-3,-2e-4,0,1e-6,,,,,
 """
 
 
@@ -52,7 +53,7 @@ def test_read_valid_log_all_kinds(tmp_path):
     log = read_log(_write(tmp_path, VALID))
     assert set(log.kind) == set(KINDS)
     assert log.epoch0 == parse_utc("2024-03-01T00:00:00Z")
-    assert len(log) == 12
+    assert len(log) == 13
     np.testing.assert_array_equal(log.epochs_unique(), [0.0, 10.5, 20.0, 30.0, 40.0])
     i = log.select("prior_position")
     np.testing.assert_array_equal(log.xyz[i], [[7000000.0, -12.5, 3250.0]])
@@ -68,6 +69,12 @@ def test_read_valid_log_all_kinds(tmp_path):
     assert log.line[j] == 6  # 1-based source line (comment and header count)
     assert log.warnings == [] and log.dropped == {}
     assert log.counts()["refraction"] == 2
+    st = log.select("star_direction_body")
+    np.testing.assert_array_equal(log.xyz[st], [[0.6, 0.0, -0.8]])
+    np.testing.assert_array_equal(np.column_stack([log.extra[c][st] for c in
+                                                   ("star_x", "star_y", "star_z")]),
+                                  [[0.28, -0.96, 0.0]])
+    assert np.all(np.isnan(log.extra["star_x"][r]))
 
 
 def test_round_trip_read_write_read_is_exact(tmp_path):
@@ -159,6 +166,20 @@ BAD_CASES = {
     "negative_model_sigma": (_csv("2024-03-01T00:00:00Z,refraction,0,0,1,1e-6,1e-4,-3",
                                   header=HEADER + ",gamma,sigma_model_m"), 2, "sigma_model_m",
                              ">= 0"),
+    "star_catalogue_vector_not_unit": (_csv("2024-03-01T00:00:00Z,star_direction_body,0,0,1,"
+                                            "2e-5,0.6,0.8,0.1", header=HEADER + ",star_x,star_y,star_z"), 2,
+                                       "star_x,star_y,star_z", "unit vector"),
+    "star_measured_vector_not_unit": (_csv("2024-03-01T00:00:00Z,star_direction_body,0,0,0.9,"
+                                           "2e-5,0.6,0.8,0", header=HEADER + ",star_x,star_y,star_z"), 2, "x,y,z",
+                                      "unit vector"),
+    "star_without_catalogue_vector": (_csv("2024-03-01T00:00:00Z,star_direction_body,0,0,1,"
+                                           "2e-5,0.6,,0", header=HEADER + ",star_x,star_y,star_z"), 2, "star_y",
+                                      "a number"),
+    "star_columns_missing_from_header": (_csv("2024-03-01T00:00:00Z,star_direction_body,0,0,1,"
+                                              "2e-5"), 2, "star_x", "a number"),
+    "star_vector_on_another_kind": (_csv("2024-03-01T00:00:00Z,earth_direction,0,0,1,1e-4,"
+                                         "1,0,0", header=HEADER + ",star_x,star_y,star_z"), 2, "star_x",
+                                    "empty field"),
     "altitude_below_centre": (_csv("2024-03-01T00:00:00Z,altitude,-7e6,6378137,,30"), 2, "x",
                               "x + y > 0"),
     "epoch_far_from_others": (_csv(GOOD, "2024-03-01T00:01:00Z,earth_direction,0,0,1,1e-4",

@@ -19,6 +19,7 @@ from fgnav.measurements import build_pass, with_estimates
 from fgnav.models.registry import MODELS
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate import faults as F
+from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
 from fgnav.sun_earth_moon import preprocess_log
 
 _REFRACTION = load_scenario("refraction-leo").sensors[0]
@@ -33,7 +34,15 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
     "attitude": ("refraction-leo",
                  {"sensors": (_REFRACTION, SensorSpec("earth_direction_body", sigma_deg=0.02))},
                  ("attitude", "earth_direction_body", "refraction"), ("attitude",)),
+    # raw stars of a zenith star camera + Earth directions in the body frame (--raw-stars)
+    "raw-stars": ("geo-limb", {"raw_stars": True},
+                  ("star_direction_body", "earth_direction_body", "limb_radius"), ("attitude",)),
 }
+
+
+def _raw_stars(scenario, **opts):
+    sim = simulate_pass(raw_star_scenario(load_scenario(scenario).with_options(**opts)))
+    return sim.log, sim.t_s, sim.x_true
 
 
 def test_every_model_that_enters_the_graphs_is_covered():
@@ -51,7 +60,11 @@ def _cases():
 @pytest.mark.parametrize("case, kind", _cases())
 def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
     scenario, opts, _, estimate = CASES[case]
-    log, t, x = F.clean(scenario, duration_h=0.5, **opts)
+    opts = dict(opts)
+    if opts.pop("raw_stars", False):
+        log, t, x = _raw_stars(scenario, duration_h=0.5, **opts)
+    else:
+        log, t, x = F.clean(scenario, duration_h=0.5, **opts)
     if len(log.select("sun_direction_body")):  # body-frame rows: to ECI by TRIAD attitude
         log = preprocess_log(log)[0]
     p = with_estimates(build_pass(log), estimate)

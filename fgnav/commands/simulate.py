@@ -27,6 +27,12 @@ def register(sub):
                    default=MAX_DURATION_H, metavar="H",
                    help=f"refuse a pass longer than H hours (default {MAX_DURATION_H:g} h = 31 "
                         "days; the truth integration takes ~8 s per simulated day in LEO)")
+    p.add_argument("--raw-stars", action="store_true",
+                   help="observe the attitude as raw stars: a zenith star camera (12.85 deg "
+                        "field, stars to V 5.5, 5 arcsec) gives star_direction_body rows and "
+                        "the scenario's Earth-direction sensors measure in the body frame "
+                        "(earth_direction_body rows); solve with `fgnav smooth --estimate "
+                        "attitude`")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
@@ -45,9 +51,11 @@ def run(args) -> int:
     from fgnav.io.log_csv import write_log
     from fgnav.io.oem import write_oem
     from fgnav.scenarios import check_size, load_scenario
-    from fgnav.simulate.pass_sim import simulate_pass
+    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
 
     scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
+    if getattr(args, "raw_stars", False):
+        scn = raw_star_scenario(scn)
     check_size(scn, args.max_epochs, args.max_duration_h)
     out = Path(args.out)
     if out.exists() and not out.is_dir():

@@ -6,11 +6,11 @@ A UTF-8 CSV file (an initial byte-order mark is ignored). Lines whose first non-
 character is ``#`` are comments; blank lines are ignored. The first other line is the
 header::
 
-    epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m]
+    epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]
 
 The six base columns are required, in this order; the optional extra columns ``gamma`` and
-``sigma_model_m`` (used by ``refraction`` rows) may follow, in any order, each at most
-once. Every row has exactly as many comma-separated fields as the header; whitespace around
+``sigma_model_m`` (used by ``refraction`` rows) and ``star_x``, ``star_y``, ``star_z`` (used
+by ``star_direction_body`` rows) may follow, in any order, each at most once. Every row has exactly as many comma-separated fields as the header; whitespace around
 a field is ignored; an empty field is "no value" (read as NaN). ``epoch`` is ISO-8601 UTC
 ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; years
 1678..2261, the range of ``datetime64[ns]``; second ``60`` at the end of a day with a leap
@@ -39,6 +39,12 @@ kind                      x, y, z (and extra columns)                      sigma
                           and x + y > 0); z empty
 ``sun_direction_body``    unit vector to the Sun, BODY frame               rad
 ``moon_direction_body``   unit vector to the Moon, BODY frame              rad
+``star_direction_body``   x,y,z = measured unit vector to a star, BODY     per tangent
+  (fgnav extension)       frame; ``star_x``, ``star_y``, ``star_z`` =      axis, rad
+                          its catalogue unit vector (EME2000, catalogue
+                          place at J2000 with proper motion, before
+                          aberration; required); needs the attitude
+                          estimated (``--estimate attitude``)
 ``refraction``            x,y,z = catalogue star unit vector, ECI;         refraction
   (fgnav extension)       ``gamma`` = measured refraction angle, rad       angle, rad
                           (required); ``sigma_model_m`` = 1σ of the
@@ -58,8 +64,8 @@ also bounds radii and heights); a ``prior_velocity`` within 1e6 m/s.
 Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the file, the
 1-based line, the column and what was expected, unless stated otherwise)
 
-- header: missing, misnamed or extra columns (only ``gamma``, ``sigma_model_m`` may
-  follow the base six), a repeated column;
+- header: missing, misnamed or extra columns (only ``gamma``, ``sigma_model_m``,
+  ``star_x``, ``star_y``, ``star_z`` may follow the base six), a repeated column;
 - empty file, or a header and no rows: "no measurements";
 - row-level (``reason`` key used in ``MeasurementLog.dropped``):
   ``field_count`` wrong number of fields; ``truncated`` the last line has too few fields
@@ -68,8 +74,8 @@ Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the f
   ``not_finite`` NaN or inf; ``missing_value`` a required field empty;
   ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0
   or outside the kind's ``SIGMA_RANGE``;
-  ``not_unit`` a direction with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are
-  renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
+  ``not_unit`` a direction (x,y,z, or a star's catalogue vector star_x,star_y,star_z)
+  with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
   <= 0, altitude below the centre, ``sigma_model_m`` < 0, a ``prior_position`` inside the
   Earth; ``epoch_outlier`` an epoch more
   than 30 days from the median epoch of the file.
@@ -103,12 +109,15 @@ from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, second
 __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
-    "PRIOR_MIN_RADIUS_M",
+    "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
-EXTRA_COLUMNS = ("gamma", "sigma_model_m")
+EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z")
+STAR_COLUMNS = ("star_x", "star_y", "star_z")
+"""The extra columns of a star's catalogue unit vector (``star_direction_body`` rows)."""
 _VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
+_USAGE_COLUMNS = ("x", "y", "z") + EXTRA_COLUMNS           # order of a kind's usage
 
 UNIT_TOL = 1e-6
 """A direction with | 1 - |u| | above this is an error; below it (and above 1e-12) renormalized."""
@@ -173,21 +182,24 @@ def _check_refraction(x, y, z, sigma_model):
 class _Kind(NamedTuple):
     """One kind of the format: how it uses the value columns, what its sigma may be.
 
-    usage : per column x, y, z, gamma, sigma_model_m: ``"r"`` required, ``"o"`` optional,
-        ``""`` must be empty.
+    usage : per column x, y, z, gamma, sigma_model_m (then star_x, star_y, star_z, empty
+        when not given): ``"r"`` required, ``"o"`` optional, ``""`` must be empty.
     what : a short description used in messages.
     sigma_min, sigma_max, unit : the accepted 1-sigma range and its unit.
     unit_vector : x, y, z is a unit vector (checked, renormalized within ``UNIT_TOL``).
     check : further value checks ``(x, y, z, sigma_model_m) -> None`` (raise a row error).
+    unit_columns : further columns that together are a unit vector (checked and
+        renormalized like x, y, z).
     """
 
-    usage: tuple[str, str, str, str, str]
+    usage: tuple[str, ...]
     what: str
     sigma_min: float
     sigma_max: float
     unit: str
     unit_vector: bool = False
     check: Callable | None = None
+    unit_columns: tuple[str, ...] = ()
 
 
 _XYZ = ("r", "r", "r", "", "")
@@ -215,6 +227,10 @@ _KIND_SPEC: dict[str, _Kind] = {
     "refraction": _Kind(("r", "r", "r", "r", "o"),
                         "star unit vector, EME2000; gamma, rad; sigma_model_m, m", *_ANGLE,
                         unit_vector=True, check=_check_refraction),
+    "star_direction_body": _Kind(("r", "r", "r", "", "", "r", "r", "r"),
+                                 "unit vector to a star, body; star_x,star_y,star_z = its "
+                                 "catalogue unit vector, EME2000", *_ANGLE, unit_vector=True,
+                                 unit_columns=STAR_COLUMNS),
 }
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""
@@ -229,7 +245,7 @@ _NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
 _NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
 _EPOCH_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$")
 _EPOCH_EXPECTED = "an ISO-8601 UTC epoch YYYY-MM-DDTHH:MM:SS[.fffffffff]Z"
-_HEADER_TEXT = "epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m]"
+_HEADER_TEXT = "epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]"
 _NS_PER_DAY = 86400 * 10**9
 
 
@@ -239,8 +255,8 @@ class MeasurementLog:
 
     ``t_s`` are seconds from ``epoch0`` (``datetime64[ns]``, UTC); ``kind`` a str array;
     ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
-    ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``) to (M,) arrays (NaN
-    where empty); ``line`` the 1-based source line of each row (0 when not from a file);
+    ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ``star_y``,
+    ``star_z``) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
     ``warnings`` human-readable notes; ``dropped`` rows dropped per reason.
     """
 
@@ -289,7 +305,7 @@ def _fmt_found(v: float) -> str:
 
 
 def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Validate the value vector ``v`` = (x, y, z, sigma, gamma, sigma_model_m) of ``kind``.
+    """Validate the value vector ``v`` = (x, y, z, sigma, *EXTRA_COLUMNS) of ``kind``.
 
     NaN means "empty". Returns (values, renormalized); raises :class:`_RowError`.
     """
@@ -298,11 +314,13 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
         raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
     what = spec.what
     v = np.asarray(v, dtype=float)
-    x, y, z, sigma, _gamma, sigma_model = (float(a) for a in v)  # Python floats: no overflow
-    for j, col in enumerate(_VALUE_COLUMNS):                      # warnings below
+    x, y, z, sigma = (float(a) for a in v[:4])  # Python floats: no overflow warnings below
+    sigma_model = float(v[_VALUE_COLUMNS.index("sigma_model_m")])
+    for j, col in enumerate(_VALUE_COLUMNS):
         if np.isinf(v[j]):
             raise _RowError("not_finite", col, "a finite number", _fmt_found(v[j]))
-    cols_usage = dict(zip(("x", "y", "z", "gamma", "sigma_model_m"), spec.usage))
+    usage = tuple(spec.usage) + ("",) * (len(_USAGE_COLUMNS) - len(spec.usage))
+    cols_usage = dict(zip(_USAGE_COLUMNS, usage))
     for col, use in cols_usage.items():
         j = _VALUE_COLUMNS.index(col)
         if use == "r" and np.isnan(v[j]):
@@ -327,6 +345,16 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
         if abs(1.0 - n) > _RENORM_TOL:
             v = v.copy()
             v[:3] /= n
+            renorm = True
+    if spec.unit_columns:
+        j = [_VALUE_COLUMNS.index(c) for c in spec.unit_columns]
+        n = math.hypot(*(float(v[i]) for i in j))
+        if not abs(1.0 - n) <= UNIT_TOL:
+            raise _RowError("not_unit", ",".join(spec.unit_columns),
+                            f"a unit vector (| |u| - 1 | <= {UNIT_TOL:g})", f"|u| = {n!r}")
+        if abs(1.0 - n) > _RENORM_TOL:
+            v = v.copy()
+            v[j] /= n
             renorm = True
     if spec.check is not None:
         spec.check(x, y, z, sigma_model)
@@ -576,7 +604,7 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
 
     ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
     str; ``xyz`` (M, 3) with NaN for unused fields; ``sigma`` (M,); ``extra`` optional dict
-    of (M,) arrays for ``gamma`` / ``sigma_model_m``. Rows are stably sorted by epoch and
+    of (M,) arrays for the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ...). Rows are stably sorted by epoch and
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
     """

@@ -19,7 +19,8 @@ from factors.attitude import attitude_residual, make_attitude_prior_factor
 from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
                                earth_direction_row_kernel, make_body_direction_factor,
-                               make_earth_direction_factor)
+                               make_earth_direction_factor, make_star_direction_factor,
+                               star_direction_residual)
 from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
@@ -28,6 +29,7 @@ from factors.refraction import (make_refraction_bias_factor, make_refraction_fac
                                 refraction_residual, refraction_sigma_m)
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
+from fgnav.io.log_csv import STAR_COLUMNS
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
 from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
@@ -35,12 +37,14 @@ from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
 from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
                                     limb_radius_readings)
+from fgnav.simulate.star_camera import simulate_star_camera_rows
+from fgnav.vision.attitude import wahba_by_epoch
 
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
-           "GYRO", "GYRO_BIAS"]
+           "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY"]
 
 
 def _xyz(log, i):
@@ -302,9 +306,46 @@ GYRO = MeasurementModel(
     requires=ATTITUDE_VARIABLE.name)
 
 
+# ---- raw star observations -----------------------------------------------------------------
+# A star camera's identified stars, each a factor on the attitude alone (tight coupling: the
+# graph solves the attitude from what the camera measures, not from a solved attitude).
+
+def _star_initial(fam):
+    """First guess of the attitude at every row: the SVD solution of Wahba's problem of the
+    row's epoch (Markley 1988, ``fgnav.vision.attitude.wahba_svd``) where the epoch has >= 2
+    non-parallel stars, else the solution of the nearest such epoch; none without any."""
+    ep, R, _ = wahba_by_epoch(fam.k, fam.values["u_body"], fam.values["s_eci"], fam.sigma)
+    if not len(ep):
+        return {}
+    j = np.searchsorted(ep, fam.k)                   # first solved epoch at or after
+    lo, hi = np.clip(j - 1, 0, len(ep) - 1), np.clip(j, 0, len(ep) - 1)
+    pick = np.where(np.abs(ep[lo] - fam.k) <= np.abs(ep[hi] - fam.k), lo, hi)
+    return {ATTITUDE_VARIABLE.name: so3_log(R[pick])}
+
+
+def _star_residual(fam, v):
+    e, H_R = star_direction_residual(v[ATTITUDE_VARIABLE.name], fam.values["s_eci"],
+                                     fam.values["u_body"])
+    return e, {ATTITUDE_VARIABLE.name: H_R}
+
+
+STAR_DIRECTION_BODY = MeasurementModel(
+    kind="star_direction_body", dim=2, unit="rad",
+    summary="unit vector to a star, body frame; its catalogue unit vector (EME2000)",
+    values=lambda log, i: {"u_body": _xyz(log, i), "s_eci": np.column_stack(
+        [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS])},
+    residual=_star_residual, variables=(), optional_variables=(ATTITUDE_VARIABLE,),
+    requires=ATTITUDE_VARIABLE.name, initial=_star_initial,
+    factor=lambda fam, j, keys, noise: make_star_direction_factor(
+        keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j], fam.values["u_body"][j], noise),
+    simulate=simulate_star_camera_rows,
+    scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max"))
+
+
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
     PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
-    ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO)}
+    ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO,
+    STAR_DIRECTION_BODY)}
 """Every log kind the project reads, by kind."""
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{

@@ -18,15 +18,17 @@ order with one shared seeded Generator, so a seed gives the same log). Noise:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.io.log_csv import MeasurementLog, log_from_arrays
-from fgnav.models.registry import MODELS, PRIOR_POSITION, PRIOR_VELOCITY, REFRACTION_BIAS
+from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, log_from_arrays
+from fgnav.models.registry import (EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
+                                   PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
-from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
+from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, SensorSpec, check_size
+from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.refraction_sim import has_model_bias, refraction_bias_path_m
 from fgnav.time import j2000_seconds, parse_utc
 
@@ -43,6 +45,32 @@ class SimulatedPass:
     """True values of model parameters at ``t_s``, name -> (N,) array; today
     ``"refraction_bias_m"`` (m), the atmosphere-model bias of a refraction sensor that has
     one (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`)."""
+
+    def truth_attitude(self) -> np.ndarray:
+        """The true attitude ``R_eci_from_body`` (N, 3, 3) at ``t_s``: the Earth-pointing
+        (LVLH) plan every body-frame simulator observes in
+        (:func:`fgnav.simulate.body_directions.lvlh_R_eci_from_body`)."""
+        return lvlh_R_eci_from_body(self.x_true)
+
+
+RAW_STAR_CAMERA = SensorSpec(STAR_DIRECTION_BODY.kind, star_sigma_arcsec=5.0, fov_deg=12.85,
+                             vmag_max=5.5)
+"""The star camera ``--raw-stars`` adds: Wu et al.'s star optics (f = 50 mm, 11 um pixels on
+1024 x 1024: a 12.85 deg field), stars to V 5.5, 5 arcsec centroid 1-sigma per axis; looking
+at the zenith of the Earth-pointing body (:mod:`fgnav.simulate.star_camera`)."""
+
+
+def raw_star_scenario(scn: Scenario, camera: SensorSpec = RAW_STAR_CAMERA) -> Scenario:
+    """``scn`` observed with raw stars (``fgnav simulate --raw-stars``): its ECI Earth-direction
+    sensors measure in the body frame instead (same noise and period), and a star camera
+    (``camera``, at the scenario's step) gives the attitude as raw star observations, so the
+    attitude and the orbit are solved in one graph (``fgnav smooth --estimate attitude``).
+    A scenario that already has a star camera keeps it (and gets no second one)."""
+    sensors = [replace(s, kind=EARTH_DIRECTION_BODY.kind) if s.kind == EARTH_DIRECTION.kind
+               else s for s in scn.sensors]
+    if not any(s.kind == STAR_DIRECTION_BODY.kind for s in sensors):
+        sensors.append(camera)
+    return scn.with_options(sensors=tuple(sensors))
 
 
 REFRACTION_BIAS_STREAM = 1
@@ -104,10 +132,10 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
     t_cat = np.concatenate(ts)
     order = np.argsort(t_cat, kind="stable")
     extra = None
-    if any(e is not None for _, e in extras):  # extra columns (refraction rows) only
+    if any(e is not None for _, e in extras):  # extra columns (refraction, star rows) only
         extra = {c: np.concatenate([np.full(n, np.nan) if e is None or c not in e
                                     else np.asarray(e[c], dtype=float) for n, e in extras])[order]
-                 for c in ("gamma", "sigma_model_m")}
+                 for c in EXTRA_COLUMNS}
     log = log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
                           np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,

@@ -15,7 +15,7 @@ import numpy as np
 
 from factors.geometry import skew
 
-__all__ = ["WahbaSolution", "wahba_svd", "quest_covariance", "star_pixel_model",
+__all__ = ["WahbaSolution", "wahba_svd", "wahba_by_epoch", "quest_covariance", "star_pixel_model",
            "quat_from_matrix", "matrix_from_quat", "roll_ra_dec",
            "rotation_from_ra_dec_roll"]
 
@@ -66,6 +66,36 @@ def wahba_svd(b_body: np.ndarray, r_ref: np.ndarray, sigma_rad=1.0) -> WahbaSolu
     R = U @ np.diag([1.0, 1.0, d]) @ Vt
     res = r - b @ R.T
     return WahbaSolution(R, quest_covariance(b, sigma_rad), 0.5 * float(np.sum(w * np.sum(res**2, axis=1))))
+
+
+def wahba_by_epoch(k: np.ndarray, b_body: np.ndarray, r_ref: np.ndarray, sigma_rad,
+                   min_stars: int = 2):
+    """:func:`wahba_svd` of the directions of each epoch: the attitude of every epoch index in
+    ``k`` (M,) with at least ``min_stars`` (>= 2) pairs that are not all parallel.
+
+    ``b_body`` (M, 3) measured directions, ``r_ref`` (M, 3) their reference directions,
+    ``sigma_rad`` (M,) or scalar their angular 1-sigma. Returns ``(epochs (E,), R (E, 3, 3)
+    R_ref_from_body, cov (E, 3, 3) rad^2)``, epochs increasing.
+    """
+    k = np.asarray(k)
+    b = np.asarray(b_body, float)
+    r = np.asarray(r_ref, float)
+    sig = np.broadcast_to(np.asarray(sigma_rad, float), k.shape)
+    order = np.argsort(k, kind="stable")
+    bounds = np.flatnonzero(np.diff(k[order])) + 1
+    epochs, Rs, covs = [], [], []
+    for grp in np.split(order, bounds):
+        if len(grp) < max(2, min_stars):
+            continue
+        bb = b[grp] / np.linalg.norm(b[grp], axis=1, keepdims=True)
+        if np.linalg.matrix_rank(np.eye(3) * len(grp) - bb.T @ bb, tol=1e-9 * len(grp)) < 3:
+            continue   # all directions parallel: the rotation about them is free
+        sol = wahba_svd(bb, r[grp], sig[grp])
+        epochs.append(int(k[grp[0]]))
+        Rs.append(sol.R_ref_from_body)
+        covs.append(sol.cov_rad2)
+    return (np.array(epochs, dtype=int), np.array(Rs).reshape(-1, 3, 3),
+            np.array(covs).reshape(-1, 3, 3))
 
 
 def star_pixel_model(R_eci_from_camera: np.ndarray, f_px: float, k1: float, u_eci: np.ndarray,
