@@ -87,12 +87,15 @@ def rows_by_epoch(p: Pass) -> list[list[tuple[str, np.ndarray]]]:
     return out
 
 
-def build_pass(log) -> Pass:
+def build_pass(log, estimate=()) -> Pass:
     """Group a :class:`fgnav.io.log_csv.MeasurementLog` by epoch into a :class:`Pass`.
 
     One family per kind that enters the graphs (its model's ``values`` from the log rows),
     plus the ``attitude`` rows; a body-frame kind (``body_frame_of``) joins its ECI family,
-    rotated with the attitude measured at the same epoch.
+    rotated with the attitude measured at the same epoch. A body-frame row at an epoch
+    without an attitude row is an error, unless ``estimate`` (the variables to be estimated,
+    as for :func:`with_estimates`) names the attitude: the row is then a factor on the
+    attitude variable of its epoch, which the random walk ties to the measured ones.
     """
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
@@ -118,7 +121,11 @@ def build_pass(log) -> Pass:
         if mdl.body_frame_of is None or not len(i):
             continue
         missing = [int(lines[j]) for j in i if int(k_of_row[j]) not in att_at]
-        if missing:
+        if missing and _names_attitude(estimate):
+            i = np.array([j for j in i if int(k_of_row[j]) in att_at], dtype=int)
+            if not len(i):
+                continue
+        elif missing:
             raise UserError(
                 f"{log.path}: {body_kind} rows need an '{ATTITUDE.kind}' row at the same epoch; "
                 f"none for line(s) {missing[:5]}{' ...' if len(missing) > 5 else ''}")
@@ -139,6 +146,11 @@ def build_pass(log) -> Pass:
                          line=np.concatenate([old.line, new.line])[order])
         p.families[mdl.body_frame_of] = new
     return p
+
+
+def _names_attitude(estimate) -> bool:
+    """Whether the variable names of ``estimate`` (dashes or underscores) include the attitude."""
+    return any(str(n).replace("-", "_") == ATTITUDE.requires for n in estimate or ())
 
 
 def _without_body_rows(fam: Family) -> Family | None:

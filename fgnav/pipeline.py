@@ -220,7 +220,7 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     """
     t0 = time.perf_counter()
     log = read_measurements(log_path)
-    p = build_pass(log)
+    p = build_pass(log, options.estimate)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
     # the pass the solvers see (gaps planned): the summary uses it
     p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
