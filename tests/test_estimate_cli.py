@@ -76,3 +76,26 @@ def test_body_rows_at_epochs_without_attitude_rows(att_log, capsys, tmp_path, me
     full = json.loads((tmp_path / "full" / "summary.json").read_text())
     assert s["position_rms_m"] == pytest.approx(full["position_rms_m"], rel=0.05)
     assert s["nees_mean"] < 2.0 * full["nees_mean"]
+
+
+def test_a_checkpoint_belongs_to_the_set_of_variables_not_to_its_spelling(att_log, capsys,
+                                                                          tmp_path):
+    """A repeated, reordered or underscored --estimate asks for the same variables: it
+    resumes the checkpoint; another set of variables is refused with exit 2."""
+    tmp, _, _ = att_log
+    log, ck = str(tmp / "sim" / "measurements.csv"), str(tmp_path / "ck.npz")
+    rc, err = _smooth(capsys, log, tmp_path / "a", "--method", "isam2", "--estimate", "attitude",
+                      "--estimate", "refraction-bias", "--checkpoint", ck,
+                      "--checkpoint-every", "30")
+    assert rc == 0, err
+    rc, err = _smooth(capsys, log, tmp_path / "b", "--method", "isam2", "--estimate",
+                      "refraction_bias", "--estimate", "attitude", "--estimate", "attitude",
+                      "--checkpoint", ck, "--resume")
+    assert rc == 0, err
+    a = (tmp_path / "a" / "variables.csv").read_text().splitlines()
+    b = (tmp_path / "b" / "variables.csv").read_text().splitlines()
+    assert a[0] == b[0]          # the same columns in the same order
+    for name in ([], ["--estimate", "attitude"]):
+        rc, err = _smooth(capsys, log, tmp_path / "c", "--method", "isam2", *name,
+                          "--checkpoint", ck, "--resume")
+        assert rc == 2 and "fgnav: error:" in err and "belongs to another log or other options" in err

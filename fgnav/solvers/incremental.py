@@ -463,6 +463,11 @@ def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_e
         f.write(buf.getvalue())
 
 
+def _foreign_checkpoint(path) -> UserError:
+    return UserError(f"{path}: the checkpoint belongs to another log or other options "
+                     f"(its fingerprint of the log's values and the options differs)")
+
+
 def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows, n_block=6):
     """Read and validate a checkpoint written by :func:`_save_checkpoint` for this run.
 
@@ -503,6 +508,11 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     if "format" in arrays and arrays["format"].dtype.kind == "U" and arrays["format"].shape == () \
             and str(arrays["format"]) != CHECKPOINT_FORMAT:
         raise bad(f"format '{arrays['format']}', this version reads '{CHECKPOINT_FORMAT}'")
+    fp = arrays.get("fingerprint")
+    if fp is not None and fp.shape == () and fp.dtype.kind == "U" and str(fp) != fingerprint:
+        # before the per-family arrays: another set of options (e.g. --estimate) has other
+        # families, and a sound checkpoint of another run is not "unusable"
+        raise _foreign_checkpoint(path)
     if missing:
         raise bad(f"missing arrays: {', '.join(missing)}")
     if extra:
@@ -513,9 +523,6 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
             raise bad(f"'{name}' must be a string, found dtype {a.dtype} shape {a.shape}")
     if str(arrays["format"]) != CHECKPOINT_FORMAT:
         raise bad(f"format '{arrays['format']}', this version reads '{CHECKPOINT_FORMAT}'")
-    if str(arrays["fingerprint"]) != fingerprint:
-        raise UserError(f"{path}: the checkpoint belongs to another log or other options "
-                        f"(its fingerprint of the log's values and the options differs)")
     kk = arrays["k_next"]
     if kk.shape != () or kk.dtype.kind not in "iu":
         raise bad(f"'k_next' must be an integer, found dtype {kk.dtype} shape {kk.shape}")
