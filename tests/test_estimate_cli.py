@@ -99,3 +99,37 @@ def test_a_checkpoint_belongs_to_the_set_of_variables_not_to_its_spelling(att_lo
         rc, err = _smooth(capsys, log, tmp_path / "c", "--method", "isam2", *name,
                           "--checkpoint", ck, "--resume")
         assert rc == 2 and "fgnav: error:" in err and "belongs to another log or other options" in err
+
+
+@pytest.fixture(scope="module")
+def bias_sim(tmp_path_factory):
+    """refraction-leo-bias, 15 min: measurements.csv, truth.oem, truth_refraction_bias.csv."""
+    out = tmp_path_factory.mktemp("bias") / "sim"
+    assert main(["simulate", "refraction-leo-bias", "--out", str(out), "--seed", "4",
+                 "--duration-h", "0.25", "--quiet"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda lines: lines[:10], "does not cover the log's epochs"),
+    (lambda lines: [ln.replace("refraction_bias_m", "bias_m") for ln in lines],
+     "expected the column(s) refraction_bias_m"),
+    (lambda lines: lines[:6] + [lines[6].split(",")[0] + ",nan"] + lines[7:],
+     "line 7, column 'refraction_bias_m'"),
+])
+def test_a_bad_truth_variable_file_is_refused_before_solving(bias_sim, tmp_path, capsys,
+                                                             monkeypatch, edit, message):
+    """The truth of the bias beside --truth is checked with the truth OEM, before any work,
+    and the error names the file (and line)."""
+    import fgnav.pipeline
+    lines = (bias_sim / "truth_refraction_bias.csv").read_text().splitlines()
+    (tmp_path / "truth.oem").write_text((bias_sim / "truth.oem").read_text())
+    (tmp_path / "truth_refraction_bias.csv").write_text("\n".join(edit(lines)) + "\n")
+
+    def no_solving(*a, **k):
+        raise AssertionError("solved before checking the truth")
+    monkeypatch.setattr(fgnav.pipeline, "solve", no_solving)
+    rc, err = _smooth(capsys, str(bias_sim / "measurements.csv"), tmp_path / "out",
+                      "--estimate", "refraction-bias", "--truth", str(tmp_path / "truth.oem"))
+    assert rc == 2 and err.startswith("fgnav: error: ") and "truth_refraction_bias.csv" in err
+    assert message in err
