@@ -133,3 +133,24 @@ def test_a_bad_truth_variable_file_is_refused_before_solving(bias_sim, tmp_path,
                       "--estimate", "refraction-bias", "--truth", str(tmp_path / "truth.oem"))
     assert rc == 2 and err.startswith("fgnav: error: ") and "truth_refraction_bias.csv" in err
     assert message in err
+
+
+@pytest.mark.parametrize("method", ["batch", "isam2"])
+def test_no_prior_with_the_attitude_estimated(att_log, capsys, tmp_path, method):
+    """--ignore-prior starts from the initial orbit of the Earth directions; with the
+    attitude estimated they are body-frame rows, which the initial orbit determination
+    rotates with the attitude rows as it does without --estimate (it used to say that the
+    log lacked 'earth_direction_body + attitude' rows, which it has)."""
+    tmp, _, _ = att_log
+    log, truth = str(tmp / "sim" / "measurements.csv"), str(tmp / "sim" / "truth.oem")
+    runs = {}
+    for name, est in (("known", []), ("estimated", ["--estimate", "attitude"])):
+        rc, err = _smooth(capsys, log, tmp_path / name, "--method", method, "--ignore-prior",
+                          "--truth", truth, *est)
+        assert rc == 0, err
+        runs[name] = json.loads((tmp_path / name / "summary.json").read_text())
+    known, est = runs["known"], runs["estimated"]
+    assert est["initial_orbit"]["prior"] == "ignored"
+    assert est["initial_orbit"]["method"] == known["initial_orbit"]["method"]
+    assert est["position_rms_m"] == pytest.approx(known["position_rms_m"], rel=0.02)
+    assert est["integrity"]["status"] == "ok" and "attitude" in est["variables"]
