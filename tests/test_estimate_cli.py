@@ -214,3 +214,35 @@ def test_the_gate_rejects_refraction_outliers_with_the_bias_estimated(bias_sim, 
     late = sum(t > 120.0 for t in bad)   # after the first 2 min (the 10 km prior's settling)
     assert s["rejected"]["refraction"] >= late > 0
     assert s["variables"]["refraction_bias"]["error_rms"][0] < 60.0
+
+
+@pytest.mark.parametrize("method", ["ekf", "batch"])
+def test_a_misaligned_attitude_fails_the_verdict_with_the_attitude_estimated(att_log, capsys,
+                                                                             tmp_path, method):
+    """Attitude rows 0.2 deg off the Earth sensor's frame (a misaligned star tracker):
+    the body-frame directions disagree with them by ~10 sigma. The verdict fails with the
+    attitude known and estimated alike; the EKF's normalized innovations used to divide the
+    body-frame rows by the attitude's random walk instead of the attitude its epoch's rows
+    give, and said they fit (chi2/dof 0.006)."""
+    from factors.geometry import so3_exp, so3_log
+    tmp, head, rows = att_log
+    C = so3_exp(np.radians(0.2) * np.array([1.0, 0.0, 0.0]))
+    edited = []
+    for r in rows:
+        r = list(r)
+        if r[1] == "attitude":
+            w = so3_log(so3_exp(np.array([float(c) for c in r[2:5]])) @ C)
+            r[2:5] = [repr(float(c)) for c in w]
+        edited.append(r)
+    log = _write(tmp_path, "misaligned.csv", head, edited)
+    for name, est in (("known", []), ("estimated", ["--estimate", "attitude"])):
+        rc, err = _smooth(capsys, log, tmp_path / name, "--method", method, "--strict", *est)
+        assert rc == 3, err
+        s = json.loads((tmp_path / name / "summary.json").read_text())
+        body = "earth_direction_body" if est else "earth_direction"
+        assert s["integrity"]["status"] == "failed"
+        assert s["integrity"]["families"][body]["status"] == "failed"
+    # and no false alarm on the log as simulated
+    rc, err = _smooth(capsys, str(tmp / "sim" / "measurements.csv"), tmp_path / "clean",
+                      "--method", method, "--strict", "--estimate", "attitude")
+    assert rc == 0, err
