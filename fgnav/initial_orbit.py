@@ -3,7 +3,8 @@
 A smoother needs a first guess of the orbit. Logs usually carry it as ``prior_position`` /
 ``prior_velocity`` rows, but a CCSDS TDM never does, and a prior may be wrong. This module
 computes the orbit from the geocentric directions (``earth_direction`` rows, and
-``earth_direction_body`` rows once rotated to ECI), adding the range-type rows
+``earth_direction_body`` rows once rotated to ECI, with the attitude row at their epoch even
+when the attitude is estimated), adding the range-type rows
 (``limb_radius``, ``altitude``) when the log has them.
 
 Why not Gauss or Laplace
@@ -83,7 +84,8 @@ from numba import njit
 from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError
 from fgnav.graph import linearize_all
-from fgnav.measurements import Family, Pass, covering_sigmas, prior_covariance, prior_state
+from fgnav.measurements import (Family, Pass, covering_sigmas, directions_in_eci,
+                                prior_covariance, prior_state)
 from fgnav.models.registry import ATTITUDE, MODELS, PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds
 from fgnav.solvers.first_guess import initial_guess
 
@@ -131,6 +133,7 @@ class InitialOrbit:
 
 def iod_support(p: Pass) -> tuple[bool, str]:
     """Whether :func:`initial_orbit` can start from this pass, and a sentence saying why."""
+    p = directions_in_eci(p)
     n_dir = len(np.unique(_geocentric_directions(p)[0]))
     if n_dir >= MIN_DIRECTION_EPOCHS:
         ranges = [k for k in RANGE_KINDS if p.count(k)]
@@ -468,8 +471,8 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
     ok, why = iod_support(p)
     if not ok:
         raise UserError(f"{p.source}: {why}")
-    try:
-        return _initial_orbit(p, model, t0_j2000_s, near_k)
+    try:   # body-frame directions (--estimate attitude) rotated with the attitude rows
+        return _initial_orbit(directions_in_eci(p), model, t0_j2000_s, near_k)
     except UserError:
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:

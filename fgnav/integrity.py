@@ -42,6 +42,7 @@ from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family, orb
 from fgnav.models.registry import model as model_of
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
+from fgnav.models.registry import model as model_of
 from fgnav.time import j2000_seconds
 
 
@@ -472,7 +473,10 @@ def filter_normalized_innovations(p, sol, model) -> dict:
     stays conservative). The innovations themselves are the filter's (``sol.residuals``).
     Further variables (a bias, an attitude) are predicted by their random walk,
     ``P^-_k = P_{k-1} + psd dt``, block-diagonal with the orbit (the filter's cross-covariance
-    is not kept in the solution).
+    is not kept in the solution); rows that measure them alone (attitude rows) update that
+    prediction before the later families of their epoch, as in the filter (without it the
+    attitude's random walk made every body-frame innovation look small, and a misaligned
+    attitude passed).
     """
     X, P = sol.x_eci, sol.P_eci
     N = p.n_epochs
@@ -502,7 +506,9 @@ def filter_normalized_innovations(p, sol, model) -> dict:
         if N > 1:
             P_blk[1:, sl, sl] = Pv[:-1] + np.eye(v.dim) * (v.step_sigma(dt) ** 2)[:, None, None]
     out = {}
-    for kind, r in sol.residuals.items():
+    order = [kind for kind in p.families if kind in sol.residuals]   # the filter's order
+    for kind in order + [kind for kind in sol.residuals if kind not in order]:
+        r = sol.residuals[kind]
         if not enters(p, kind) or kind in PRIOR_KINDS or kind not in p.families or \
                 model_of(kind).between:
             out[kind] = r
@@ -517,4 +523,18 @@ def filter_normalized_innovations(p, sol, model) -> dict:
             L = np.linalg.cholesky(S[ok])
             z[ok] = np.linalg.solve(L, b[ok][..., None])[..., 0]
         out[kind] = z
+        if not model_of(kind).variables:
+            _update_with_rows(P_blk, fam.k[ok], A[ok])
     return out
+
+
+def _update_with_rows(P_blk, k, A):
+    """The epochs' predicted covariances after rows that measure further variables alone
+    (attitude rows: the filter processes them before the body-frame rows of their epoch,
+    whose innovations are then those of the attitude they give, not of its random walk):
+    a Kalman update ``P - P A^T S^-1 A P`` per row, in place."""
+    for kk, a in zip(k.tolist(), A):
+        P = P_blk[kk]
+        S = a @ P @ a.T + np.eye(len(a))
+        K = np.linalg.solve(S, a @ P).T
+        P_blk[kk] = P - K @ a @ P

@@ -96,10 +96,10 @@ def build_pass(log) -> Pass:
 
     One family per kind that enters the graphs (its model's ``values`` from the log rows),
     plus the ``attitude`` rows; a body-frame kind (``body_frame_of``) joins its ECI family,
-    rotated with the attitude measured at the same epoch. A body-frame row without an
-    attitude row at its epoch is an error unless the log has star rows
-    (``star_direction_body``): those rows then wait in ``deferred`` for the attitude to be
-    estimated (:func:`with_estimates`, :func:`check_attitude`).
+    rotated with the attitude measured at the same epoch. A body-frame row at an epoch
+    without an attitude row waits (``Pass.unconverted``) for the attitude to be estimated
+    (star or attitude rows fix it, gyro rows carry it between them; :func:`check_observable`
+    refuses the pass otherwise, naming the rows).
     """
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
@@ -124,35 +124,64 @@ def build_pass(log) -> Pass:
     att = p.deferred.get(ATTITUDE.kind)
     if att is not None:
         p.families[ATTITUDE.kind] = att   # rows of their own kind (used for body -> ECI)
-    att_at = {} if att is None else {int(kk): j for j, kk in enumerate(att.k)}
     for body_kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == body_kind)
         if mdl.body_frame_of is None or not len(i):
             continue
-        has_att = np.array([int(k_of_row[j]) in att_at for j in i], dtype=bool)
-        if not has_att.all():
-            # usable only with the attitude estimated (gyro or star rows carry it across)
-            p.unconverted[body_kind] = lines[i[~has_att]]
-            i = i[has_att]
-            if not len(i):
-                continue
-        ja = np.array([att_at[int(k_of_row[j])] for j in i])
-        u_eci = np.einsum("mij,mj->mi", att.values["R_eci_from_body"][ja], xyz[i])
-        sig = np.hypot(sigma[i], att.sigma[ja])
-        # from_body marks the rows that stand in for the body-frame rows (with_estimates)
-        new = Family(k=k_of_row[i], values={"u_eci": u_eci, "from_body": np.ones(len(i), bool)},
-                     sigma=sig, line=lines[i])
-        old = p.families.get(mdl.body_frame_of)
-        if old is not None:
-            order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
-            was = old.values.get("from_body", np.zeros(len(old), bool))
-            new = Family(k=np.concatenate([old.k, new.k])[order],
-                         values={"u_eci": np.concatenate([old.values["u_eci"], u_eci])[order],
-                                 "from_body": np.concatenate([was, new.values["from_body"]])[order]},
-                         sigma=np.concatenate([old.sigma, sig])[order],
-                         line=np.concatenate([old.line, new.line])[order])
-        p.families[mdl.body_frame_of] = new
+        body = Family(k=k_of_row[i], values=mdl.values(log, i), sigma=sigma[i], line=lines[i])
+        new, missing = _rotated_to_eci(body, att)
+        if len(missing):
+            p.unconverted[body_kind] = missing
+        if len(new):
+            p.families[mdl.body_frame_of] = _merged(p.families.get(mdl.body_frame_of), new)
     return p
+
+
+def _rotated_to_eci(body: Family, att: Family | None) -> tuple[Family, np.ndarray]:
+    """Body-frame direction rows (values ``u_body``) rotated into ECI with the attitude row
+    at their epoch, ``u_eci = R_eci_from_body u_body``, their variance increased by the
+    attitude's: the rotated rows (marked ``from_body``) of the rows that have an attitude
+    row, and the source lines of those that have none."""
+    att_at = {} if att is None else {int(kk): j for j, kk in enumerate(att.k)}
+    has = np.array([int(kk) in att_at for kk in body.k], dtype=bool)
+    rows = np.flatnonzero(has)
+    ja = np.array([att_at[int(kk)] for kk in body.k[rows]], dtype=int)
+    R = att.values["R_eci_from_body"][ja] if len(rows) else np.zeros((0, 3, 3))
+    u_eci = np.einsum("mij,mj->mi", R, body.values["u_body"][rows])
+    sig = np.hypot(body.sigma[rows], att.sigma[ja]) if len(rows) else np.zeros(0)
+    new = Family(k=body.k[rows], values={"u_eci": u_eci, "from_body": np.ones(len(rows), bool)},
+                 sigma=sig, line=body.line[rows])
+    return new, body.line[~has]
+
+
+def _merged(old: Family | None, new: Family) -> Family:
+    """The rows of an ECI direction family and of rows rotated into it, sorted by epoch."""
+    if old is None:
+        return new
+    order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
+    was = old.values.get("from_body", np.zeros(len(old), bool))
+    return Family(k=np.concatenate([old.k, new.k])[order],
+                  values={"u_eci": np.concatenate([old.values["u_eci"], new.values["u_eci"]])[order],
+                          "from_body": np.concatenate([was, new.values["from_body"]])[order]},
+                  sigma=np.concatenate([old.sigma, new.sigma])[order],
+                  line=np.concatenate([old.line, new.line])[order])
+
+
+def directions_in_eci(p: Pass) -> Pass:
+    """The pass with its body-frame direction families (there when the attitude is a graph
+    variable) rotated into their ECI family with the attitude rows at their epochs, as
+    :func:`build_pass` does without the variable: for the orbit-only computations (initial
+    orbit determination). Rows at epochs without an attitude row are left out."""
+    body = [k for k in p.families if MODELS[k].body_frame_of is not None]
+    if not body:
+        return p
+    fams = dict(p.families)
+    for kind in body:
+        new, _ = _rotated_to_eci(fams.pop(kind), p.families.get(ATTITUDE.kind))
+        if len(new):
+            into = MODELS[kind].body_frame_of
+            fams[into] = _merged(fams.get(into), new)
+    return dataclasses.replace(p, families=fams, layout=Layout())
 
 
 def _without_body_rows(fam: Family) -> Family | None:
@@ -238,8 +267,8 @@ def check_observable(p: Pass, require_prior: bool = True) -> None:
     for kind, lines in p.unconverted.items():
         if not p.layout.has(MODELS[kind].requires or ""):
             raise UserError(
-                f"{p.source}: {kind} rows need the attitude: an '{ATTITUDE.kind}' row at the same "
-                f"epoch, or the attitude estimated (--estimate {ATTITUDE_VARIABLE.cli_name}, with "
+                f"{p.source}: {kind} rows need an '{ATTITUDE.kind}' row at the same epoch, or "
+                f"the attitude estimated (--estimate {ATTITUDE_VARIABLE.cli_name}, with "
                 f"'{STAR_DIRECTION_BODY.kind}' or '{ATTITUDE.kind}' rows to fix it and gyro rows to "
                 f"carry it); none for line(s) {list(map(int, lines[:5]))}"
                 f"{' ...' if len(lines) > 5 else ''}")

@@ -228,6 +228,8 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     log = read_measurements(log_path)
     p = build_pass(log)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
+    truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
+                                                                      options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
     p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
     sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
@@ -242,30 +244,39 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
         summary.update(accuracy_metrics(sol, x_true))
         summary["truth_path"] = str(truth_path)
         if sol.variables:
-            summary["variables"] = variable_summary(sol, truth_variables(truth_path, sol))
+            summary["variables"] = variable_summary(sol, truth_variables(truth_vars, sol))
     return SmoothResult(sol, summary, x_true), p
 
 
-def truth_variables(truth_path: str | Path, sol: Solution) -> dict:
-    """True values of the solution's further variables at its epochs, from the files
+def read_truth_variables(truth_path: str | Path, p: Pass, estimate=()) -> dict:
+    """True values of the further variables in ``estimate`` from the files
     ``truth_<variable>.csv`` beside the truth OEM (``fgnav simulate`` writes them; columns
-    ``epoch`` and the variable's components), linearly interpolated; variables without a
-    file are left out."""
+    ``epoch`` and the variable's components), read and checked against the pass's epochs
+    before any solving: name -> ``(t_s (M,), values (M, d))`` on the pass's time axis;
+    variables without a file are left out."""
     out = {}
-    for name in sol.variables:
-        path = Path(truth_path).parent / f"truth_{name}.csv"
+    for name in estimate or ():
+        v = variable(name)
+        path = Path(truth_path).parent / f"truth_{v.name}.csv"
         if not path.exists():
             continue
         epochs, cols = read_truth_params_csv(path)
-        t = np.asarray(seconds_since(epochs, sol.epoch0), dtype=float)
-        comps = variable(name).components
-        missing = [c for c in comps if c not in cols]
+        t = np.asarray(seconds_since(epochs, p.epoch0), dtype=float)
+        missing = [c for c in v.components if c not in cols]
         if missing:
             raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
-        if t[0] > sol.t_s[0] + 1e-6 or t[-1] < sol.t_s[-1] - 1e-6:
-            raise UserError(f"{path}: does not cover the solution's epochs")
-        out[name] = np.column_stack([np.interp(sol.t_s, t, cols[c]) for c in comps])
+        if t[0] > p.t_s[0] + 1e-6 or t[-1] < p.t_s[-1] - 1e-6:
+            raise UserError(f"{path}: does not cover the log's epochs ({t[0]:.1f}..{t[-1]:.1f} s "
+                            f"vs {p.t_s[0]:.1f}..{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
+        out[v.name] = (t, np.column_stack([cols[c] for c in v.components]))
     return out
+
+
+def truth_variables(truth: dict, sol: Solution) -> dict:
+    """The true values of :func:`read_truth_variables` at the solution's epochs (linear
+    interpolation): name -> (N, d)."""
+    return {name: np.column_stack([np.interp(sol.t_s, t, x[:, i]) for i in range(x.shape[1])])
+            for name, (t, x) in truth.items() if name in sol.variables}
 
 
 def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:

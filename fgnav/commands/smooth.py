@@ -97,12 +97,22 @@ def check_solver_args(args, methods) -> None:
         args.checkpoint_every = DEFAULT_CHECKPOINT_EVERY
 
 
+def estimate_names(names) -> tuple[str, ...]:
+    """The ``--estimate`` values as one set: each variable once, in the registry's order,
+    spelled as on the command line (``refraction_bias`` and a repeated or reordered
+    ``--estimate`` ask for the same variables, so for the same run and checkpoint)."""
+    from fgnav.models.registry import VARIABLES, variable
+
+    wanted = {variable(n).name for n in names or ()}   # UserError for an unknown name
+    return tuple(v.cli_name for v in VARIABLES.values() if v.name in wanted)
+
+
 def solver_options(args):
     from fgnav.solvers.options import SmootherOptions
 
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
-          "gate_probability": args.gate, "estimate": tuple(getattr(args, "estimate", ()) or ())}
+          "gate_probability": args.gate, "estimate": estimate_names(getattr(args, "estimate", ()))}
     if args.process_noise is not None:
         if not args.process_noise > 0:
             from fgnav.errors import UserError

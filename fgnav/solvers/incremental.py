@@ -177,6 +177,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))
+    online_V = np.zeros((N, lay.n, lay.n))  # the gate: further variables' online marginals
     lagged_x = np.empty((N, lay.n))   # fixed-lag: each state's estimate when it leaves the window
     lagged_P = np.zeros((N, lay.n, lay.n))
     lagged_next = np.full((N, lay.n), np.nan)  # ... and its successor's in that same estimate
@@ -201,12 +202,15 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                 continue
             if kept_only:
                 rows = rows[~rejected_rows[kind][rows]]
-            elif gate is not None and mdl.robust and not mdl.between:
+            elif gate is not None and not mdl.between:
                 # (a row between two epochs is not gated: its prediction needs the joint
                 # covariance of both, which the online route does not read)
-                kept = _gate_rows(p, kind, rows, guess, P_pred, gate)
-                rejected_rows[kind][np.setdiff1d(rows, kept)] = True
-                rows = kept
+                if mdl.robust:
+                    kept = _gate_rows(p, kind, rows, gated[0], gated[1], gate)
+                    rejected_rows[kind][np.setdiff1d(rows, kept)] = True
+                    rows = kept
+                if not mdl.variables:   # rows of further variables alone (attitude rows)
+                    gated[:] = _gate_update(p, lay, kind, rows, *gated)
             for f in mdl.factors(p.families[kind], rows, k, lay, kernel, guess[:6], p.t_s):
                 graph.add(f)
 
@@ -228,6 +232,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         isam.update(graph, values)
         held_lp = isam.getLinearizationPoint()
         x_prev = _read_block(isam, lay, k_start - 1)
+        if gate is not None:
+            _read_variable_marginals(isam, lay, k_start - 1, online_V)
     _warm_up(p, per_epoch, options, model, t0_j2000, x_prev[:6], kernel)
     with _gc_paused():
         for k in range(k_start, N):
@@ -247,9 +253,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
                                       t0_j2000 + p.t_s[max(k - 1, 0)]):
                 graph.add(f)
-            if gate is not None:
-                P_pred = _predicted_covariance(p, lay, k, Phi_k if k else None, online_P, dt,
-                                               options.q_m2_s3)
+            if gate is not None:   # [state, covariance] updated by each family's kept rows
+                gated = [guess.copy(), _predicted_covariance(
+                    p, lay, k, Phi_k if k else None, online_P, online_V, dt, options.q_m2_s3)]
             add_epoch_factors(graph, k, guess, kept_only=False)
             _insert_block(values, lay, k, guess)
             try:
@@ -272,6 +278,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     f"first epoch)") from exc
             online_x[k] = x_prev[:6]
             online_P[k] = P
+            if gate is not None:
+                _read_variable_marginals(smoother if fixed_lag else isam, lay, k, online_V)
             latency[k] = time.perf_counter() - t_k0
             if checkpoint and ((k + 1) % checkpoint_every == 0 or k == N - 1):
                 est = isam.calculateEstimate()
@@ -465,6 +473,11 @@ def _save_checkpoint(path, fingerprint, k_next, online_x, online_P, latency, x_e
         f.write(buf.getvalue())
 
 
+def _foreign_checkpoint(path) -> UserError:
+    return UserError(f"{path}: the checkpoint belongs to another log or other options "
+                     f"(its fingerprint of the log's values and the options differs)")
+
+
 def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_rows, n_block=6):
     """Read and validate a checkpoint written by :func:`_save_checkpoint` for this run.
 
@@ -505,6 +518,11 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     if "format" in arrays and arrays["format"].dtype.kind == "U" and arrays["format"].shape == () \
             and str(arrays["format"]) != CHECKPOINT_FORMAT:
         raise bad(f"format '{arrays['format']}', this version reads '{CHECKPOINT_FORMAT}'")
+    fp = arrays.get("fingerprint")
+    if fp is not None and fp.shape == () and fp.dtype.kind == "U" and str(fp) != fingerprint:
+        # before the per-family arrays: another set of options (e.g. --estimate) has other
+        # families, and a sound checkpoint of another run is not "unusable"
+        raise _foreign_checkpoint(path)
     if missing:
         raise bad(f"missing arrays: {', '.join(missing)}")
     if extra:
@@ -515,9 +533,6 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
             raise bad(f"'{name}' must be a string, found dtype {a.dtype} shape {a.shape}")
     if str(arrays["format"]) != CHECKPOINT_FORMAT:
         raise bad(f"format '{arrays['format']}', this version reads '{CHECKPOINT_FORMAT}'")
-    if str(arrays["fingerprint"]) != fingerprint:
-        raise UserError(f"{path}: the checkpoint belongs to another log or other options "
-                        f"(its fingerprint of the log's values and the options differs)")
     kk = arrays["k_next"]
     if kk.shape != () or kk.dtype.kind not in "iu":
         raise bad(f"'k_next' must be an integer, found dtype {kk.dtype} shape {kk.shape}")
@@ -542,17 +557,59 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     return k, arrays["x_est"], rows
 
 
-def _predicted_covariance(p, lay, k, Phi_k, online_P, dt, q):
+def _predicted_covariance(p, lay, k, Phi_k, online_P, online_V, dt, q):
     """The covariance of epoch ``k``'s block predicted from the online estimate of ``k - 1``
-    (for the gate): orbit ``Phi P Phi^T + Q``, further variables their prior sigma (a wide
-    bound: their online marginal is not read every epoch)."""
+    (for the gate): orbit ``Phi P Phi^T + Q``. With further variables, from their joint
+    online marginal with the orbit at ``k - 1`` (``online_V``; a bias and the radial
+    position are strongly correlated, so their separate marginals would overstate the
+    spread of the tangent height they predict) plus each one's random-walk step
+    ``psd dt``; at the first epoch their priors."""
     P = np.zeros((lay.n, lay.n))
-    P[:6, :6] = (prior_covariance(p) if k == 0 else
-                 Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, q))
+    if k == 0 or not lay.extra:
+        P[:6, :6] = (prior_covariance(p) if k == 0 else
+                     Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, q))
+        for v in lay.extra:
+            sl = lay.slices[v.name]
+            P[sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
+        return P
+    F = np.eye(lay.n)
+    F[:6, :6] = Phi_k
+    P = F @ online_V[k - 1] @ F.T
+    P[:6, :6] += process_noise(dt, q)
     for v in lay.extra:
         sl = lay.slices[v.name]
-        P[sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
+        P[sl, sl] += np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
     return P
+
+
+def _read_variable_marginals(estimator, lay, k, online_V):
+    """Epoch ``k``'s block's joint marginal covariance (orbit and further variables) from
+    iSAM2 / the fixed-lag smoother into ``online_V[k]`` (for the next epoch's gate)."""
+    if not lay.extra:
+        return
+    isam = estimator.getISAM2() if hasattr(estimator, "getISAM2") else estimator
+    J = isam.jointMarginalCovariance([v.key(k) for v in lay.variables])
+    for a in lay.variables:
+        for b in lay.variables:
+            online_V[k][lay.slices[a.name], lay.slices[b.name]] = J.at(a.key(k), b.key(k))
+
+
+def _gate_update(p, lay, kind, rows, x, P):
+    """The gate's state and covariance after the kept ``rows`` of a family that measures
+    further variables alone (attitude rows) at an epoch: a Kalman update, as the EKF's
+    sequential processing of an epoch's families does, so that the epoch's attitude rows
+    tighten the attitude its body-frame rows are gated with (without it the attitude's
+    predicted spread let 3-degree outliers through). ``(x, P)`` unchanged without rows."""
+    if not len(rows):
+        return x, P
+    fam = p.families[kind]
+    _, A, b, _ = linearize_family(p, kind, fam.subset(np.asarray(rows), 0), x[None])
+    A = A.reshape(-1, lay.n)
+    b = b.reshape(-1)
+    S = A @ P @ A.T + np.eye(len(b))
+    K = np.linalg.solve(S, A @ P).T
+    P = P - K @ A @ P
+    return lay.retract(x, K @ b), 0.5 * (P + P.T)
 
 
 def _gate_rows(p, kind, rows, x_pred, P_pred, probability):
