@@ -30,6 +30,7 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 with_estimates)
+from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
@@ -342,7 +343,9 @@ def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
     """summary.json's ``variables``: per estimated variable (beside the orbit), its unit, mean
     and RMS value, and the RMS and final 1-sigma of each component; with ``truth``
     (name -> (N, d) true values at the solution's epochs) the RMS error, the largest
-    |error|/sigma and the mean normalized squared error (NEES per component)."""
+    |error|/sigma and the mean normalized squared error (NEES per component). A rotation's
+    error is ``Log(R_true^T R)`` (body frame, the right perturbation its covariance is of),
+    not a difference of rotation vectors (which is wrong near a half turn)."""
     out = {}
     for name, (x, P) in sol.variables.items():
         v = variable(name)
@@ -353,6 +356,8 @@ def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
              "sigma_final": sig[-1].tolist()}
         if truth is not None and name in truth:
             err = x - truth[name]
+            if v.manifold == "rot3":
+                err = so3_log(np.swapaxes(so3_exp(truth[name]), -1, -2) @ so3_exp(x))
             d["error_rms"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
             d["max_abs_error_over_sigma"] = np.max(np.abs(err) / sig, axis=0).tolist()
             d["nees_mean"] = float(np.mean(np.sum(err * err / (sig * sig), axis=1)) / x.shape[1])

@@ -68,3 +68,21 @@ def test_batch_and_isam2_give_the_same_attitude(att_pass):
     d = so3_log(np.swapaxes(so3_exp(wb), 1, 2) @ so3_exp(wi))
     assert np.max(np.abs(d) / np.sqrt(np.diagonal(Pb, axis1=1, axis2=2))) < 1e-3
     np.testing.assert_allclose(Pi, Pb, rtol=1e-3, atol=1e-18)
+
+
+def test_summary_attitude_error_is_a_rotation_error_near_a_half_turn():
+    """An estimate 1e-5 rad from a truth at pi - 1e-6 rad: its rotation vector is flipped
+    (-pi about the axis), so a difference of rotation vectors would be ~2 pi; the summary's
+    error is Log(R_true^T R), 1e-5 rad."""
+    from fgnav.pipeline import variable_summary
+    from fgnav.solution import Solution
+
+    w_true = np.tile((np.pi - 1e-6) * np.array([0.0, 0.0, 1.0]), (4, 1))
+    w = so3_log(so3_exp(w_true) @ so3_exp(np.array([1e-5, 0.0, 3e-6])))
+    assert abs(w[0, 2] + np.pi) < 1e-4                     # the flipped representative
+    P = np.tile(np.eye(3) * 1e-10, (4, 1, 1))
+    sol = Solution(method="batch", epoch0=np.datetime64("2025-01-01"), t_s=np.arange(4.0),
+                   x_eci=np.zeros((4, 6)), P_eci=np.tile(np.eye(6), (4, 1, 1)),
+                   variables={"attitude": (w, P)})
+    err = variable_summary(sol, {"attitude": w_true})["attitude"]["error_rms"]
+    np.testing.assert_allclose(err, [1e-5, 0.0, 3e-6], atol=1e-12)
