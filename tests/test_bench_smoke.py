@@ -89,3 +89,35 @@ def test_attitude_pass_observes_the_attitude_and_solves_it(tmp_path):
     assert out["converged"] and out["marginals"]
     assert out["attitude_rms_arcsec"] < 3.0 * bench.ATT_SIGMA_ARCSEC
     assert np.isfinite(out["position_rms_m"])
+
+
+def test_batch_first_guess_with_the_attitude_in_the_graph_leaves_the_solution_as_it_was(tmp_path):
+    """With the attitude estimated, the batch's first guess is the numba EKF on the pass with
+    the attitude known (body rows rotated into ECI by the attitude rows); Gauss-Newton then
+    solves the whole graph, so the solution is the one continuation from the prior gives."""
+    import pickle
+    from dataclasses import replace
+
+    import numpy as np
+
+    from factors.geometry import so3_exp, so3_log
+    from fgnav.solvers.batch import _orbit_only_pass, smooth_batch
+    from fgnav.solvers.ekf_numba import numba_supports
+    from fgnav.solvers.options import SmootherOptions
+
+    with open(_bench_module().make_pass(0.1, 1, tmp_path, "att"), "rb") as fh:
+        p = pickle.load(fh)[0]
+    q = _orbit_only_pass(p)
+    assert q is not None and numba_supports(q) and q.layout.n == 6
+    assert set(q.families) == {"prior_position", "prior_velocity", "earth_direction"}
+    assert np.all(q.families["earth_direction"].values["from_body"])
+    assert len(q.families["earth_direction"]) == p.n_epochs
+    att = replace(SmootherOptions(), estimate=("attitude",))
+    auto, cont = smooth_batch(p, att), smooth_batch(p, replace(att, init="prior"))
+    assert auto.extras["converged"] and cont.extras["converged"]
+    assert auto.extras["q_stages"] == [att.q_m2_s3] != cont.extras["q_stages"]   # EKF guess taken
+    sig = np.sqrt(np.diagonal(cont.P_eci, axis1=1, axis2=2))
+    assert np.max(np.abs(auto.x_eci - cont.x_eci) / sig) < 1e-2
+    (wa, _), (wc, Pc) = auto.variables["attitude"], cont.variables["attitude"]
+    d = so3_log(np.swapaxes(so3_exp(wc), 1, 2) @ so3_exp(wa))
+    assert np.max(np.abs(d) / np.sqrt(np.diagonal(Pc, axis1=1, axis2=2))) < 1e-2
