@@ -68,4 +68,3 @@ def test_batch_and_isam2_give_the_same_attitude(att_pass):
     d = so3_log(np.swapaxes(so3_exp(wb), 1, 2) @ so3_exp(wi))
     assert np.max(np.abs(d) / np.sqrt(np.diagonal(Pb, axis1=1, axis2=2))) < 1e-3
     np.testing.assert_allclose(Pi, Pb, rtol=1e-3, atol=1e-18)
-
