@@ -59,8 +59,7 @@ import math
 import numpy as np
 from numba import njit
 
-from factors.adapters import (custom_factor, noise_model, pad_position_jacobian, rot3_matrix,
-                              vector_state)
+from factors.adapters import custom_factor, noise_model, rot3_matrix
 from factors.geometry import skew, tangent_basis, unit_and_jacobian
 
 __all__ = [
@@ -323,11 +322,33 @@ def make_earth_direction_factor(key_x, u_meas_eci, sigma_rad):
     return gtsam.CustomFactor(noise_model(sigma_rad, 2), [k], error)
 
 
-def _body_direction(key_x, key_R, p, u_meas, B, values):
-    x = vector_state(values, key_x)
-    R = rot3_matrix(values, key_R)
-    e, H_r, H_R = body_direction_residual(x[None, :3], R[None], p, u_meas, B)
-    return e[0], [pad_position_jacobian(H_r[0], x.shape[0]), H_R[0]]
+@njit(cache=True)
+def body_direction_kernel(x, R, p_target, B, want_H, e, Hx, HR):
+    """One row of :func:`body_direction_residual`, written out for the per-factor route.
+
+    x (>= 3,): state, position first, ECI, m; R (3, 3): R_eci_from_body; p_target (3,): the
+    target, ECI, m; B (2, 3): ``tangent_basis(u_meas_body)``. With ``q = R^T (p - r)`` (the
+    predicted direction times ``|p - r|``), writes ``e = Log_{u_meas}(q)`` into e (2,)
+    (:func:`sphere_log_kernel`, whose ``J = de/dq`` carries the ``1/|p - r|``) and, if want_H,
+    ``Hx = [-J R^T, 0]`` (2, len(x)) and ``HR = J skew(q)`` (2, 3), the right perturbation
+    ``R Exp(phi)``, ``q -> q + skew(q) phi`` (Sola, Deray & Atchuthan 2018, "A micro Lie theory
+    for state estimation in robotics"): the same Jacobians as :func:`body_direction_residual`.
+    """
+    d0, d1, d2 = p_target[0] - x[0], p_target[1] - x[1], p_target[2] - x[2]
+    q0 = R[0, 0] * d0 + R[1, 0] * d1 + R[2, 0] * d2
+    q1 = R[0, 1] * d0 + R[1, 1] * d1 + R[2, 1] * d2
+    q2 = R[0, 2] * d0 + R[1, 2] * d1 + R[2, 2] * d2
+    J = np.empty((2, 3))
+    sphere_log_kernel(B, q0, q1, q2, want_H, e, J)
+    if want_H:
+        for i in range(2):
+            for j in range(3):
+                Hx[i, j] = -(J[i, 0] * R[j, 0] + J[i, 1] * R[j, 1] + J[i, 2] * R[j, 2])
+            for j in range(3, Hx.shape[1]):
+                Hx[i, j] = 0.0
+            HR[i, 0] = J[i, 1] * q2 - J[i, 2] * q1
+            HR[i, 1] = J[i, 2] * q0 - J[i, 0] * q2
+            HR[i, 2] = J[i, 0] * q1 - J[i, 1] * q0
 
 
 def make_body_direction_factor(key_x, key_R, p_target_eci_m, u_meas_body, sigma_rad):
@@ -335,12 +356,32 @@ def make_body_direction_factor(key_x, key_R, p_target_eci_m, u_meas_body, sigma_
 
     ``p_target_eci_m``: (3,) target position in ECI, m (zeros for the Earth centre);
     ``u_meas_body``: (3,) measured direction in the body frame; ``sigma_rad``: per axis.
+    The error function calls the numba kernel :func:`body_direction_kernel` directly, as
+    :func:`make_earth_direction_factor` does: iSAM2 builds and relinearizes this factor at
+    every epoch, where the generic numpy route cost 44 us a linearization and 35 us a build
+    (against 5 us and 5 us); tests check both routes give the same linearization.
     """
-    p = np.asarray(p_target_eci_m, dtype=float).reshape(1, 3)
-    u = np.asarray(u_meas_body, dtype=float).reshape(1, 3)
-    return custom_factor([key_x, key_R], sigma_rad,
-                         functools.partial(_body_direction, key_x, key_R, p, u, tangent_basis(u)),
-                         dim=2)
+    import gtsam
+
+    p = np.array(p_target_eci_m, dtype=float).reshape(3)
+    B = np.empty((2, 3))
+    tangent_basis_kernel(np.asarray(u_meas_body, dtype=float).reshape(3), B)
+    kx, kR = int(key_x), int(key_R)
+
+    def error(this, values, H):
+        x = values.atVector(kx)
+        R = values.atRot3(kR).matrix()
+        e = np.empty(2)
+        Hx = np.empty((2, x.shape[0]))
+        HR = np.empty((2, 3))
+        want = H is not None
+        body_direction_kernel(x, R, p, B, want, e, Hx, HR)
+        if want:
+            H[0] = Hx
+            H[1] = HR
+        return e
+
+    return gtsam.CustomFactor(noise_model(sigma_rad, 2), [kx, kR], error)
 
 
 def _star_direction(key_R, s, u_meas, B, values):

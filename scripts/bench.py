@@ -14,6 +14,13 @@ p50/p99/max (incremental methods and EKF), peak RSS (MB), and the EKF time ratio
 R fresh subprocesses and every figure is the median over them (peak RSS: the maximum).
 ``targets`` lists the issue's limits and ``meets_targets`` whether the median met them.
 
+Orbit and attitude in one graph (``batch_att_4h``, ``isam2_att_4h``): the same pass with the
+Earth direction measured in the body frame and an attitude row per epoch, solved with the
+attitude as a graph variable (``estimate=("attitude",)``, see :func:`make_pass`); they add
+``attitude_rms_arcsec`` (against the true LVLH attitude) and ``att_ratio``, their solver time
+over the orbit-only case's of the same run (``batch_4h``, ``isam2_4h``; also
+``att_latency_ratio_p50`` for iSAM2).
+
 Cold start: ``fgnav --help`` wall time (median of 3) with the slowest imports from
 ``python -X importtime``, and ``fgnav demo`` run twice with ``NUMBA_DEBUG_CACHE=1``: the
 second run must load every JIT kernel from the on-disk cache (``recompiled == 0``).
@@ -41,7 +48,7 @@ T_PROCESS_START = time.perf_counter()
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# name -> (method, pass duration h, extra worker args)
+# name -> (method, pass duration h[, pass variant]); variant "att": the attitude in the graph
 FULL_CASES = {
     "ekf_numba_4h": ("ekf-numba", 4.0),
     "ekf_numpy_1h": ("ekf-numpy", 1.0),
@@ -49,6 +56,8 @@ FULL_CASES = {
     "batch_24h": ("batch", 24.0),
     "fixed_lag_4h": ("fixed-lag", 4.0),
     "isam2_4h": ("isam2", 4.0),
+    "batch_att_4h": ("batch", 4.0, "att"),
+    "isam2_att_4h": ("isam2", 4.0, "att"),
 }
 QUICK_CASES = {
     "ekf_numba_4h": ("ekf-numba", 0.25),
@@ -57,13 +66,21 @@ QUICK_CASES = {
     "batch_24h": ("batch", 2.0),
     "fixed_lag_4h": ("fixed-lag", 0.15),
     "isam2_4h": ("isam2", 0.05),
+    "batch_att_4h": ("batch", 1.0, "att"),
+    "isam2_att_4h": ("isam2", 0.05, "att"),
 }
+ATT_BASE = {"batch_att_4h": "batch_4h", "isam2_att_4h": "isam2_4h"}
+"""The orbit-only case each attitude case is compared with (``att_ratio``, same run)."""
+ATT_SIGMA_ARCSEC = 3.0
+"""1σ per axis of the simulated attitude rows (a star tracker's attitude, arcsec)."""
 TARGETS = {  # the speed targets the project set itself
     "ekf_numba_4h": {"step_s_max": 10e-6},
     "batch_4h": {"solver_s_max": 1.5, "epochs_per_s_min": 10_000, "peak_rss_mb_max": 400},
     "batch_24h": {"solver_s_max": 10.0, "peak_rss_mb_max": 1536},
     "fixed_lag_4h": {"latency_p50_s_max": 0.5e-3, "latency_p99_s_max": 2e-3},
     "isam2_4h": {"latency_p50_s_max": 5e-3, "latency_p99_s_max": 50e-3, "latency_max_s_max": 0.1},
+    "batch_att_4h": {"att_ratio_max": 2.5},   # solver time / batch_4h's, same run
+    "isam2_att_4h": {"latency_p50_s_max": 2e-3, "latency_p99_s_max": 10e-3},
     "cold_start": {"help_s_max": 1.0, "demo_second_run_recompiled_max": 0},
 }
 STEP_S = 1.0
@@ -84,10 +101,13 @@ def worker(method: str, pass_file: str) -> dict:
 
     t_imp = time.perf_counter()
     with open(pass_file, "rb") as fh:
-        p, x_true = pickle.load(fh)
+        p, x_true, R_true = pickle.load(fh)
     from fgnav.solution import latency_summary
     from fgnav.solvers.options import SmootherOptions
     options = SmootherOptions()
+    if R_true is not None:   # the attitude in the graph
+        from dataclasses import replace
+        options = replace(options, estimate=("attitude",))
     out: dict = {"method": method, "epochs": int(p.n_epochs)}
     if method == "batch":
         from fgnav.solvers.batch import smooth_batch
@@ -132,6 +152,12 @@ def worker(method: str, pass_file: str) -> dict:
     err = np.linalg.norm(sol.x_eci[:, :3] - x_true[:, :3], axis=1)
     out["position_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
     out["final_position_error_m"] = float(err[-1])
+    if R_true is not None:
+        from factors.geometry import so3_exp, so3_log
+        w = sol.variables["attitude"][0]
+        e_att = so3_log(np.swapaxes(R_true, 1, 2) @ so3_exp(w))   # body-frame error, rad
+        out["attitude_rms_arcsec"] = float(np.sqrt(np.mean(np.sum(e_att ** 2, axis=1)))
+                                           * 180.0 * 3600.0 / np.pi)
     out["load_s"] = t0 - t_imp
     out["in_process_s"] = time.perf_counter() - T_PROCESS_START
     out["peak_rss_mb"] = _peak_rss_mb()
@@ -140,19 +166,54 @@ def worker(method: str, pass_file: str) -> dict:
 
 # ----------------------------------------------------------------------------- parent
 
-def make_pass(duration_h: float, seed: int, tmp: Path) -> Path:
-    """Simulate gto-transfer at 1 Hz for ``duration_h`` and pickle (Pass, truth at its epochs)."""
-    from fgnav.measurements import build_pass
+def make_pass(duration_h: float, seed: int, tmp: Path, variant: str = "") -> Path:
+    """Simulate gto-transfer at 1 Hz for ``duration_h`` and pickle (Pass, truth at its epochs,
+    true attitude at its epochs or None).
+
+    ``variant="att"``: the attitude in the graph. The Earth sensor reports in the body frame
+    (``earth_direction_body``, the same 0.01 deg noise; the body is the Earth-pointing LVLH frame
+    of the truth, :func:`fgnav.simulate.body_directions.lvlh_R_eci_from_body`) and every epoch
+    has an ``attitude`` row: the true ``R_eci_from_body`` times ``exp(n)``, ``n ~ N(0, s^2 I3)``
+    with ``s = ATT_SIGMA_ARCSEC`` (a star tracker's attitude, drawn from its own stream
+    ``default_rng([seed, 2])``); solved with ``estimate=("attitude",)``.
+    """
+    from fgnav.measurements import build_pass, with_estimates
     from fgnav.scenarios import load_scenario
     from fgnav.simulate.pass_sim import simulate_pass
 
     scn = load_scenario("gto-transfer").with_options(step_s=STEP_S, duration_h=duration_h)
-    sim = simulate_pass(scn, seed=seed)
-    p = build_pass(sim.log)
+    R_true = None
+    if variant == "att":
+        import numpy as np
+        from dataclasses import replace
+
+        from factors.geometry import so3_exp, so3_log
+        from fgnav.io.log_csv import log_from_arrays
+        from fgnav.simulate.body_directions import lvlh_R_eci_from_body
+
+        scn = scn.with_options(sensors=tuple(replace(s, kind="earth_direction_body")
+                                             if s.kind == "earth_direction" else s for s in scn.sensors))
+        sim = simulate_pass(scn, seed=seed)
+        log = sim.log
+        t_att = np.unique(log.t_s[log.kind == "earth_direction_body"])
+        R_att = lvlh_R_eci_from_body(sim.x_true[sim.t_s.searchsorted(t_att)])
+        sig = ATT_SIGMA_ARCSEC * np.pi / (180.0 * 3600.0)
+        noise = np.random.default_rng([seed, 2]).standard_normal((len(t_att), 3)) * sig
+        w_meas = so3_log(R_att @ so3_exp(noise))
+        log = log_from_arrays(log.epoch0, np.concatenate([log.t_s, t_att]),
+                              np.concatenate([np.asarray(log.kind, dtype=object),
+                                              np.full(len(t_att), "attitude", dtype=object)]),
+                              np.concatenate([log.xyz, w_meas]),
+                              np.concatenate([log.sigma, np.full(len(t_att), sig)]))
+        p = with_estimates(build_pass(log), ("attitude",))   # as fgnav.pipeline.prepare_pass does
+        R_true = lvlh_R_eci_from_body(sim.x_true[sim.t_s.searchsorted(p.t_s)])
+    else:
+        sim = simulate_pass(scn, seed=seed)
+        p = build_pass(sim.log)
     x_true = sim.x_true[sim.t_s.searchsorted(p.t_s)]
-    f = tmp / f"pass_{duration_h:g}h_seed{seed}.pkl"
+    f = tmp / f"pass_{duration_h:g}h_seed{seed}{'_' + variant if variant else ''}.pkl"
     with open(f, "wb") as fh:
-        pickle.dump((p, x_true), fh, protocol=pickle.HIGHEST_PROTOCOL)
+        pickle.dump((p, x_true, R_true), fh, protocol=pickle.HIGHEST_PROTOCOL)
     return f
 
 
@@ -181,7 +242,7 @@ def summarize_case(name: str, method: str, hours: float, runs: list[dict]) -> di
          "runs": len(ok)}
     for key in ("wall_s", "solver_s", "load_s", "step_s", "latency_p50_s", "latency_p99_s", "latency_max_s",
                 "iterations", "position_rms_m", "final_position_error_m",
-                "online_final_position_error_m", "latency_sum_s"):
+                "online_final_position_error_m", "latency_sum_s", "attitude_rms_arcsec"):
         v = _median(ok, key)
         if v is not None:
             c[key] = v
@@ -291,6 +352,7 @@ def main(argv=None) -> int:
     cases = dict(QUICK_CASES if args.quick else FULL_CASES)
     if args.isam2_hours is not None:
         cases["isam2_4h"] = ("isam2", args.isam2_hours)
+        cases["isam2_att_4h"] = ("isam2", args.isam2_hours, "att")
     wanted = set(args.cases.split(",")) if args.cases else set(cases) | {"cold_start"}
     unknown = wanted - set(cases) - {"cold_start"}
     if unknown:
@@ -301,17 +363,24 @@ def main(argv=None) -> int:
                     "machine": machine(), "cases": {}}
     with tempfile.TemporaryDirectory(prefix="fgnav-bench-") as td:
         tmp = Path(td)
-        passes: dict[float, Path] = {}
+        passes: dict[tuple, Path] = {}
         t_sim = time.perf_counter()
-        for name, (method, hours) in cases.items():
-            if name in wanted and hours not in passes:
-                passes[hours] = make_pass(hours, args.seed, tmp)
+        for name, (method, hours, *variant) in cases.items():
+            key = (hours, *variant)
+            if name in wanted and key not in passes:
+                passes[key] = make_pass(hours, args.seed, tmp, *variant)
         result["simulate_s"] = time.perf_counter() - t_sim
-        for name, (method, hours) in cases.items():
+        for name, (method, hours, *variant) in cases.items():
             if name not in wanted:
                 continue
-            runs = [run_worker(method, passes[hours], args.timeout_s) for _ in range(repeat)]
+            runs = [run_worker(method, passes[(hours, *variant)], args.timeout_s) for _ in range(repeat)]
             c = summarize_case(name, method, hours, runs)
+            base = result["cases"].get(ATT_BASE.get(name, ""))
+            if base and "error" not in base and "error" not in c:
+                c["att_ratio"] = c["solver_s"] / base["solver_s"]   # cases run in this order
+                c["att_base_case"] = ATT_BASE[name]
+                if "latency_p50_s" in c and "latency_p50_s" in base:
+                    c["att_latency_ratio_p50"] = c["latency_p50_s"] / base["latency_p50_s"]
             check_targets(name, c)
             result["cases"][name] = c
         ekf = result["cases"].get("ekf_numba_4h")

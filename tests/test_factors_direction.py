@@ -134,16 +134,23 @@ def test_earth_direction_factor_linearizes_like_numpy(rng):
 
 
 def test_body_direction_factor_linearizes_like_numpy(rng):
-    r, R, p, u_body = _body_truth(rng)
-    u_meas = _perturb(u_body, rng, 0.01)
-    sigma = np.array([0.02, 0.03]) * DEG
-    f = make_body_direction_factor(X, A, p[0], u_meas[0], sigma)
-    values = gtsam.Values()
-    values.insert(X, np.concatenate([r[0], np.zeros(3)]))
-    values.insert(A, gtsam.Rot3(R[0]))
-    e, H_r, H_R = body_direction_residual(r[:1], R[:1], p[:1], u_meas[:1])
-    (A_x, A_R), b = whiten(e, [pad_position_jacobian(H_r), H_R], sigma[None, :])
-    check_linearization(f, values, [A_x[0], A_R[0]], b[0])
+    """The factor's numba kernel against the numpy residual, row by row (targets near and
+    far, every axis choice of the tangent basis, both noise-model kinds, a longer state)."""
+    r, R, p, _ = _body_truth(rng)
+    p[::3] = 0.0                                   # the Earth's centre
+    u_meas = _perturb(np.einsum("nji,nj->ni", R, _unit(p - r)), rng, 0.01)
+    e, H_r, H_R = body_direction_residual(r, R, p, u_meas)
+    for k in range(len(r)):
+        sigma = np.array([0.02, 0.03]) * DEG if k % 2 else 0.02 * DEG
+        n = 6 + k % 3
+        f = make_body_direction_factor(X, A, p[k], u_meas[k], sigma)
+        values = gtsam.Values()
+        values.insert(X, np.concatenate([r[k], rng.normal(size=n - 3)]))
+        values.insert(A, gtsam.Rot3(R[k]))
+        (A_x, A_R), b = whiten(e[k:k + 1], [pad_position_jacobian(H_r[k:k + 1], n), H_R[k:k + 1]],
+                               np.broadcast_to(sigma, (1, 2)))
+        check_linearization(f, values, [A_x[0], A_R[0]], b[0])
+        np.testing.assert_allclose(f.unwhitenedError(values), e[k], rtol=1e-12, atol=1e-15)
 
 
 def test_star_direction_factor_linearizes_like_numpy(rng):
