@@ -273,27 +273,37 @@ def _body_values(ephemeris, partner=None):
     return values
 
 
-def _sun_moon_initial(fam):
-    """First guess of the attitude at every Sun row: TRIAD (``factors.attitude.triad``; Black
-    1964, Shuster & Oh 1981) of the body-frame Sun direction (matched exactly: the finer
-    sensor) and the Moon direction of the same epoch against their geocentric ECI directions
+def _moon_sun_initial(fam):
+    """First guess of the attitude at every Moon row: TRIAD (``factors.attitude.triad``;
+    Black 1964, Shuster & Oh 1981) of the body-frame Sun direction of the same epoch (matched
+    exactly: the finer sensor) and the Moon direction against their geocentric ECI directions
     from the ephemeris. The Moon's parallax (spacecraft vs Earth centre, <= 1.1 deg in LEO)
-    is left in: the solver removes it. Rows whose epoch has no Moon row take the guess of the
-    nearest epoch that has; none without any."""
+    is left in: the solver removes it. A row whose epoch has no Sun row (eclipse) takes the
+    guess of the nearest epoch that has, turned by the smallest rotation that puts its own
+    Moon direction right. None without any such pair. Epochs without a Moon row get no guess
+    from here: the solvers carry the attitude to them (the online ones from the previous
+    epoch's estimate, which a guess held over the Moon-less part of an orbit would replace
+    with one tens of degrees off)."""
     pair = np.flatnonzero(np.all(np.isfinite(fam.values["u_partner_body"]), axis=1))
     if not len(pair):
         return {}
-    s_eci = fam.values["p_target_eci_m"][pair]
-    m_eci = moon_position_eci_m(fam.values["t_j2000_s"][pair])
+    m_eci = fam.values["p_target_eci_m"]
+    s_eci = sun_position_eci_m(fam.values["t_j2000_s"][pair])
     try:
-        R = triad(fam.values["u_body"][pair], fam.values["u_partner_body"][pair], s_eci, m_eci)
+        R = triad(fam.values["u_partner_body"][pair], fam.values["u_body"][pair], s_eci,
+                  m_eci[pair])
     except ValueError:
         return {}                              # Sun and Moon (anti)parallel: no first guess
     ep = fam.k[pair]
     j = np.clip(np.searchsorted(ep, fam.k), 0, len(ep) - 1)
     lo = np.clip(j - 1, 0, len(ep) - 1)
-    pick = np.where(np.abs(ep[lo] - fam.k) <= np.abs(ep[j] - fam.k), lo, j)
-    return {ATTITUDE_VARIABLE.name: so3_log(R[pick])}
+    R = R[np.where(np.abs(ep[lo] - fam.k) <= np.abs(ep[j] - fam.k), lo, j)]
+    a = np.einsum("nij,nj->ni", R, fam.values["u_body"])          # Moon as the guess puts it
+    b = m_eci / np.linalg.norm(m_eci, axis=1, keepdims=True)
+    axis = np.cross(a, b)
+    angle = np.arctan2(np.linalg.norm(axis, axis=1), np.sum(a * b, axis=1))
+    axis *= (angle / np.maximum(np.linalg.norm(axis, axis=1), 1e-300))[:, None]
+    return {ATTITUDE_VARIABLE.name: so3_log(so3_exp(axis) @ R)}
 
 
 def _body(kind, target, observes, keys, seen, ephemeris=None, into=None, partner=None,
@@ -314,11 +324,11 @@ def _body(kind, target, observes, keys, seen, ephemeris=None, into=None, partner
 EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
                              earth_centre_target, into=EARTH_DIRECTION.kind)
 SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",), sun_target,
-                           ephemeris=sun_position_eci_m, partner="moon_direction_body",
-                           initial=_sun_moon_initial)
+                           ephemeris=sun_position_eci_m)
 MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
                             ("sigma_deg", "min_sun_elongation_deg"), moon_target,
-                            ephemeris=moon_position_eci_m)
+                            ephemeris=moon_position_eci_m, partner=SUN_DIRECTION_BODY.kind,
+                            initial=_moon_sun_initial)
 
 
 # ---- rate gyro (between two epochs) ---------------------------------------------------------
