@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, MODELS, PRIOR_POSITION,
-                                   PRIOR_VELOCITY, STAR_DIRECTION_BODY, VARIABLES, variable)
+from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION_BODY, MODELS,
+                                   MOON_DIRECTION_BODY, PRIOR_POSITION, PRIOR_VELOCITY,
+                                   STAR_DIRECTION_BODY, SUN_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import ORBIT, Layout
 
 
@@ -238,16 +239,21 @@ def check_attitude(p: Pass) -> None:
     rows observe the attitude only, so without ``--estimate attitude`` they (and the
     body-frame rows at epochs without an ``attitude`` row) would be dropped in silence.
     And refuse an estimated attitude that nothing fixes: with neither ``attitude`` nor star
-    rows, the rotation about each measured direction is free (gyro rows carry the attitude
-    from epoch to epoch, they do not fix it)."""
+    rows, nor Sun or Moon directions with a second body-frame direction (Sun, Moon or Earth:
+    two directions fix a rotation), the rotation about each measured direction is free (gyro
+    rows carry the attitude from epoch to epoch, they do not fix it)."""
+    body_kinds = [k for k in (EARTH_DIRECTION_BODY.kind, SUN_DIRECTION_BODY.kind,
+                              MOON_DIRECTION_BODY.kind) if p.count(k)]
     if p.layout.has(ATTITUDE_VARIABLE.name) and not (
-            p.count(ATTITUDE.kind) or p.count(STAR_DIRECTION_BODY.kind)):
+            p.count(ATTITUDE.kind) or p.count(STAR_DIRECTION_BODY.kind)
+            or len(body_kinds) >= 2):
         users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables
                  and k != ATTITUDE.kind] or ["no"]
         raise UserError(
             f"{p.source}: --estimate {ATTITUDE_VARIABLE.cli_name}: the {', '.join(users)} rows "
             f"need the attitude, and nothing fixes it: no '{ATTITUDE.kind}' row and no "
-            f"'{STAR_DIRECTION_BODY.kind}' rows (found: {p.counts()})")
+            f"'{STAR_DIRECTION_BODY.kind}' rows, nor Sun or Moon directions with a second "
+            f"body-frame direction (found: {p.counts()})")
     if STAR_DIRECTION_BODY.kind in p.deferred:
         raise UserError(
             f"{p.source}: '{STAR_DIRECTION_BODY.kind}' rows observe the attitude, which is not "

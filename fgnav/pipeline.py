@@ -226,7 +226,7 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     out of the solution and of the Cramer-Rao bound (:func:`solve`).
     """
     t0 = time.perf_counter()
-    log = read_measurements(log_path)
+    log = read_measurements(log_path, options.estimate)
     p = build_pass(log)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
@@ -298,15 +298,20 @@ def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
     return t_truth, x
 
 
-def read_measurements(path: str | Path):
-    """A measurement log from a CSV v1 file, or a CCSDS TDM (``.tdm`` / ``.kvn``)."""
+def read_measurements(path: str | Path, estimate=()):
+    """A measurement log from a CSV v1 file, or a CCSDS TDM (``.tdm`` / ``.kvn``).
+
+    Body-frame Sun and Moon directions go through the INS/CNS lecture's preprocessing (TRIAD
+    attitude, Earth direction to ECI: :func:`fgnav.sun_earth_moon.preprocess_log`) unless
+    the attitude is among the variables to ``estimate``: then the raw rows stay, factors on
+    (orbit, attitude)."""
     path = Path(path)
     if not path.exists():
         raise UserError(f"{path}: no such file")
     if path.suffix.lower() in (".tdm", ".kvn"):
         return read_tdm(path)
     log = read_log(path)
-    if uses_scheme(log):
+    if uses_scheme(log) and ATTITUDE_VARIABLE.name not in {variable(n).name for n in estimate}:
         # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
         # ECI.
         log = preprocess_log(log)[0]

@@ -23,7 +23,8 @@ from fgnav.graph import initial_block
 from fgnav.measurements import Pass, build_pass, with_estimates
 from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION, GYRO_BIAS,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
-                                   STAR_DIRECTION_BODY, simulated_kinds, solved_models)
+                                   MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
+                                   SUN_DIRECTION_BODY, simulated_kinds, solved_models)
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
@@ -92,9 +93,10 @@ def test_every_scenario_key_of_a_model_is_validated_by_the_scenario_reader():
 
 @pytest.fixture(scope="module")
 def sim_pass():
-    """Six minutes of LEO: priors, Earth direction (ECI and body frame), limb radius,
-    altimeter, refraction and its attitude rows, a star camera's raw stars (the attitude
-    estimated, so that the attitude, star and body-frame rows enter the graph)."""
+    """Six minutes of LEO: priors, Earth direction (ECI and body frame), Sun and Moon
+    directions (body frame), limb radius, altimeter, refraction and its attitude rows, a star
+    camera's raw stars (the attitude estimated, so that the attitude, star and body-frame rows
+    enter the graph)."""
     base = load_scenario("refraction-leo")
     sensors = (SensorSpec(EARTH_DIRECTION.kind, sigma_deg=0.01, period_s=60.0),
                SensorSpec(LIMB_RADIUS.kind, sigma_deg=0.02, period_s=60.0),
@@ -102,6 +104,9 @@ def sim_pass():
                SensorSpec(EARTH_DIRECTION_BODY.kind, sigma_deg=0.02, period_s=60.0),
                SensorSpec(STAR_DIRECTION_BODY.kind, star_sigma_arcsec=5.0, fov_deg=12.85,
                           vmag_max=5.5, period_s=60.0),
+               SensorSpec(SUN_DIRECTION_BODY.kind, sigma_deg=0.01, period_s=60.0),
+               SensorSpec(MOON_DIRECTION_BODY.kind, sigma_deg=0.02, period_s=60.0,
+                          min_sun_elongation_deg=30.0),
                *base.sensors)
     sim = simulate_pass(base.with_options(sensors=sensors, duration_h=0.1), seed=3)
     # and a rate gyro between consecutive epochs (attitude rows thinned to one epoch in six)
