@@ -148,19 +148,14 @@ class MeasurementModel:
         """GTSAM keys of the variables this model touches at epoch ``k``."""
         return {v.name: v.key(k) for v in _touched(self, layout)}
 
-    def _factors_between(self, fam, rows, k, layout, robust, keys1, t_s) -> list:
-        keys0 = self.keys(layout, k - 1)
-        dt = float(t_s[k] - t_s[k - 1])
-        sigmas = np.asarray(self.sigma(fam.subset(rows, k), np.full(len(rows), dt)), dtype=float)
-        out = []
-        for j, sig in zip(rows.tolist(), sigmas.tolist()):
-            noise = sig
-            if robust is not None and self.robust:
-                import gtsam
+    def _noise(self, sigma: float, robust):
+        """The noise of one row's factor: its 1-sigma, wrapped by the robust kernel for a
+        measurement (never for a prior)."""
+        if robust is None or not self.robust:
+            return sigma
+        import gtsam  # the EKF baseline imports this module without GTSAM
 
-                noise = robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, float(sig)))
-            out.append(self.factor(fam, j, keys0, keys1, noise, dt))
-        return out
+        return robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, float(sigma)))
 
     def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None,
                 t_s=None) -> list:
@@ -168,24 +163,22 @@ class MeasurementModel:
 
         ``robust``: a :class:`fgnav.robust.RobustKernel` wrapping every measurement's noise
         (not the priors'); ``x_guess`` (6,): the orbit state's first guess, for noise that
-        depends on geometry (as in the batch route).
+        depends on geometry (as in the batch route); ``t_s``: the pass's epochs (a between
+        model's rows join epochs ``k - 1`` and ``k``).
         """
         keys = self.keys(layout, k)
         rows = np.asarray(rows, dtype=int)
         if self.between:
-            return self._factors_between(fam, rows, k, layout, robust, keys, t_s)
+            keys0 = self.keys(layout, k - 1)
+            dt = float(t_s[k] - t_s[k - 1])
+            sigmas = np.asarray(self.sigma(fam.subset(rows, k), np.full(len(rows), dt)), float)
+            return [self.factor(fam, j, keys0, keys, self._noise(sig, robust), dt)
+                    for j, sig in zip(rows.tolist(), sigmas.tolist())]
         if self.sigma is None:   # the online route's hot path: no per-row family copies
             sigmas = np.asarray(fam.sigma, dtype=float)[rows]
         else:
             x = None if x_guess is None else np.broadcast_to(
                 np.asarray(x_guess, dtype=float)[:6], (len(rows), 6))
             sigmas = self.noise_sigma(fam.subset(rows, 0), x)
-        out = []
-        for j, sig in zip(rows.tolist(), sigmas.tolist()):
-            noise = sig
-            if robust is not None and self.robust:
-                import gtsam  # the EKF baseline imports this module without GTSAM
-
-                noise = robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, sig))
-            out.append(self.factor(fam, j, keys, noise))
-        return out
+        return [self.factor(fam, j, keys, self._noise(sig, robust))
+                for j, sig in zip(rows.tolist(), sigmas.tolist())]

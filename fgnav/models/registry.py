@@ -53,11 +53,12 @@ def _xyz(log, i):
     return np.asarray(log.xyz, dtype=float)[i]
 
 
-def _readings(kind, fn):
-    """A simulator entry from a readings function ``(spec, t, x_true, rng) -> (xyz, sigma)``."""
+def _readings(fn):
+    """A simulator entry from a readings function ``(spec, t, x_true, rng) -> (xyz, sigma)``:
+    rows of the sensor's own kind (``spec.kind``, the model the simulator dispatched on)."""
     def simulate(spec, t_s, x_true, epoch0, rng):
         xyz, sigma = fn(spec, t_s, x_true, rng)
-        return [(kind, t_s, xyz, sigma)]
+        return [(spec.kind, t_s, xyz, sigma)]
     return simulate
 
 
@@ -103,7 +104,7 @@ EARTH_DIRECTION = MeasurementModel(
                                                                    fam.values["u_eci"][j], noise),
     numba_kernel=earth_direction_row_kernel,
     numba_data=lambda fam: (fam.values["u_eci"], tangent_basis(fam.values["u_eci"])),
-    simulate=_readings("earth_direction", geocentric_direction_readings),
+    simulate=_readings(geocentric_direction_readings),
     scenario_keys=("sigma_deg",), eci_ray=True, geocentric_direction=True)
 
 
@@ -130,7 +131,7 @@ LIMB_RADIUS = MeasurementModel(
     factor=lambda fam, j, keys, noise: make_limb_radius_factor(
         keys["orbit"], fam.values["rho_rad"][j], fam.values["r_limb_m"][j], noise),
     numba_kernel=limb_radius_kernel, numba_data=_columns_data("rho_rad", "r_limb_m"),
-    simulate=_readings("limb_radius", limb_radius_readings),
+    simulate=_readings(limb_radius_readings),
     scenario_keys=("sigma_deg", "r_limb_km"),
     range_m=lambda fam: fam.values["r_limb_m"] / np.sin(fam.values["rho_rad"]))
 
@@ -143,7 +144,7 @@ ALTITUDE = MeasurementModel(
     factor=lambda fam, j, keys, noise: make_altitude_factor(
         keys["orbit"], fam.values["h_m"][j], fam.values["r_ref_m"][j], noise),
     numba_kernel=altitude_kernel, numba_data=_columns_data("h_m", "r_ref_m"),
-    simulate=_readings("altitude", altitude_readings), scenario_keys=("sigma_m",),
+    simulate=_readings(altitude_readings), scenario_keys=("sigma_m",),
     range_m=lambda fam: fam.values["h_m"] + fam.values["r_ref_m"])
 
 

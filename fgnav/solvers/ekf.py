@@ -15,16 +15,15 @@ import time
 
 import numpy as np
 
-from factors.dynamics import propagate, process_noise
+from factors.dynamics import process_noise, propagate
+from fgnav.errors import UserError
 from fgnav.graph import enters, initial_block, layout_of, linearize_family
+from fgnav.measurements import Pass, prior_covariance, rows_by_epoch
 from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
-from fgnav.errors import UserError
-from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution
-from fgnav.measurements import prior_covariance
-from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.first_guess import first_state
+from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
