@@ -416,6 +416,10 @@ STAR_DIRECTION_BODY = MeasurementModel(
 # A sextant-like instrument measures the angle between two lines of sight: near body - star
 # (a cone), near body's limb - star (the sextant), near body - near body (a torus). No
 # attitude enters (factors/celestial_angles.py).
+# The limb form is a kind of its own rather than a flag on body_star_angle: it carries a
+# further value (the limb sphere's radius, column y, as limb_radius rows do) and another
+# residual, and a reader that ignored a flag would take a limb angle for a centre angle
+# silently (wrong by the apparent radius, ~60 deg in LEO), where an unknown kind is refused.
 
 def _bodies_at(codes, t_j2000_s):
     """Centres (M, 3), ECI, m, of the bodies with log codes ``codes`` (M,) at the rows' epochs."""
