@@ -4,6 +4,8 @@ simulator's rows at the truth."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -107,3 +109,22 @@ def test_simulated_angles_are_the_true_geometry_plus_noise_of_the_stated_sigma()
         assert len(z) > 20, mdl.kind
         assert abs(z.mean()) < 4 / np.sqrt(len(z)) and 0.7 < z.std() < 1.3, (mdl.kind, z.mean(),
                                                                               z.std())
+
+
+def test_a_scenario_with_a_limb_on_the_sun_is_refused_with_the_key(tmp_path, capsys):
+    from fgnav.cli import main
+
+    text = (Path(__file__).resolve().parents[1] / "fgnav/data/scenarios/sextant-leo.toml").read_text()
+    bad = text.replace('body = "earth"\nstars_per_epoch = 3', 'body = "sun"\nstars_per_epoch = 3')
+    assert bad != text
+    (tmp_path / "s.toml").write_text(bad)
+    assert main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "body = 'sun'" in err and "earth or moon" in err
+    text2 = text.replace('body2 = "moon"', 'body2 = "earth"')
+    (tmp_path / "t.toml").write_text(text2)
+    assert main(["simulate", str(tmp_path / "t.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "two different bodies" in capsys.readouterr().err
+    (tmp_path / "u.toml").write_text(text.replace('body2 = "moon"', 'body2 = "mars"'))
+    assert main(["simulate", str(tmp_path / "u.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "sensor[3].body2" in capsys.readouterr().err
