@@ -70,6 +70,9 @@ class SensorSpec:
     model_bias_random_walk_m_per_sqrt_h: float = 0.0  # random-walk diffusion, 1σ after 1 h
     # body-frame directions (the INS/CNS lecture; fgnav.simulate.body_directions): body = LVLH
     min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
+    # a star camera on its own mount (not the Earth camera's detector): a constant mounting
+    # error, 1σ per axis, drawn once per pass (fgnav.simulate.star_camera); 0 = confocal
+    mounting_sigma_arcsec: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +152,7 @@ SENSOR_KEYS = {
     "model_bias_drift_m_per_h": ("number", "m/h", -1e5, 1e5, True, True),
     "model_bias_random_walk_m_per_sqrt_h": ("number", "m/sqrt(h)", 0.0, 1e5, True, True),
     "min_sun_elongation_deg": ("number", "deg", 0.0, 180.0, True, True),
+    "mounting_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
 }
 SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
 """Keys each sensor kind takes besides ``kind`` and ``period_s`` (its model's
