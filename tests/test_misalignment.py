@@ -41,6 +41,7 @@ def test_small_case_shows_what_the_mounting_error_does(small):
     assert c["nees"] < b["nees"] / 5 and c["attitude_nees"] < b["attitude_nees"] / 5
     assert b["attitude_rms_rad"] > 1.5 * a["attitude_rms_rad"]
     assert len(runs["c separate, estimated"]) == 2
+    assert a["integrity_ok"] == 1.0 and 0.0 <= b["integrity_ok"] <= 1.0
     # the confocal pass is "tight"; with few stars tight coupling wins on attitude
     assert mean["tight"] == mean["a confocal"]
     assert small["stars_per_frame"]["tight, few stars"] < 4 < small["stars_per_frame"]["tight"]
@@ -95,6 +96,9 @@ def test_ten_seed_table():
     a, b, c = (mean[k] for k in M.CASES[:3])
     assert b["position_rms_m"] > a["position_rms_m"] and c["position_rms_m"] < b["position_rms_m"]
     assert b["nees"] > 30 and c["nees"] < 12 and a["nees"] < 12
+    assert a["integrity_ok"] == c["integrity_ok"] == 1.0      # every seed's verdict ok
+    for seed_b, seed_c in zip(r["runs"]["b separate, ignored"], r["runs"]["c separate, estimated"]):
+        assert seed_c["position_rms_m"] < seed_b["position_rms_m"]
     # tight coupling is not worse on position (the mean paired difference within two of its
     # standard errors, and the bound) and better on attitude (the mean and the bound)
     for label, v in r["tight_vs_loose"].items():

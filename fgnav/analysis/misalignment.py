@@ -50,6 +50,7 @@ from factors.geometry import so3_exp, so3_log
 from factors.random_walk import rot3_random_walk_residual
 from fgnav.analysis.crb import cumulative_stm
 from fgnav.graph import linearize_all
+from fgnav.integrity import assess
 from fgnav.io.log_csv import log_from_arrays
 from fgnav.loose_attitude import attitude_rows_from_stars
 from fgnav.measurements import build_pass, with_estimates
@@ -182,9 +183,10 @@ def joint_crb(p, X_true: np.ndarray, options: SmootherOptions) -> dict:
     return out
 
 
-def _metrics(sol, p, sim) -> dict:
+def _metrics(sol, p, sim, model) -> dict:
     """Position RMS (m), attitude RMS angle (rad), orbit NEES (6-dim) and attitude NEES
-    (3-dim) of a solution against the truth, over the pass's epochs."""
+    (3-dim) of a solution against the truth, over the pass's epochs, and whether its
+    integrity verdict (:func:`fgnav.integrity.assess`, motion model ``model``) is ``ok``."""
     k = np.searchsorted(sol.t_s, p.t_s)
     x_true = sim.x_true[np.searchsorted(sim.t_s, p.t_s)]
     sol_p = dataclasses.replace(sol, t_s=sol.t_s[k], x_eci=sol.x_eci[k], P_eci=sol.P_eci[k])
@@ -195,7 +197,8 @@ def _metrics(sol, p, sim) -> dict:
     nees_a = np.einsum("ki,ki->k", err, np.linalg.solve(P[k], err[..., None])[..., 0])
     return {"position_rms_m": m["position_rms_m"], "nees": m["nees_mean"],
             "attitude_rms_rad": float(np.sqrt(np.mean(np.sum(err * err, axis=1)))),
-            "attitude_nees": float(np.mean(nees_a))}
+            "attitude_nees": float(np.mean(nees_a)),
+            "integrity_ok": float(assess(sol, p, model)["status"] == "ok")}
 
 
 def _stars_per_frame(log) -> float:
@@ -260,7 +263,7 @@ def misalignment_study(seeds=range(10), *, duration_h=6.0, step_s=60.0, method="
                 opts = dataclasses.replace(opts, prior_sigma=prior)
                 p = dataclasses.replace(p, layout=p.layout.with_prior_sigma(*prior[0]))
             sol = solve(p, method, opts)
-            runs[case].append({"seed": seed, **_metrics(sol, p, sim)})
+            runs[case].append({"seed": seed, **_metrics(sol, p, sim, opts.motion_model())})
             if i == 0:
                 stars[case] = _stars_per_frame(few_log if "few" in case else sim.log)
                 if with_crb and case != "b separate, ignored":
@@ -287,7 +290,7 @@ def format_misalignment_table(r: dict) -> str:
     """The study as text: one row per case, means over the seeds."""
     arcsec = np.degrees(1.0) * 3600.0
     head = (f"{'case':<24} {'stars/fr':>8} {'pos RMS m':>10} {'CRB m':>8} {'att RMS as':>11} "
-            f"{'CRB as':>7} {'NEES 6':>7} {'NEES att':>8}")
+            f"{'CRB as':>7} {'NEES 6':>7} {'NEES att':>8} {'ok':>5}")
     lines = [head, "-" * len(head)]
     for c in CASES:
         m, b = r["mean"][c], r["crb"].get(c)
@@ -295,14 +298,16 @@ def format_misalignment_table(r: dict) -> str:
         crb_a = f"{b['attitude_rms_rad'] * arcsec:>7.2f}" if b else f"{'-':>7}"
         lines.append(f"{c:<24} {r['stars_per_frame'].get(c, float('nan')):>8.1f} "
                      f"{m['position_rms_m']:>10.0f} {crb_p} {m['attitude_rms_rad'] * arcsec:>11.2f} "
-                     f"{crb_a} {m['nees']:>7.2f} {m['attitude_nees']:>8.2f}")
+                     f"{crb_a} {m['nees']:>7.2f} {m['attitude_nees']:>8.2f} "
+                     f"{m['integrity_ok']:>5.0%}")
     tl = r["tight_vs_loose"]
     lines.append("")
     lines.append(
         f"{r['scenario']}, {r['duration_h']:g} h at {r['step_s']:g} s, {r['method']}, "
         f"{len(r['seeds'])} seeds (means); mounting error {r['mounting_sigma_arcsec']:g} arcsec "
         f"1-sigma per axis; few stars: {r['few_stars'][0]}-{r['few_stars'][1]} of each frame's stars. NEES 6: orbit state "
-        f"(6 expected), NEES att: attitude (3 expected). CRB: dense joint bound at the truth.")
+        f"(6 expected), NEES att: attitude (3 expected); ok: share of the seeds whose integrity "
+        f"verdict is ok. CRB: dense joint bound at the truth.")
     for k, v in tl.items():
         lines.append(
             f"tight - loose, {k}: position {v['position_diff_mean_m']:+.0f} m "
