@@ -21,8 +21,10 @@ def rng():
     return np.random.default_rng(7101)
 
 
-def _unit(v):
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+def _stars(rng, n):
+    """``n`` catalogue directions spread over the sphere (unit vectors, ECI)."""
+    s = rng.normal(size=(n, 3))
+    return s / np.linalg.norm(s, axis=-1, keepdims=True)
 
 
 def _seen(R_att, R_mount, s):
@@ -31,7 +33,7 @@ def _seen(R_att, R_mount, s):
 
 def test_zero_at_truth_and_jacobians_on_both_rotations(rng):
     R, Mt = random_rotations(rng, N), random_rotations(rng, N)
-    s = _unit(rng.normal(size=(N, 3)))
+    s = _stars(rng, N)
     e, _, _ = aligned_star_direction_residual(R, Mt, s, _seen(R, Mt, s))
     np.testing.assert_allclose(e, 0.0, atol=1e-14)
     u_meas = _seen(R, Mt @ so3_exp(rng.normal(0, 30 * ARCSEC, (N, 3))), s)
@@ -43,7 +45,7 @@ def test_zero_at_truth_and_jacobians_on_both_rotations(rng):
 
 def test_identity_mounting_is_the_plain_star_model(rng):
     R = random_rotations(rng, N)
-    s = _unit(rng.normal(size=(N, 3)))
+    s = _stars(rng, N)
     u = _seen(R, so3_exp(rng.normal(0, 1e-4, (N, 3))), s)
     e, H_A, H_M = aligned_star_direction_residual(R, np.broadcast_to(np.eye(3), (N, 3, 3)), s, u)
     e0, H0 = star_direction_residual(R, s, u)
@@ -54,7 +56,7 @@ def test_identity_mounting_is_the_plain_star_model(rng):
 
 def test_factor_linearizes_like_numpy(rng):
     R, Mt = random_rotations(rng, 1), random_rotations(rng, 1)
-    s = _unit(rng.normal(size=(1, 3)))
+    s = _stars(rng, 1)
     u = _seen(R, Mt @ so3_exp(rng.normal(0, 1e-4, (1, 3))), s)
     sigma = 5.0 * ARCSEC
     f = make_aligned_star_direction_factor(A, M, s[0], u[0], sigma)
@@ -81,7 +83,7 @@ def test_two_attitudes_and_a_known_direction_recover_the_mounting(rng):
         key_A = gtsam.symbol("a", k)
         graph.add(make_rot3_prior_factor(key_A, R, 1 * ARCSEC))
         values.insert(key_A, gtsam.Rot3(R))
-        for s in _unit(rng.normal(size=(10, 3))):
+        for s in _stars(rng, 10):
             u = (R @ M_true).T @ s
             graph.add(make_aligned_star_direction_factor(key_A, key_M, s, u, 1 * ARCSEC))
     est = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
