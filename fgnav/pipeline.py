@@ -160,6 +160,11 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     from_data = ignore_prior or not has_prior(p)
     if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
         p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
+    for name, sigma in options.prior_sigma:       # priors other than the registry's
+        if not p.layout.has(variable(name).name):
+            raise UserError(f"a prior sigma for '{variable(name).cli_name}', which is not "
+                            f"estimated (--estimate {variable(name).cli_name})")
+        p = replace(p, layout=p.layout.with_prior_sigma(variable(name).name, sigma))
     for kind, fam in p.deferred.items():
         mdl = MODELS[kind]
         if mdl.body_frame_of is None and kind != ATTITUDE.kind and not p.layout.has(mdl.requires):

@@ -216,6 +216,38 @@ def test_model_factor_linearizes_to_the_model_rows(sim_pass, kind):
                                           for n in keys)
 
 
+def test_star_model_without_and_with_the_camera_alignment(sim_pass):
+    """The star rows are the plain attitude model unless the camera alignment is estimated:
+    with the alignment at the identity both give the same residual and attitude Jacobian,
+    and the alignment's Jacobian is the attitude's turned by the mounting (here the identity,
+    so equal); with a mounting of 1 arcmin the residual moves by at most about that angle (residuals
+    0.01 rad off: the log map bends the difference by ~1e-4 of it)."""
+    from factors.constants import ARCSEC
+    from fgnav.models.registry import CAMERA_ALIGNMENT
+
+    p, x, att = sim_pass
+    mdl = MODELS[STAR_DIRECTION_BODY.kind]
+    fam = p.families[mdl.kind]
+    plain = Layout((ORBIT, ATTITUDE_VARIABLE))
+    aligned = Layout((ORBIT, ATTITUDE_VARIABLE, CAMERA_ALIGNMENT))
+    assert mdl.variables_in(plain) == (ATTITUDE_VARIABLE.name,)
+    assert set(mdl.keys(aligned, 4)) == {ATTITUDE_VARIABLE.name, CAMERA_ALIGNMENT.name}
+    X0 = _block(plain, x, att)
+    X1 = aligned.initial(x)
+    X1[:, aligned.slices[ATTITUDE_VARIABLE.name]] = att
+    e0, H0 = mdl.evaluate(fam, X0, plain)
+    e1, H1 = mdl.evaluate(fam, X1, aligned)
+    np.testing.assert_allclose(e1, e0, atol=1e-15)
+    sa, sm = aligned.slices[ATTITUDE_VARIABLE.name], aligned.slices[CAMERA_ALIGNMENT.name]
+    np.testing.assert_allclose(H1[..., sa], H0[..., plain.slices[ATTITUDE_VARIABLE.name]],
+                               atol=1e-15)
+    np.testing.assert_allclose(H1[..., sm], H1[..., sa], atol=1e-15)
+    X1[:, sm] = np.array([60.0, 0.0, 0.0]) * ARCSEC
+    e2, _ = mdl.evaluate(fam, X1, aligned)
+    shift = np.linalg.norm(e2 - e1, axis=1)
+    assert np.all(shift <= 60.0 * ARCSEC * (1 + 1e-3)) and np.max(shift) > 30.0 * ARCSEC
+
+
 def test_every_numba_kernel_is_dispatched_and_matches_the_numpy_rows(sim_pass):
     p, x, _ = sim_pass
     compiled = [m for m in MODELS.values() if m.numba_kernel is not None]

@@ -44,6 +44,11 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
     "sextant": ("sextant-leo", {}, ("limb_star_angle", "body_star_angle", "body_body_angle"), ()),
     "raw-stars": ("geo-limb", {"raw_stars": True},
                   ("star_direction_body", "earth_direction_body", "limb_radius"), ("attitude",)),
+    # the same with the star camera on its own mount: star rows through the estimated
+    # camera alignment (a constant Rot3 beside the attitude)
+    "raw-stars-aligned": ("geo-limb", {"raw_stars": True},
+                          ("star_direction_body", "earth_direction_body"),
+                          ("attitude", "camera-alignment")),
 }
 
 
@@ -56,6 +61,14 @@ def test_every_model_that_enters_the_graphs_is_covered():
     covered = {k for _, _, kinds, _ in CASES.values() for k in kinds} | {"gyro"}
     solved = {k for k, m in MODELS.items() if m.solved}
     assert solved <= covered, f"add a case carrying {sorted(solved - covered)} to CASES"
+
+
+def test_every_declared_variable_is_covered():
+    """Every graph variable a model declares is estimated in some case (the gyro bias in
+    the between-epochs test below)."""
+    declared = {v.cli_name for m in MODELS.values() if m.solved for v in m.optional_variables}
+    covered = {name for _, _, _, est in CASES.values() for name in est} | {"gyro-bias"}
+    assert declared <= covered, f"add a case estimating {sorted(declared - covered)} to CASES"
 
 
 def _cases():

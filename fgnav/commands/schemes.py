@@ -1,5 +1,6 @@
 """``fgnav schemes``: the Li et al. 2017 refraction budget, the INS/CNS lecture Sun/Earth/Moon
-table and its position surfaces (geometric fixes against the smoother)."""
+table, its position surfaces (geometric fixes against the smoother) and the
+confocal-vs-separate star camera misalignment study."""
 
 from fgnav.commands import _types as T
 
@@ -10,13 +11,24 @@ def register(sub):
                                    "'refraction' (Li et al. 2017, refraction-leo: error budget by "
                                    "source, direct three-star fix, EKF, smoother) or "
                                    "'sun-earth-moon' (the INS/CNS lecture, leo-sun-earth-moon: direct "
-                                   "fix, EKF, smoother) or 'position-surfaces' (the INS/CNS lecture's "
+                                   "fix, EKF, smoother), 'position-surfaces' (the INS/CNS lecture's "
                                    "pure geometric fixes, sextant-leo: the surfaces of each epoch "
                                    "intersected, error and predicted sigma per epoch against the "
-                                   "smoother's).")
-    p.add_argument("scheme", choices=["refraction", "sun-earth-moon", "position-surfaces"])
-    p.add_argument("--seed", type=T.seed, default=0, help="noise seed (default 0)")
-    p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's)")
+                                   "smoother's) or 'misalignment' (geo-limb with raw "
+                                   "stars: confocal Earth/star sensor vs separate cameras with a "
+                                   "30 arcsec mounting error, ignored or estimated; tight vs "
+                                   "loose star coupling; dense Cramer-Rao bounds; over --seeds "
+                                   "seeds).")
+    p.add_argument("scheme", choices=["refraction", "sun-earth-moon", "position-surfaces",
+                                      "misalignment"])
+    p.add_argument("--seed", type=T.seed, default=0, help="noise seed (default 0; misalignment: "
+                                                          "the first of --seeds seeds)")
+    p.add_argument("--seeds", type=T.integer(1), metavar="N",
+                   help="misalignment: number of seeds, --seed, --seed + 1, ... (default 10)")
+    p.add_argument("--method", choices=["batch", "isam2"],
+                   help="misalignment: the estimator (default batch)")
+    p.add_argument("--duration-h", type=T.pos("h"), help="pass length (h; default: the scenario's; "
+                                                         "misalignment: 6)")
     p.add_argument("--process-noise", type=T.number(0.0, unit="m^2/s^3"), metavar="Q",
                    help="white-acceleration PSD of the motion prior (m^2/s^3; default 1e-12 for "
                         "refraction and position-surfaces, 1e-9 for sun-earth-moon)")
@@ -34,6 +46,24 @@ def run(args) -> int:
         raise UserError(f"--duration-h must be > 0 (h), got {args.duration_h}")
     if args.process_noise is not None and not args.process_noise > 0:
         raise UserError(f"--process-noise must be > 0 (m^2/s^3), got {args.process_noise}")
+    if args.scheme != "misalignment" and (args.seeds is not None or args.method is not None):
+        raise UserError(f"--seeds and --method apply to the misalignment scheme only, not "
+                        f"'{args.scheme}'")
+    if args.scheme == "misalignment":
+        from fgnav.analysis import misalignment
+
+        kw = {"method": args.method or "batch"}
+        if args.duration_h is not None:
+            kw["duration_h"] = args.duration_h
+        if args.process_noise is not None:
+            kw["q_m2_s3"] = args.process_noise
+        n = 10 if args.seeds is None else args.seeds
+        r = misalignment.misalignment_study(range(args.seed, args.seed + n), **kw)
+        if args.json:
+            print(json.dumps({"scheme": "misalignment", **r}))
+        else:
+            print(misalignment.format_misalignment_table(r))
+        return 0
     if args.scheme == "refraction":
         rows = scheme_studies.refraction_study(args.seed, duration_h=args.duration_h,
                                                q_m2_s3=args.process_noise)

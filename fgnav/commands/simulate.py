@@ -12,7 +12,10 @@ def register(sub):
                                    "scenario TOML file: truth from an independent DOP853 integrator, "
                                    "measurements with seeded noise. A refraction sensor with "
                                    "an atmosphere-model bias also gives "
-                                   "DIR/truth_refraction_bias.csv (epoch,refraction_bias_m).")
+                                   "DIR/truth_refraction_bias.csv (epoch,refraction_bias_m); a "
+                                   "star camera with a mounting error (sensor key "
+                                   "mounting_sigma_arcsec, or --star-mounting-sigma-arcsec) "
+                                   "DIR/truth_camera_alignment.csv (epoch,align_x,align_y,align_z).")
     p.add_argument("scenario", help="built-in name or path to a scenario .toml")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
@@ -33,6 +36,12 @@ def register(sub):
                         "the scenario's Earth-direction sensors measure in the body frame "
                         "(earth_direction_body rows); solve with `fgnav smooth --estimate "
                         "attitude`")
+    p.add_argument("--star-mounting-sigma-arcsec", type=T.number(0.0, 3600.0, unit="arcsec"),
+                   metavar="SIGMA",
+                   help="with --raw-stars: the star camera is a separate sensor, mounted with an "
+                        "error of SIGMA arcsec (1-sigma per axis, drawn once from the seed); its "
+                        "rows are then in its own frame (estimate the mounting with `fgnav "
+                        "smooth --estimate camera-alignment`; default 0: confocal)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
@@ -54,8 +63,19 @@ def run(args) -> int:
     from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
 
     scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
+    mounting = getattr(args, "star_mounting_sigma_arcsec", None)
+    if mounting is not None and not getattr(args, "raw_stars", False):
+        raise UserError("--star-mounting-sigma-arcsec needs --raw-stars (the star camera it "
+                        "mounts)")
     if getattr(args, "raw_stars", False):
-        scn = raw_star_scenario(scn)
+        camera = None
+        if mounting is not None:
+            from dataclasses import replace
+
+            from fgnav.simulate.pass_sim import RAW_STAR_CAMERA
+
+            camera = replace(RAW_STAR_CAMERA, mounting_sigma_arcsec=mounting)
+        scn = raw_star_scenario(scn) if camera is None else raw_star_scenario(scn, camera)
     check_size(scn, args.max_epochs, args.max_duration_h)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -83,6 +103,15 @@ def run(args) -> int:
                 {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
                 comments=(f"scenario {scn.name}, seed {args.seed}: the real atmosphere's "
                           "tangent-height shift against the refraction model, m",))
+        align = ("align_x", "align_y", "align_z")   # = registry.CAMERA_ALIGNMENT.components
+        if align[0] in sim.truth_params:
+            from fgnav.io.truth_params import write_truth_params_csv
+
+            written.append(out / "truth_camera_alignment.csv")
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
+                comments=(f"scenario {scn.name}, seed {args.seed}: the star camera's mounting "
+                          "R_body_from_starcam as a rotation vector, rad (constant)",))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     if not args.quiet:

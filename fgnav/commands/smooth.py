@@ -1,5 +1,8 @@
 """``fgnav smooth LOG --method batch|isam2|fixed-lag|ekf --out DIR``."""
 
+import math
+
+from fgnav.commands import _types as T
 from fgnav.defaults import DEFAULT_Q_M2_S3
 
 DEFAULT_LAG_S = 300.0
@@ -28,8 +31,15 @@ def add_solver_options(p):
                    help="also estimate this graph variable, per epoch as a random walk (repeatable): "
                         "refraction-bias (the atmosphere model's tangent-height bias, m); attitude "
                         "(R_eci_from_body, a Rot3: attitude rows become its priors and body-frame "
-                        "directions factors on orbit and attitude); written to variables.csv and "
-                        "summary.json 'variables'")
+                        "directions factors on orbit and attitude); camera-alignment (a separate "
+                        "star camera's mounting, one Rot3 for the pass: star rows in its frame; "
+                        "with attitude); written to variables.csv and summary.json 'variables'")
+    p.add_argument("--alignment-sigma-arcsec", type=T.number(0.0, 36000.0, lo_open=True,
+                                                            unit="arcsec"),
+                   metavar="SIGMA",
+                   help="with --estimate camera-alignment: 1-sigma per axis of its prior about "
+                        "the nominal mounting (arcsec; default 60, a ground alignment good to "
+                        "an arcminute)")
 
 
 # Which methods each method-specific option applies to (the others would ignore it).
@@ -113,6 +123,15 @@ def solver_options(args):
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
           "gate_probability": args.gate, "estimate": estimate_names(getattr(args, "estimate", ()))}
+    sig = getattr(args, "alignment_sigma_arcsec", None)
+    if sig is not None:
+        from fgnav.models.registry import CAMERA_ALIGNMENT
+
+        if CAMERA_ALIGNMENT.cli_name not in kw["estimate"]:
+            from fgnav.errors import UserError
+            raise UserError(f"--alignment-sigma-arcsec: the prior of the camera alignment, "
+                            f"which is not estimated: add --estimate {CAMERA_ALIGNMENT.cli_name}")
+        kw["prior_sigma"] = ((CAMERA_ALIGNMENT.name, sig * math.pi / 648000.0),)
     if args.process_noise is not None:
         if not args.process_noise > 0:
             from fgnav.errors import UserError

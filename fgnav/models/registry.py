@@ -14,6 +14,8 @@ import functools
 
 import numpy as np
 
+from factors.alignment import (aligned_star_direction_residual,
+                               make_aligned_star_direction_factor)
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
 from factors.celestial_angles import (BODY_BODY, BODY_STAR, body_body_angle_residual,
                                       body_star_angle_residual, celestial_angle_kernel,
@@ -31,6 +33,7 @@ from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_po
                            prior_velocity_kernel, state_prior_residual)
 from factors.refraction import (make_refraction_bias_factor, make_refraction_factor,
                                 refraction_residual, refraction_sigma_m)
+from factors.constants import ARCSEC
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS
@@ -51,7 +54,7 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
            "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
-           "BODY_BODY_ANGLE"]
+           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT"]
 
 
 def _xyz(log, i):
@@ -394,9 +397,50 @@ def _star_initial(fam):
 
 
 def _star_residual(fam, v):
+    if CAMERA_ALIGNMENT.name in v:
+        return _aligned_star_residual(fam, v)
     e, H_R = star_direction_residual(v[ATTITUDE_VARIABLE.name], fam.values["s_eci"],
                                      fam.values["u_body"])
     return e, {ATTITUDE_VARIABLE.name: H_R}
+
+
+def _star_factor(fam, j, keys, noise):
+    if CAMERA_ALIGNMENT.name in keys:
+        return _aligned_star_factor(fam, j, keys, noise)
+    return make_star_direction_factor(keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j],
+                                      fam.values["u_body"][j], noise)
+
+
+# A star camera on its own mount (not the Earth camera's detector): its rows are in its own
+# frame, b = (A M)^T s with M = R_body_from_starcam (factors.alignment); with
+# --estimate camera-alignment M is a graph variable, constant over the pass.
+CAMERA_ALIGNMENT = Variable(
+    "camera_alignment", "m", 3, "rad", manifold="rot3",
+    components=("align_x", "align_y", "align_z"), psd=1e-16, prior_sigma=60.0 * ARCSEC,
+    description="star camera mounting R_body_from_starcam as a rotation vector, rad "
+                "(constant: random walk of 1e-16 rad^2/s)")
+"""The star camera's mounting relative to the Earth camera (the body frame), identity when
+the rows are already in the body frame (a confocal sensor, or a calibrated mounting): one
+rotation for the pass, held in every epoch's block as a random walk of 1e-16 rad^2/s
+(0.4 arcsec in 12 h: constant against its 60 arcsec prior and the 5 arcsec stars, and a
+per-step sigma of 8e-8 rad at 60 s that keeps the chain's information within ~1e5 of the
+stars', where the constant floor would put 1e7 in iSAM2's Cholesky); prior 60 arcsec per
+axis about the nominal mounting (a ground alignment good to an arcminute; Shuster &
+Pitone 1991, "Batch estimation of spacecraft sensor alignments I", J. Astronautical
+Sciences 39(4))."""
+
+
+def _aligned_star_residual(fam, v):
+    e, H_A, H_M = aligned_star_direction_residual(
+        v[ATTITUDE_VARIABLE.name], v[CAMERA_ALIGNMENT.name], fam.values["s_eci"],
+        fam.values["u_body"])
+    return e, {ATTITUDE_VARIABLE.name: H_A, CAMERA_ALIGNMENT.name: H_M}
+
+
+def _aligned_star_factor(fam, j, keys, noise):
+    return make_aligned_star_direction_factor(
+        keys[ATTITUDE_VARIABLE.name], keys[CAMERA_ALIGNMENT.name], fam.values["s_eci"][j],
+        fam.values["u_body"][j], noise)
 
 
 STAR_DIRECTION_BODY = MeasurementModel(
@@ -404,12 +448,11 @@ STAR_DIRECTION_BODY = MeasurementModel(
     summary="unit vector to a star, body frame; its catalogue unit vector (EME2000)",
     values=lambda log, i: {"u_body": _xyz(log, i), "s_eci": np.column_stack(
         [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS])},
-    residual=_star_residual, variables=(), optional_variables=(ATTITUDE_VARIABLE,),
-    requires=ATTITUDE_VARIABLE.name, initial=_star_initial,
-    factor=lambda fam, j, keys, noise: make_star_direction_factor(
-        keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j], fam.values["u_body"][j], noise),
+    residual=_star_residual, variables=(),
+    optional_variables=(ATTITUDE_VARIABLE, CAMERA_ALIGNMENT),
+    requires=ATTITUDE_VARIABLE.name, initial=_star_initial, factor=_star_factor,
     simulate=simulate_star_camera_rows,
-    scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max"))
+    scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max", "mounting_sigma_arcsec"))
 
 
 # ---- attitude-free angles (the INS/CNS lecture's position surfaces) ----------------------------

@@ -20,7 +20,7 @@ the pass (implemented as a random walk of negligible ``psd``, see :data:`CONSTAN
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -103,6 +103,11 @@ class Layout:
     def extra(self) -> tuple[Variable, ...]:
         """The variables after the orbit state."""
         return self.variables[1:]
+
+    def with_prior_sigma(self, name: str, sigma: float) -> "Layout":
+        """This layout with the variable ``name``'s prior 1-sigma replaced by ``sigma``."""
+        return Layout(tuple(replace(v, prior_sigma=float(sigma)) if v.name == name else v
+                            for v in self.variables))
 
     def has(self, name: str) -> bool:
         return name in self.slices

@@ -26,12 +26,13 @@ import numpy as np
 
 from fgnav.errors import UserError
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, log_from_arrays
-from fgnav.models.registry import (EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
+from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, SensorSpec, check_size
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.refraction_sim import has_model_bias, refraction_bias_path_m
+from fgnav.simulate.star_camera import draw_mounting_rotvec
 from fgnav.time import j2000_seconds, parse_utc
 
 
@@ -46,7 +47,9 @@ class SimulatedPass:
     truth_params: dict = field(default_factory=dict)
     """True values of model parameters at ``t_s``, name -> (N,) array; today
     ``"refraction_bias_m"`` (m), the atmosphere-model bias of a refraction sensor that has
-    one (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`)."""
+    one (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`); ``"align_x"``,
+    ``"align_y"``, ``"align_z"`` (rad, constant), the rotation vector of a star camera's
+    mounting error (``mounting_sigma_arcsec``; the last such camera's)."""
 
     def truth_attitude(self) -> np.ndarray:
         """The true attitude ``R_eci_from_body`` (N, 3, 3) at ``t_s``: the Earth-pointing
@@ -77,6 +80,10 @@ def raw_star_scenario(scn: Scenario, camera: SensorSpec = RAW_STAR_CAMERA) -> Sc
 
 REFRACTION_BIAS_STREAM = 1
 """Second entropy word of the random-walk stream of the atmosphere-model bias."""
+MOUNTING_STREAM = 2
+"""Second entropy word of the stream of the star camera's mounting error (drawn there, so a
+mounting error leaves every other draw of the seed as it was: the same noise with and
+without it)."""
 
 
 def sensor_epochs(scn: Scenario, period_s: float | None) -> np.ndarray:
@@ -119,6 +126,7 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
         err = np.array([sp] * 3 + [sv] * 3)
     add(PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
     add(PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
+    mounting_rng = np.random.default_rng([seed, MOUNTING_STREAM])
     for spec, t in zip(scn.sensors, t_by_sensor):
         idx = np.searchsorted(t_all, t)
         bias = {}
@@ -126,7 +134,14 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
             b_all = refraction_bias_path_m(
                 spec, t_all, np.random.default_rng([seed, REFRACTION_BIAS_STREAM]))
             bias = {"bias_m": b_all[idx]}
-        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias)
+        mount = {}
+        if spec.kind == STAR_DIRECTION_BODY.kind:
+            w = draw_mounting_rotvec(spec, mounting_rng)
+            if w is not None:
+                mount = {"mounting_rotvec": w}
+                truth_params.update({c: np.full(len(t_all), w[i])
+                                     for i, c in enumerate(CAMERA_ALIGNMENT.components)})
+        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount)
         if bias and any(c[0] == spec.kind for c in chunks):
             truth_params[REFRACTION_BIAS.components[0]] = b_all
         for chunk in chunks:

@@ -19,6 +19,14 @@ mapped to angle (Liebe 2002, "Accuracy performance of star trackers - a tutorial
 Trans. Aerospace and Electronic Systems 38(2): the error is per star and independent).
 Every star in the field is observed; no detection threshold is simulated beyond
 ``vmag_max``.
+
+Mounting (``spec.mounting_sigma_arcsec`` > 0): a star camera on its own mount, apart from the
+Earth camera whose frame is the body frame, measures in its own frame, turned from the body by
+``M = R_body_from_starcam = Exp(w)`` (the nominal mounting taken out): ``u_cam = (R M)^T s``
+(:mod:`factors.alignment`). ``w`` is drawn once per pass, ``N(0, sigma^2 I)`` per axis, by
+the caller (:func:`draw_mounting_rotvec`, from its own seeded stream); the field test stays
+in the body frame (a 30 arcsec mounting error moves no star across a 12 deg field edge that
+matters).
 """
 
 from __future__ import annotations
@@ -26,11 +34,13 @@ from __future__ import annotations
 import numpy as np
 
 from factors.constants import ARCSEC, DEG
+from factors.geometry import so3_exp
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.noise import perturb_directions
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
-__all__ = ["BORESIGHT_BODY", "CAMERA_FROM_BODY", "stars_in_field", "simulate_star_camera_rows"]
+__all__ = ["BORESIGHT_BODY", "CAMERA_FROM_BODY", "stars_in_field", "simulate_star_camera_rows",
+           "draw_mounting_rotvec"]
 
 CAMERA_FROM_BODY = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 """Rotation taking body-frame vectors into the camera frame (x_cam = x_body, y_cam = -y_body,
@@ -47,12 +57,23 @@ def stars_in_field(u_body: np.ndarray, fov_deg: float) -> np.ndarray:
     return (c[:, 2] > 0) & (np.abs(c[:, 0]) <= lim) & (np.abs(c[:, 1]) <= lim)
 
 
-def simulate_star_camera_rows(spec, t_s, x_true, epoch0, rng, catalogue=None):
+def draw_mounting_rotvec(spec, rng) -> np.ndarray | None:
+    """The star camera's mounting error ``w`` (3,) rad, ``N(0, sigma^2)`` per axis with
+    ``sigma = spec.mounting_sigma_arcsec`` (module docstring); None for a confocal camera
+    (sigma 0), which draws nothing from ``rng``."""
+    sig = float(getattr(spec, "mounting_sigma_arcsec", 0.0) or 0.0)
+    return None if sig <= 0 else rng.standard_normal(3) * sig * ARCSEC
+
+
+def simulate_star_camera_rows(spec, t_s, x_true, epoch0, rng, catalogue=None,
+                              mounting_rotvec=None):
     """Rows of the star camera ``spec`` at epochs ``t_s`` (``pass_sim`` protocol): one chunk
-    ``(spec.kind, t, u_meas_body (M, 3), sigma_rad, {"star_x", "star_y", "star_z"})`` with a
+    ``(spec.kind, t, u_meas (M, 3), sigma_rad, {"star_x", "star_y", "star_z"})`` with a
     row per star in the field at each epoch (module docstring). ``x_true`` (N, 6) the truth
     at ``t_s`` (s from ``epoch0``); ``rng`` a numpy Generator; ``catalogue`` (optional) a
-    :class:`fgnav.vision.catalogue.Catalogue` instead of BSC5 to ``spec.vmag_max``."""
+    :class:`fgnav.vision.catalogue.Catalogue` instead of BSC5 to ``spec.vmag_max``;
+    ``mounting_rotvec`` (3,) rad (optional): the camera's mounting error ``w``, rows then in
+    the camera frame ``(R Exp(w))^T s`` (None: the body frame)."""
     if catalogue is None:
         catalogue = load_catalogue(epoch_year=decimal_year(epoch0), vmag_max=spec.vmag_max)
     S = catalogue.u_eci
@@ -67,7 +88,9 @@ def simulate_star_camera_rows(spec, t_s, x_true, epoch0, rng, catalogue=None):
     t_all = np.concatenate(t_out)
     sig = spec.star_sigma_arcsec * ARCSEC
     s_all = np.concatenate(s_out).reshape(-1, 3)
-    u_meas = perturb_directions(np.concatenate(u_out).reshape(-1, 3), np.full(len(t_all), sig),
-                                rng)
+    u_true = np.concatenate(u_out).reshape(-1, 3)
+    if mounting_rotvec is not None:            # u_cam = M^T R^T s (rows: u_body @ M)
+        u_true = u_true @ so3_exp(np.asarray(mounting_rotvec, dtype=float))
+    u_meas = perturb_directions(u_true, np.full(len(t_all), sig), rng)
     extra = {"star_x": s_all[:, 0], "star_y": s_all[:, 1], "star_z": s_all[:, 2]}
     return [(spec.kind, t_all, u_meas, sig, extra)]

@@ -32,6 +32,7 @@ class SmootherOptions:
     gate_probability: float | None = None  # EKF / iSAM2: reject innovations beyond this chi2 quantile
     init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
     estimate: tuple[str, ...] = ()  # graph variables beyond the orbit state, e.g. ("refraction-bias",)
+    prior_sigma: tuple = ()  # ((variable name, 1-sigma in its unit), ...): its prior instead of the registry's
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
