@@ -327,7 +327,7 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
-         "third_body": options.third_body, "source": p.source}
+         "third_body": options.third_body, "gravity": options.gravity, "source": p.source}
     s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
     if p.inserted is not None and p.inserted.any():
         s["inserted_epochs"] = int(p.inserted.sum())

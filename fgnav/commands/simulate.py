@@ -33,6 +33,10 @@ def register(sub):
                         "the scenario's Earth-direction sensors measure in the body frame "
                         "(earth_direction_body rows); solve with `fgnav smooth --estimate "
                         "attitude`")
+    p.add_argument("--gravity", choices=["j2", "point-mass"],
+                   help="the Earth's gravity in the truth, overrides the scenario's [truth] j2: "
+                        "point-mass (Keplerian; smooth it with --gravity point-mass) or j2 "
+                        "(the scenario's other forces are kept)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
@@ -53,7 +57,10 @@ def run(args) -> int:
     from fgnav.scenarios import check_size, load_scenario
     from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
 
-    scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
+    gravity = getattr(args, "gravity", None)
+    scn = load_scenario(args.scenario).with_options(
+        step_s=args.step_s, duration_h=args.duration_h,
+        truth_j2=None if gravity is None else gravity == "j2")
     if getattr(args, "raw_stars", False):
         scn = raw_star_scenario(scn)
     check_size(scn, args.max_epochs, args.max_duration_h)
