@@ -52,10 +52,8 @@ def run(args) -> int:
     from pathlib import Path
 
     from fgnav.errors import UserError
-    from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import write_oem
     from fgnav.scenarios import check_size, load_scenario
-    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
+    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass, write_pass_files
 
     gravity = getattr(args, "gravity", None)
     scn = load_scenario(args.scenario).with_options(
@@ -74,24 +72,7 @@ def run(args) -> int:
         raise UserError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
     sim = simulate_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
                         max_duration_h=args.max_duration_h)
-    try:
-        write_log(out / "measurements.csv", sim.log)
-        write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-                  object_name=scn.name.upper(),
-                  comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
-                            "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
-        written = [out / "measurements.csv", out / "truth.oem"]
-        if "refraction_bias_m" in sim.truth_params:
-            from fgnav.io.truth_params import TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv
-
-            written.append(out / TRUTH_REFRACTION_BIAS_CSV)
-            write_truth_params_csv(
-                written[-1], sim.epoch0, sim.t_s,
-                {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
-                comments=(f"scenario {scn.name}, seed {args.seed}: the real atmosphere's "
-                          "tangent-height shift against the refraction model, m",))
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    written = write_pass_files(out, sim)
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
               + ", ".join(str(w) for w in written))
