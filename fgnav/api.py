@@ -97,8 +97,8 @@ def read_log(path: str | Path, *, estimate=()):
     ``extra`` columns; ``counts()`` rows per kind).
 
     estimate : the graph variables that will be estimated (as :func:`smooth`'s
-        ``estimate``): with ``"attitude"`` body-frame Sun/Moon rows stay raw instead of
-        being turned into a TRIAD attitude.
+        ``estimate``): with the attitude among them, body-frame Sun/Moon rows stay raw
+        instead of being turned into a TRIAD attitude.
     """
     from fgnav.pipeline import read_measurements
 
@@ -109,8 +109,8 @@ def options(**kw):
     """The estimator options, :class:`~fgnav.solvers.options.SmootherOptions` (SI units):
     e.g. ``q_m2_s3`` (process noise, m^2/s^3, ``--process-noise``), ``third_body``,
     ``gravity`` (``"j2"`` | ``"point-mass"``), ``robust`` (``"huber"`` | ``"cauchy"``),
-    ``gate_probability``, ``estimate`` (e.g. ``("attitude",)``). Unknown names raise
-    :class:`TypeError`."""
+    ``gate_probability``, ``estimate`` (the further graph variables, as ``--estimate``).
+    Unknown names raise :class:`TypeError`."""
     from fgnav.solvers.options import SmootherOptions
 
     if "estimate" in kw:
