@@ -6,12 +6,12 @@ them with a worked example::
 
     import fgnav.api as fg
 
-    sim = fg.simulate("gto-transfer", duration_h=1.0, out="pass/")  # pass/measurements.csv, truth.oem
+    sim = fg.simulate("gto-transfer", duration_h=1.0, out="pass/")  # measurements.csv, truth.oem
     log = fg.read_log("pass/measurements.csv")                      # a log of yours the same way
     result = fg.smooth(log, method="batch", truth="pass/truth.oem")
     print(result.summary["position_rms_m"], result.summary["integrity"]["status"])
-    fg.write_outputs(result, "result/")                              # trajectory.oem, summary.json, ...
-    fg.report("result/")                                             # PNG plots + report.md/html
+    fg.write_outputs(result, "result/")       # trajectory.oem, summary.json, residuals.csv, ...
+    fg.report("result/")                      # PNG plots + report.md/html
 
 Units are SI and frames ECI (EME2000) throughout, as in the rest of the library
 (CONTRIBUTING.md, "Naming convention"). Every input error raises
@@ -85,7 +85,8 @@ def simulate(scenario: str = "gto-transfer", *, seed: int = 0, step_s: float | N
         try:
             Path(out).mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise UserError(f"out {out}: cannot create the directory: {exc.strerror or exc}") from None
+            raise UserError(f"out {out}: cannot create the directory: "
+                            f"{exc.strerror or exc}") from None
         write_pass_files(out, sim)
     return sim
 
