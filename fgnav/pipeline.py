@@ -232,8 +232,23 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     """
     t0 = time.perf_counter()
     log = read_measurements(log_path, options.estimate)
+    return smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
+                      progress=progress, ignore_prior=ignore_prior, t0=t0, **solve_kw)
+
+
+def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOptions(), *,
+               truth_path: str | Path | None = None, truth: tuple | None = None,
+               lag_s: float = 300.0, progress=None, ignore_prior: bool = False,
+               t0: float | None = None, **solve_kw) -> tuple[SmoothResult, Pass]:
+    """:func:`smooth_file` on a log already in memory (a
+    :class:`~fgnav.io.log_csv.MeasurementLog`). The truth comes from the OEM ``truth_path``
+    or as ``truth = (t_s, x_eci)``: seconds from ``log.epoch0`` (covering the log's epochs)
+    and (N, 6) states, SI. ``t0`` is the ``time.perf_counter()`` the wall time counts from
+    (default: now)."""
+    t0 = time.perf_counter() if t0 is None else t0
     p = build_pass(log)
-    truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
+    if truth is None and truth_path is not None:
+        truth = read_truth(truth_path, p)  # checked before solving
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
                                                                       options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
@@ -248,9 +263,10 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     if truth is not None:
         x_true = truth_at(*truth, sol.t_s)
         summary.update(accuracy_metrics(sol, x_true))
-        summary["truth_path"] = str(truth_path)
+        if truth_path is not None:
+            summary["truth_path"] = str(truth_path)
         if sol.variables:
-            summary["variables"] = variable_summary(sol, truth_variables(truth_vars, sol))
+            summary["variables"] = variable_summary(sol, truth_variables(truth_vars or {}, sol))
     return SmoothResult(sol, summary, x_true), p
 
 
@@ -332,7 +348,7 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
-         "third_body": options.third_body, "source": p.source}
+         "third_body": options.third_body, "gravity": options.gravity, "source": p.source}
     s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
     if p.inserted is not None and p.inserted.any():
         s["inserted_epochs"] = int(p.inserted.sum())

@@ -42,6 +42,10 @@ def register(sub):
                         "error of SIGMA arcsec (1-sigma per axis, drawn once from the seed); its "
                         "rows are then in its own frame (estimate the mounting with `fgnav "
                         "smooth --estimate camera-alignment`; default 0: confocal)")
+    p.add_argument("--gravity", choices=["j2", "point-mass"],
+                   help="the Earth's gravity in the truth, overrides the scenario's [truth] j2: "
+                        "point-mass (Keplerian; smooth it with --gravity point-mass) or j2 "
+                        "(the scenario's other forces are kept)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
@@ -57,16 +61,17 @@ def run(args) -> int:
     from pathlib import Path
 
     from fgnav.errors import UserError
-    from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import write_oem
     from fgnav.scenarios import check_size, load_scenario
-    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
+    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass, write_pass_files
 
-    scn = load_scenario(args.scenario).with_options(step_s=args.step_s, duration_h=args.duration_h)
     mounting = getattr(args, "star_mounting_sigma_arcsec", None)
     if mounting is not None and not getattr(args, "raw_stars", False):
         raise UserError("--star-mounting-sigma-arcsec needs --raw-stars (the star camera it "
                         "mounts)")
+    gravity = getattr(args, "gravity", None)
+    scn = load_scenario(args.scenario).with_options(
+        step_s=args.step_s, duration_h=args.duration_h,
+        truth_j2=None if gravity is None else gravity == "j2")
     if getattr(args, "raw_stars", False):
         camera = None
         if mounting is not None:
@@ -87,33 +92,7 @@ def run(args) -> int:
         raise UserError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
     sim = simulate_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
                         max_duration_h=args.max_duration_h)
-    try:
-        write_log(out / "measurements.csv", sim.log)
-        write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-                  object_name=scn.name.upper(),
-                  comments=(f"fgnav truth for scenario {scn.name}, seed {args.seed}",
-                            "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
-        written = [out / "measurements.csv", out / "truth.oem"]
-        if "refraction_bias_m" in sim.truth_params:
-            from fgnav.io.truth_params import TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv
-
-            written.append(out / TRUTH_REFRACTION_BIAS_CSV)
-            write_truth_params_csv(
-                written[-1], sim.epoch0, sim.t_s,
-                {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
-                comments=(f"scenario {scn.name}, seed {args.seed}: the real atmosphere's "
-                          "tangent-height shift against the refraction model, m",))
-        align = ("align_x", "align_y", "align_z")   # = registry.CAMERA_ALIGNMENT.components
-        if align[0] in sim.truth_params:
-            from fgnav.io.truth_params import write_truth_params_csv
-
-            written.append(out / "truth_camera_alignment.csv")
-            write_truth_params_csv(
-                written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
-                comments=(f"scenario {scn.name}, seed {args.seed}: the star camera's mounting "
-                          "R_body_from_starcam as a rotation vector, rad (constant)",))
-    except OSError as exc:
-        raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    written = write_pass_files(out, sim)
     if not args.quiet:
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
               + ", ".join(str(w) for w in written))

@@ -16,6 +16,10 @@ def add_solver_options(p):
                         " raise it when forces are missing from the model)")
     p.add_argument("--third-body", action="store_true",
                    help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")
+    p.add_argument("--gravity", choices=["j2", "point-mass"], default="j2",
+                   help="the Earth's gravity in the motion model: j2 (default: central term + J2) "
+                        "or point-mass (central term alone: Keplerian motion, e.g. test data "
+                        "simulated without J2)")
     p.add_argument("--lag-s", type=float, default=None,
                    help=f"fixed-lag window (s, default {DEFAULT_LAG_S:g}): each state is reported "
                         "smoothed with lag-s to lag-s + 60 s of later data")
@@ -122,7 +126,8 @@ def solver_options(args):
 
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
-          "gate_probability": args.gate, "estimate": estimate_names(getattr(args, "estimate", ()))}
+          "gate_probability": args.gate, "estimate": estimate_names(getattr(args, "estimate", ())),
+          "gravity": getattr(args, "gravity", "j2")}
     sig = getattr(args, "alignment_sigma_arcsec", None)
     if sig is not None:
         from fgnav.models.registry import CAMERA_ALIGNMENT

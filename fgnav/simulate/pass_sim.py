@@ -157,3 +157,45 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                           np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
                          truth_params=truth_params)
+
+
+def write_pass_files(out_dir, sim: SimulatedPass) -> list:
+    """Write a simulated pass as ``fgnav simulate`` does: ``measurements.csv`` (log format
+    v1), ``truth.oem`` (the truth states, CCSDS OEM) and, for a refraction sensor with an
+    atmosphere-model bias, ``truth_refraction_bias.csv`` and, for a separately mounted star
+    camera, ``truth_camera_alignment.csv``, into the existing directory
+    ``out_dir``. Returns the paths written; an unwritable directory is a :class:`UserError`."""
+    from pathlib import Path
+
+    from fgnav.io.log_csv import write_log
+    from fgnav.io.oem import write_oem
+
+    out, scn = Path(out_dir), sim.scenario
+    try:
+        write_log(out / "measurements.csv", sim.log)
+        write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
+                  object_name=scn.name.upper(),
+                  comments=(f"fgnav truth for scenario {scn.name}, seed {sim.seed}",
+                            "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
+        written = [out / "measurements.csv", out / "truth.oem"]
+        if "refraction_bias_m" in sim.truth_params:
+            from fgnav.io.truth_params import TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv
+
+            written.append(out / TRUTH_REFRACTION_BIAS_CSV)
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s,
+                {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
+                comments=(f"scenario {scn.name}, seed {sim.seed}: the real atmosphere's "
+                          "tangent-height shift against the refraction model, m",))
+        align = ("align_x", "align_y", "align_z")   # = registry.CAMERA_ALIGNMENT.components
+        if align[0] in sim.truth_params:
+            from fgnav.io.truth_params import write_truth_params_csv
+
+            written.append(out / "truth_camera_alignment.csv")
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
+                comments=(f"scenario {scn.name}, seed {sim.seed}: the star camera's mounting "
+                          "R_body_from_starcam as a rotation vector, rad (constant)",))
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
+    return written

@@ -12,6 +12,11 @@ from factors.dynamics import MotionModel
 from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.errors import UserError
 
+GRAVITY_MODELS = ("j2", "point-mass")
+"""Earth gravity fields of the motion model: ``j2`` (central term + J2, Vallado 2013,
+*Fundamentals of Astrodynamics and Applications*, eq. 8-30) or ``point-mass`` (the central
+term alone, -mu r/|r|^3: Keplerian motion, for test data simulated without J2)."""
+
 
 @dataclass(frozen=True)
 class SmootherOptions:
@@ -33,9 +38,17 @@ class SmootherOptions:
     init: str = "auto"  # batch first guess: "auto" (numba EKF, else prior) | "prior" (continuation)
     estimate: tuple[str, ...] = ()  # graph variables beyond the orbit state, e.g. ("refraction-bias",)
     prior_sigma: tuple = ()  # ((variable name, 1-sigma in its unit), ...): its prior instead of the registry's
+    gravity: str = "j2"  # Earth's field in the motion model, one of GRAVITY_MODELS
+
+    def __post_init__(self):
+        if self.gravity not in GRAVITY_MODELS:
+            raise UserError(f"gravity (--gravity): expected one of {', '.join(GRAVITY_MODELS)}, "
+                            f"found {self.gravity!r}")
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
+        if self.gravity == "point-mass":
+            kw["j2"] = 0.0  # the kernels' J2 term vanishes: -mu r/|r|^3 alone
         if self.max_step_s is not None:
             kw["max_step_s"] = self.max_step_s
         return MotionModel(**kw)
