@@ -14,13 +14,15 @@ import functools
 
 import numpy as np
 
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
 from factors.attitude import attitude_residual, make_attitude_prior_factor, triad
 from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
                                earth_direction_row_kernel, make_body_direction_factor,
-                               make_earth_direction_factor, make_star_direction_factor,
-                               star_direction_residual)
+                               make_earth_direction_factor,
+                               make_star_direction_apparent_factor,
+                               star_direction_apparent_residual)
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
@@ -161,8 +163,23 @@ walk of spectral density 1 m^2/s (60 m in an hour), prior 1 km (see docs/refract
 def _refraction_values(log, i):
     extra = log.extra
     sig_model = extra.get("sigma_model_m", np.full(len(log.kind), np.nan))[i]
+    t = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
     return {"s_eci": _xyz(log, i), "gamma_rad": extra["gamma"][i],
-            "sigma_model_m": np.nan_to_num(sig_model, nan=0.0)}
+            "sigma_model_m": np.nan_to_num(sig_model, nan=0.0),
+            "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
+
+
+def _refraction_ray(fam):
+    """The direction of the star's ray before bending, in the geocentric frame: the
+    catalogue direction aberrated by the Earth's barycentric velocity (the geocentric
+    apparent place, ~20 arcsec; ``factors.aberration``). The spacecraft's own velocity
+    changes how the camera sees the ray, not where it passes the atmosphere, and aberrates
+    the refracted and the unrefracted star alike, leaving gamma as measured (to
+    ``beta gamma`` < 0.1 arcsec); rows with ``aberration`` off keep the catalogue direction."""
+    s = fam.values["s_eci"]
+    on = fam.values["aberration"]
+    s_app, _ = apparent_direction(s, fam.values["v_earth_bcrs_mps"])
+    return np.where(on[:, None], s_app, s)
 
 
 def _refraction_sigma(fam, x_orbit=None):
@@ -180,7 +197,7 @@ def _refraction_sigma(fam, x_orbit=None):
 
 def _refraction_residual(fam, v):
     M = len(fam)
-    args = (v["orbit"][:, :3], fam.values["s_eci"], fam.values["gamma_rad"],
+    args = (v["orbit"][:, :3], _refraction_ray(fam), fam.values["gamma_rad"],
             np.full(M, R_EARTH_M), np.zeros(M))
     if REFRACTION_BIAS.name not in v:
         e, H_r = refraction_residual(*args)
@@ -190,7 +207,7 @@ def _refraction_residual(fam, v):
 
 
 def _refraction_factor(fam, j, keys, noise):
-    s, g = fam.values["s_eci"][j], fam.values["gamma_rad"][j]
+    s, g = _refraction_ray(fam.subset(np.array([j])))[0], fam.values["gamma_rad"][j]
     if REFRACTION_BIAS.name in keys:
         return make_refraction_bias_factor(keys["orbit"], keys[REFRACTION_BIAS.name], s, g, noise,
                                            R_EARTH_M, 0.0)
@@ -388,21 +405,43 @@ def _star_initial(fam):
     return {ATTITUDE_VARIABLE.name: so3_log(R[pick])}
 
 
+def _star_values(log, i):
+    """A star row's ``u_body``, catalogue ``s_eci`` and, for the aberration (the observer's
+    barycentric velocity is the Earth's plus the spacecraft's), the Earth's barycentric
+    velocity ``v_earth_bcrs_mps`` (M, 3) at the row's epoch and ``aberration`` (M,) True
+    (:func:`fgnav.apparent.without_aberration` switches it off for comparison)."""
+    t = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
+    return {"u_body": _xyz(log, i), "s_eci": np.column_stack(
+        [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS]),
+        "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
+
+
 def _star_residual(fam, v):
-    e, H_R = star_direction_residual(v[ATTITUDE_VARIABLE.name], fam.values["s_eci"],
-                                     fam.values["u_body"])
-    return e, {ATTITUDE_VARIABLE.name: H_R}
+    """The apparent direction at the orbit's velocity estimate (stellar aberration, ~20-27
+    arcsec); ``H`` on the orbit's velocity columns is ~3e-9 rad per m/s."""
+    on = fam.values["aberration"]
+    v_obs = (fam.values["v_earth_bcrs_mps"] + v["orbit"][:, 3:6]) * on[:, None]
+    e, H_R, H_v = star_direction_apparent_residual(v[ATTITUDE_VARIABLE.name],
+                                                   fam.values["s_eci"], v_obs,
+                                                   fam.values["u_body"])
+    H_x = np.zeros((len(fam), 2, 6))
+    H_x[..., 3:6] = H_v * on[:, None, None]
+    return e, {"orbit": H_x, ATTITUDE_VARIABLE.name: H_R}
+
+
+def _star_factor(fam, j, keys, noise):
+    on = bool(fam.values["aberration"][j])
+    return make_star_direction_apparent_factor(
+        keys["orbit"], keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j],
+        fam.values["v_earth_bcrs_mps"][j] if on else None, fam.values["u_body"][j], noise)
 
 
 STAR_DIRECTION_BODY = MeasurementModel(
     kind="star_direction_body", dim=2, unit="rad",
     summary="unit vector to a star, body frame; its catalogue unit vector (EME2000)",
-    values=lambda log, i: {"u_body": _xyz(log, i), "s_eci": np.column_stack(
-        [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS])},
-    residual=_star_residual, variables=(), optional_variables=(ATTITUDE_VARIABLE,),
+    values=_star_values, residual=_star_residual, factor=_star_factor,
+    optional_variables=(ATTITUDE_VARIABLE,), weak_orbit_dependence=True,
     requires=ATTITUDE_VARIABLE.name, initial=_star_initial,
-    factor=lambda fam, j, keys, noise: make_star_direction_factor(
-        keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j], fam.values["u_body"][j], noise),
     simulate=simulate_star_camera_rows,
     scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max"))
 
