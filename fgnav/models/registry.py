@@ -48,7 +48,7 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
-           "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY"]
+           "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "refraction_ray_eci"]
 
 
 def _xyz(log, i):
@@ -169,7 +169,7 @@ def _refraction_values(log, i):
             "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
 
 
-def _refraction_ray(fam):
+def refraction_ray_eci(fam):
     """The direction of the star's ray before bending, in the geocentric frame: the
     catalogue direction aberrated by the Earth's barycentric velocity (the geocentric
     apparent place, ~20 arcsec; ``factors.aberration``). The spacecraft's own velocity
@@ -197,7 +197,7 @@ def _refraction_sigma(fam, x_orbit=None):
 
 def _refraction_residual(fam, v):
     M = len(fam)
-    args = (v["orbit"][:, :3], _refraction_ray(fam), fam.values["gamma_rad"],
+    args = (v["orbit"][:, :3], refraction_ray_eci(fam), fam.values["gamma_rad"],
             np.full(M, R_EARTH_M), np.zeros(M))
     if REFRACTION_BIAS.name not in v:
         e, H_r = refraction_residual(*args)
@@ -207,7 +207,7 @@ def _refraction_residual(fam, v):
 
 
 def _refraction_factor(fam, j, keys, noise):
-    s, g = _refraction_ray(fam.subset(np.array([j])))[0], fam.values["gamma_rad"][j]
+    s, g = refraction_ray_eci(fam.subset(np.array([j])))[0], fam.values["gamma_rad"][j]
     if REFRACTION_BIAS.name in keys:
         return make_refraction_bias_factor(keys["orbit"], keys[REFRACTION_BIAS.name], s, g, noise,
                                            R_EARTH_M, 0.0)
