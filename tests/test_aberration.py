@@ -12,6 +12,7 @@ from factors.adapters import whiten
 from factors.constants import ARCSEC
 from factors.direction import (make_star_direction_apparent_factor, star_direction_apparent_residual,
                                star_direction_residual)
+from factors.geometry import so3_log
 from factors.testing import check_jacobians, check_linearization, random_rotations
 
 X, A = gtsam.symbol("x", 4), gtsam.symbol("a", 4)
@@ -142,3 +143,43 @@ def test_star_direction_apparent_factor_linearizes_like_numpy(rng):
             H_x[..., 3:] = H_v
             (A_x, A_R), b = whiten(e, [H_x, H_R], sigma)
             check_linearization(f, values, [A_x[0], A_R[0]], b[0])
+
+
+def test_star_model_velocity_columns_and_switch():
+    """The registry's star_direction_body model: its orbit columns are the velocity Jacobian
+    of the aberration (zero on the position), against central differences at the scale of
+    those columns (the registry test's atol, relative to the attitude columns, cannot see
+    3e-9 rad per m/s); with the correction switched off they vanish and the residual moves
+    by the aberration."""
+    from fgnav.apparent import without_aberration
+    from fgnav.measurements import build_pass, with_estimates
+    from fgnav.models.registry import ATTITUDE_VARIABLE, STAR_DIRECTION_BODY
+    from fgnav.scenarios import load_scenario
+    from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
+
+    sim = simulate_pass(raw_star_scenario(load_scenario("geo-limb").with_options(
+        duration_h=0.1)), seed=2)
+    p = with_estimates(build_pass(sim.log), (ATTITUDE_VARIABLE.name,))
+    lay = p.layout
+    fam = p.families[STAR_DIRECTION_BODY.kind]
+    X = np.zeros((p.n_epochs, lay.n))
+    X[:, :6] = sim.x_true[np.searchsorted(sim.t_s, p.t_s)]
+    att = lay.slices[ATTITUDE_VARIABLE.name]
+    X[:, att] = so3_log(sim.truth_attitude()[np.searchsorted(sim.t_s, p.t_s)])
+    e, H = STAR_DIRECTION_BODY.evaluate(fam, X, lay)
+    # at the truth the residual is the star noise (5 arcsec), not the aberration
+    assert np.sqrt(np.mean(e ** 2)) / ARCSEC == pytest.approx(5.0, rel=0.2)
+    assert not np.any(H[..., :3])
+    Hv = H[..., 3:6]
+    assert 2.0e-9 < np.max(np.abs(Hv)) <= 1.01 / SPEED_OF_LIGHT_MPS
+    for c in range(3, 6):
+        dX = np.zeros_like(X)
+        dX[:, c] = 100.0
+        fd = (STAR_DIRECTION_BODY.evaluate(fam, X + dX, lay)[0]
+              - STAR_DIRECTION_BODY.evaluate(fam, X - dX, lay)[0]) / 200.0
+        np.testing.assert_allclose(fd, H[..., c], rtol=1e-5, atol=1e-5 * np.max(np.abs(Hv)))
+    off = without_aberration(p).families[STAR_DIRECTION_BODY.kind]
+    e_off, H_off = STAR_DIRECTION_BODY.evaluate(off, X, lay)
+    assert not np.any(H_off[..., :6])
+    shift = np.linalg.norm(e_off - e, axis=1) / ARCSEC
+    assert 5.0 < np.median(shift) < 30.0

@@ -169,16 +169,17 @@ def _refraction_values(log, i):
             "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
 
 
-def refraction_ray_eci(fam):
+def refraction_ray_eci(fam, rows=slice(None)):
     """The direction of the star's ray before bending, in the geocentric frame: the
     catalogue direction aberrated by the Earth's barycentric velocity (the geocentric
     apparent place, ~20 arcsec; ``factors.aberration``). The spacecraft's own velocity
     changes how the camera sees the ray, not where it passes the atmosphere, and aberrates
     the refracted and the unrefracted star alike, leaving gamma as measured (to
-    ``beta gamma`` < 0.1 arcsec); rows with ``aberration`` off keep the catalogue direction."""
-    s = fam.values["s_eci"]
-    on = fam.values["aberration"]
-    s_app, _ = apparent_direction(s, fam.values["v_earth_bcrs_mps"])
+    ``beta gamma`` < 0.1 arcsec); rows with ``aberration`` off keep the catalogue direction.
+    ``rows``: a slice or index array of the family's rows (default all)."""
+    s = fam.values["s_eci"][rows]
+    on = fam.values["aberration"][rows]
+    s_app, _ = apparent_direction(s, fam.values["v_earth_bcrs_mps"][rows])
     return np.where(on[:, None], s_app, s)
 
 
@@ -207,7 +208,7 @@ def _refraction_residual(fam, v):
 
 
 def _refraction_factor(fam, j, keys, noise):
-    s, g = refraction_ray_eci(fam.subset(np.array([j])))[0], fam.values["gamma_rad"][j]
+    s, g = refraction_ray_eci(fam, slice(j, j + 1))[0], fam.values["gamma_rad"][j]
     if REFRACTION_BIAS.name in keys:
         return make_refraction_bias_factor(keys["orbit"], keys[REFRACTION_BIAS.name], s, g, noise,
                                            R_EARTH_M, 0.0)
