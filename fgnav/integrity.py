@@ -42,7 +42,6 @@ from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family, orb
 from fgnav.models.registry import model as model_of
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance
-from fgnav.models.registry import model as model_of
 from fgnav.time import j2000_seconds
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.log_csv import BODIES
 from fgnav.io.text import parse_toml, read_utf8_text
 from fgnav.models.registry import MODELS, simulated_kinds
 from fgnav.orbit import elements_to_state, mean_to_true_anomaly
@@ -70,6 +71,10 @@ class SensorSpec:
     model_bias_random_walk_m_per_sqrt_h: float = 0.0  # random-walk diffusion, 1σ after 1 h
     # body-frame directions (the INS/CNS lecture; fgnav.simulate.body_directions): body = LVLH
     min_sun_elongation_deg: float = 30.0   # Moon sensor blinded closer than this to the Sun
+    # attitude-free angles (fgnav.simulate.celestial_angles): near bodies by name
+    body: str = "earth"                    # the near body of an angle sensor
+    body2: str = "moon"                    # the second near body of a body-body angle
+    stars_per_epoch: float = 3.0           # stars measured against the body at each epoch
 
 
 @dataclass(frozen=True)
@@ -149,6 +154,9 @@ SENSOR_KEYS = {
     "model_bias_drift_m_per_h": ("number", "m/h", -1e5, 1e5, True, True),
     "model_bias_random_walk_m_per_sqrt_h": ("number", "m/sqrt(h)", 0.0, 1e5, True, True),
     "min_sun_elongation_deg": ("number", "deg", 0.0, 180.0, True, True),
+    "body": ("choice", "", BODIES, None, True, True),
+    "body2": ("choice", "", BODIES, None, True, True),
+    "stars_per_epoch": ("number", "", 1.0, 50.0, True, True),
 }
 SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
 """Keys each sensor kind takes besides ``kind`` and ``period_s`` (its model's

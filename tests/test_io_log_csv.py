@@ -18,21 +18,24 @@ HEADER = "epoch,kind,x,y,z,sigma"
 
 VALID = """\
 # a pass logged by hand
-epoch,kind,x,y,z,sigma,gamma,sigma_model_m,star_x,star_y,star_z
-2024-03-01T00:00:00Z,prior_position,7000000,-12.5,3.25e3,1000,,,,,
-2024-03-01T00:00:00Z,prior_velocity,0,7546.05,1.5,1,,,,,
-2024-03-01T00:00:00Z,earth_direction,-0.6,0.8,0,1e-4,,,,,
-2024-03-01T00:00:10.5Z,limb_radius,1.1,6378137,,2e-4,,,,,
+epoch,kind,x,y,z,sigma,gamma,sigma_model_m,star_x,star_y,star_z,body,body2
+2024-03-01T00:00:00Z,prior_position,7000000,-12.5,3.25e3,1000,,,,,,,
+2024-03-01T00:00:00Z,prior_velocity,0,7546.05,1.5,1,,,,,,,
+2024-03-01T00:00:00Z,earth_direction,-0.6,0.8,0,1e-4,,,,,,,
+2024-03-01T00:00:10.5Z,limb_radius,1.1,6378137,,2e-4,,,,,,,
 
-2024-03-01T00:00:10.5Z,earth_direction_body,0,0,-1,1e-4,,,,,
-2024-03-01T00:00:10.5Z,attitude,0.1,-0.2,0.3,5e-5,,,,,
-2024-03-01T00:00:20Z,altitude,621000,6378137,,30,,,,,
-2024-03-01T00:00:20Z,sun_direction_body,1,0,0,1e-3,,,,,
-2024-03-01T00:00:20Z,moon_direction_body,0,1,0,1e-3,,,,,
-2024-03-01T00:00:30Z,refraction,0,0.6,0.8,1e-6,1.5e-4,250,,,
-2024-03-01T00:00:40Z,refraction,0,0.8,0.6,1e-6,1.1e-4,,,,
-2024-03-01T00:00:40Z,star_direction_body,0.6,0,-0.8,2.5e-5,,,0.28,-0.96,0
-2024-03-01T00:00:40Z,gyro,1e-3,-2e-4,0,1e-6,,,,,
+2024-03-01T00:00:10.5Z,earth_direction_body,0,0,-1,1e-4,,,,,,,
+2024-03-01T00:00:10.5Z,attitude,0.1,-0.2,0.3,5e-5,,,,,,,
+2024-03-01T00:00:20Z,altitude,621000,6378137,,30,,,,,,,
+2024-03-01T00:00:20Z,sun_direction_body,1,0,0,1e-3,,,,,,,
+2024-03-01T00:00:20Z,moon_direction_body,0,1,0,1e-3,,,,,,,
+2024-03-01T00:00:30Z,refraction,0,0.6,0.8,1e-6,1.5e-4,250,,,,,
+2024-03-01T00:00:40Z,refraction,0,0.8,0.6,1e-6,1.1e-4,,,,,,
+2024-03-01T00:00:40Z,star_direction_body,0.6,0,-0.8,2.5e-5,,,0.28,-0.96,0,,
+2024-03-01T00:00:40Z,gyro,1e-3,-2e-4,0,1e-6,,,,,,,
+2024-03-01T00:00:50Z,body_star_angle,0.9,,,3e-5,,,0.6,0,0.8,moon,
+2024-03-01T00:00:50Z,limb_star_angle,0.3,6375000,,8e-5,,,0,0.6,0.8,earth,
+2024-03-01T00:00:50Z,body_body_angle,2.8,,,8e-5,,,,,,earth,moon
 """
 
 
@@ -53,8 +56,8 @@ def test_read_valid_log_all_kinds(tmp_path):
     log = read_log(_write(tmp_path, VALID))
     assert set(log.kind) == set(KINDS)
     assert log.epoch0 == parse_utc("2024-03-01T00:00:00Z")
-    assert len(log) == 13
-    np.testing.assert_array_equal(log.epochs_unique(), [0.0, 10.5, 20.0, 30.0, 40.0])
+    assert len(log) == 16
+    np.testing.assert_array_equal(log.epochs_unique(), [0.0, 10.5, 20.0, 30.0, 40.0, 50.0])
     i = log.select("prior_position")
     np.testing.assert_array_equal(log.xyz[i], [[7000000.0, -12.5, 3250.0]])
     assert log.sigma[i][0] == 1000.0

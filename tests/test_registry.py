@@ -21,7 +21,8 @@ import pytest
 from fgnav.io import log_csv
 from fgnav.graph import initial_block
 from fgnav.measurements import Pass, build_pass, with_estimates
-from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION, GYRO_BIAS,
+from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
+                                   BODY_STAR_ANGLE, EARTH_DIRECTION, GYRO_BIAS, LIMB_STAR_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, simulated_kinds, solved_models)
@@ -96,7 +97,7 @@ def sim_pass():
     """Six minutes of LEO: priors, Earth direction (ECI and body frame), Sun and Moon
     directions (body frame), limb radius, altimeter, refraction and its attitude rows, a star
     camera's raw stars (the attitude estimated, so that the attitude, star and body-frame rows
-    enter the graph)."""
+    enter the graph), the attitude-free angles (Earth-limb - star, Moon - star, Earth - Moon)."""
     base = load_scenario("refraction-leo")
     sensors = (SensorSpec(EARTH_DIRECTION.kind, sigma_deg=0.01, period_s=60.0),
                SensorSpec(LIMB_RADIUS.kind, sigma_deg=0.02, period_s=60.0),
@@ -107,6 +108,12 @@ def sim_pass():
                SensorSpec(SUN_DIRECTION_BODY.kind, sigma_deg=0.01, period_s=60.0),
                SensorSpec(MOON_DIRECTION_BODY.kind, sigma_deg=0.02, period_s=60.0,
                           min_sun_elongation_deg=30.0),
+               SensorSpec(LIMB_STAR_ANGLE.kind, sigma_deg=0.005, body="earth", vmag_max=4.0,
+                          period_s=60.0),
+               SensorSpec(BODY_STAR_ANGLE.kind, sigma_deg=0.002, body="moon", vmag_max=4.0,
+                          stars_per_epoch=2, period_s=60.0),
+               SensorSpec(BODY_BODY_ANGLE.kind, sigma_deg=0.005, body="earth", body2="moon",
+                          period_s=60.0),
                *base.sensors)
     sim = simulate_pass(base.with_options(sensors=sensors, duration_h=0.1), seed=3)
     # and a rate gyro between consecutive epochs (attitude rows thinned to one epoch in six)

@@ -40,6 +40,8 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
                  {"sensors": (_REFRACTION, SensorSpec("earth_direction_body", sigma_deg=0.02))},
                  ("attitude", "earth_direction_body", "refraction"), ("attitude",)),
     # raw stars of a zenith star camera + Earth directions in the body frame (--raw-stars)
+    # the sextant: attitude-free angles, star - Earth limb, star - Moon centre, Earth - Moon
+    "sextant": ("sextant-leo", {}, ("limb_star_angle", "body_star_angle", "body_body_angle"), ()),
     "raw-stars": ("geo-limb", {"raw_stars": True},
                   ("star_direction_body", "earth_direction_body", "limb_radius"), ("attitude",)),
 }

@@ -34,9 +34,10 @@ import dataclasses
 import numpy as np
 
 from fgnav.analysis.direct_fix import refraction_direct_fixes, sem_direct_fixes
+from fgnav.analysis.position_surfaces import position_surface_fixes
 from fgnav.measurements import build_pass
 from fgnav.models.registry import REFRACTION
-from fgnav.pipeline import accuracy_metrics, solve
+from fgnav.pipeline import accuracy_metrics, crb_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.sun_earth_moon import preprocess_log
 from fgnav.simulate.pass_sim import simulate_pass
@@ -45,7 +46,8 @@ from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
 __all__ = ["SEM_Q_M2_S3", "SEM_SOURCE_FIGURES", "MADAN_POSITION_M", "refraction_study",
-           "sem_study", "format_refraction_table", "format_sem_table"]
+           "sem_study", "format_refraction_table", "format_sem_table", "surfaces_study",
+           "format_surfaces_table"]
 
 SEM_Q_M2_S3 = 1e-9
 """Process noise of the Sun/Earth/Moon estimators, m^2/s^3 (module docstring)."""
@@ -185,4 +187,64 @@ def format_sem_table(r) -> str:
              f"first); direct-fix predicted 1σ RMS {r['fix_sigma_rms_m']:.0f} m; "
              f"q = {r['q_m2_s3']:g} m^2/s^3; NEES smoother {r['batch_nees_mean']:.2f}, "
              f"EKF {r['ekf_nees_mean']:.2f} (6 expected)."]
+    return "\n".join(lines)
+
+
+def surfaces_study(seed=0, *, scenario="sextant-leo", duration_h=None, q_m2_s3=None,
+                   n_starts=24):
+    """Geometric fixes (the INS/CNS lecture's position surfaces intersected at each epoch,
+    :func:`fgnav.analysis.position_surfaces.position_surface_fixes`, spurious roots removed
+    with the a-priori orbit) against the batch smoother on the same simulated pass; returns a
+    dict with one entry per fix epoch (``epochs``: fix error and predicted 1σ, the smoother's
+    error and 1σ, the roots found) and the pass's RMS, NEES and Cramér-Rao bound."""
+    scn = load_scenario(scenario).with_options(duration_h=duration_h)
+    options = SmootherOptions() if q_m2_s3 is None else SmootherOptions(q_m2_s3=q_m2_s3)
+    sim = simulate_pass(scn, seed=seed)
+    at = _truth_lookup(sim)
+    p = build_pass(sim.log)
+    xg = initial_guess(p, options.motion_model(), float(j2000_seconds(p.epoch0)))
+    fixes, n_roots = position_surface_fixes(p, xg, n_starts=n_starts)
+    sol = solve(p, "batch", options)
+    xt_sol = at(sol.t_s)
+    m = accuracy_metrics(sol, xt_sol)
+    out = {"scenario": scn.name, "seed": seed, "epochs_in_pass": p.n_epochs,
+           "q_m2_s3": options.q_m2_s3, "counts": p.counts()}
+    out.update(_fix_stats(fixes, at))
+    out["fix_epochs_with_spurious_roots"] = int(np.sum(n_roots >= 2))
+    out.update({f"batch_{k}": v for k, v in m.items()})
+    out.update(crb_metrics(p, xt_sol[np.searchsorted(sol.t_s, p.t_s)], options))
+    xt = at(fixes.t_s)
+    j = np.searchsorted(sol.t_s, fixes.t_s)
+    err_fix = fixes.errors_m(xt)
+    err_sm = np.linalg.norm(sol.x_eci[j, :3] - xt[:, :3], axis=1)
+    out["epochs"] = [
+        {"t_s": float(t), "fix_error_m": float(ef), "fix_sigma_m": float(np.sqrt(np.trace(P))),
+         "roots": int(nr), "smoother_error_m": float(es),
+         "smoother_sigma_m": float(np.sqrt(np.trace(sol.P_eci[jj, :3, :3])))}
+        for t, ef, P, nr, es, jj in zip(fixes.t_s, err_fix, fixes.P_m2, n_roots, err_sm, j)]
+    return out
+
+
+def format_surfaces_table(r, rows=12) -> str:
+    """The geometric fixes against the smoother as text: ``rows`` epochs evenly spread, then
+    the RMS over every fix epoch."""
+    head = (f"{'t s':>7} {'roots':>5} {'fix err m':>10} {'fix σ m':>9} {'smooth err m':>12} "
+            f"{'smooth σ m':>10}")
+    lines = [head, "-" * len(head)]
+    ep = r["epochs"]
+    for i in np.unique(np.linspace(0, len(ep) - 1, min(rows, len(ep))).astype(int)) if ep else []:
+        e = ep[i]
+        lines.append(f"{e['t_s']:>7.0f} {e['roots']:>5d} {e['fix_error_m']:>10.1f} "
+                     f"{e['fix_sigma_m']:>9.1f} {e['smoother_error_m']:>12.1f} "
+                     f"{e['smoother_sigma_m']:>10.1f}")
+    lines.append("-" * len(head))
+    lines.append(f"{'RMS':>7} {'':>5} {r['fix_rms_m']:>10.1f} {r['fix_sigma_rms_m']:>9.1f} "
+                 f"{r['batch_position_rms_m']:>12.1f} {r['batch_sigma_position_rms_m']:>10.1f}")
+    counts = ", ".join(f"{k} {v}" for k, v in r["counts"].items())
+    lines += ["", f"{r['scenario']}, seed {r['seed']}: {r['n_fixes']} geometric fixes over "
+              f"{r['epochs_in_pass']} epochs ({counts}); {r['fix_epochs_with_spurious_roots']} "
+              f"epochs had more than one root (kept: the one nearest the a-priori orbit).",
+              f"fix NEES {r.get('fix_nees', float('nan')):.2f} (3 expected); smoother NEES "
+              f"{r['batch_nees_mean']:.2f} (6 expected), Cramér-Rao bound "
+              f"{r['crb_position_rms_m']:.1f} m RMS; q = {r['q_m2_s3']:g} m^2/s^3."]
     return "\n".join(lines)

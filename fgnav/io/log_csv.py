@@ -6,11 +6,13 @@ A UTF-8 CSV file (an initial byte-order mark is ignored). Lines whose first non-
 character is ``#`` are comments; blank lines are ignored. The first other line is the
 header::
 
-    epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]
+    epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z][,body][,body2]
 
 The six base columns are required, in this order; the optional extra columns ``gamma`` and
-``sigma_model_m`` (used by ``refraction`` rows) and ``star_x``, ``star_y``, ``star_z`` (used
-by ``star_direction_body`` rows) may follow, in any order, each at most once. Every row has exactly as many comma-separated fields as the header; whitespace around
+``sigma_model_m`` (used by ``refraction`` rows), ``star_x``, ``star_y``, ``star_z`` (used
+by ``star_direction_body`` and the star-angle rows) and ``body``, ``body2`` (a near body's
+name, one of ``sun``, ``earth``, ``moon``: the angle rows) may follow, in any order, each at
+most once. Every row has exactly as many comma-separated fields as the header; whitespace around
 a field is ignored; an empty field is "no value" (read as NaN). ``epoch`` is ISO-8601 UTC
 ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; years
 1678..2261, the range of ``datetime64[ns]``; second ``60`` at the end of a day with a leap
@@ -50,7 +52,24 @@ kind                      x, y, z (and extra columns)                      sigma
                           (required); ``sigma_model_m`` = 1σ of the
                           atmosphere-model height error, m (>= 0,
                           optional)
+``body_star_angle``       x = angle at the spacecraft between the centre   rad
+  (fgnav extension)       of ``body`` (sun, earth, moon) and a star, rad,
+                          in [0, pi]; ``star_x``, ``star_y``, ``star_z``
+                          = the star's catalogue unit vector (EME2000);
+                          y, z empty
+``limb_star_angle``       x = angle between a star and the NEAR limb of    rad
+  (fgnav extension)       ``body`` (earth or moon), rad, in [0, pi] (the
+                          sextant: centre angle minus the apparent
+                          radius asin(y/d)); y = radius of the limb
+                          sphere, m (> 0); star columns as above; z empty
+``body_body_angle``       x = angle at the spacecraft between the centres  rad
+  (fgnav extension)       of ``body`` and ``body2`` (two different near
+                          bodies), rad, in [0, pi]; y, z empty
 ========================  ===============================================  ==============
+
+``body`` and ``body2`` hold a body's name in the file; in memory (``MeasurementLog.extra``)
+its index in :data:`BODIES` (a float, NaN where empty), so that every value of a row stays
+a number.
 
 Columns a kind does not use must be empty. ``sigma`` is always required, finite and within
 the physically meaningful range of its kind (``SIGMA_RANGE``): angles (directions, limb
@@ -74,6 +93,8 @@ Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the f
   ``not_finite`` NaN or inf; ``missing_value`` a required field empty;
   ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0
   or outside the kind's ``SIGMA_RANGE``;
+  ``unknown_body`` a ``body``/``body2`` that is not one of sun, earth, moon, the Sun as a
+  limb body, or the same body twice in a ``body_body_angle``;
   ``not_unit`` a direction (x,y,z, or a star's catalogue vector star_x,star_y,star_z)
   with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
   <= 0, altitude below the centre, ``sigma_model_m`` < 0, a ``prior_position`` inside the
@@ -109,13 +130,19 @@ from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, second
 __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
-    "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS",
+    "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
-EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z")
+EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z", "body", "body2")
 STAR_COLUMNS = ("star_x", "star_y", "star_z")
 """The extra columns of a star's catalogue unit vector (``star_direction_body`` rows)."""
+BODY_COLUMNS = ("body", "body2")
+"""The extra columns naming a near body (the angle rows): text in the file, the body's index
+in :data:`BODIES` in memory."""
+BODIES = ("sun", "earth", "moon")
+"""The near bodies an angle row may name, in the order of their in-memory codes."""
+_LIMB_BODIES = ("earth", "moon")
 _VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
 _USAGE_COLUMNS = ("x", "y", "z") + EXTRA_COLUMNS           # order of a kind's usage
 
@@ -179,6 +206,54 @@ def _check_refraction(x, y, z, sigma_model):
                         _fmt_found(sigma_model))
 
 
+def _check_angle(x, y, z, sigma_model):
+    if not 0.0 <= x <= math.pi:
+        raise _RowError("out_of_range", "x", "an angle in [0, pi] rad", _fmt_found(x))
+
+
+def _check_limb_angle(x, y, z, sigma_model):
+    _check_angle(x, y, z, sigma_model)
+    if not 0.0 < y <= MAX_DISTANCE_M:
+        raise _RowError("out_of_range", "y", f"a limb-sphere radius in (0, {MAX_DISTANCE_M:g}] m",
+                        _fmt_found(y))
+
+
+def _check_limb_body(v):
+    if BODIES[int(v["body"])] not in _LIMB_BODIES:
+        raise _RowError("unknown_body", "body", f"a body with a limb, one of "
+                        f"{', '.join(_LIMB_BODIES)}", BODIES[int(v["body"])])
+
+
+def _check_two_bodies(v):
+    if v["body"] == v["body2"]:
+        raise _RowError("unknown_body", "body2", "a body other than the column body's",
+                        BODIES[int(v["body2"])])
+
+
+def body_codes(names) -> np.ndarray:
+    """In-memory codes (float array, NaN for None/empty/NaN) of body names (sun, earth,
+    moon, any case) or codes; a ValueError names an unknown body."""
+    out = []
+    for n in np.asarray(names, dtype=object).reshape(-1):
+        if n is None or (isinstance(n, float) and math.isnan(n)) or n == "":
+            out.append(math.nan)
+        elif isinstance(n, str):
+            if n.strip().lower() not in BODIES:
+                raise ValueError(f"unknown body {n!r}; expected one of {', '.join(BODIES)}")
+            out.append(float(BODIES.index(n.strip().lower())))
+        else:
+            c = float(n)
+            if c not in range(len(BODIES)):
+                raise ValueError(f"unknown body code {n!r}; expected 0..{len(BODIES) - 1}")
+            out.append(c)
+    return np.array(out, dtype=float)
+
+
+def body_names(codes) -> list:
+    """Body names of in-memory codes (None where NaN)."""
+    return [None if math.isnan(c) else BODIES[int(c)] for c in np.asarray(codes, float).ravel()]
+
+
 class _Kind(NamedTuple):
     """One kind of the format: how it uses the value columns, what its sigma may be.
 
@@ -190,6 +265,7 @@ class _Kind(NamedTuple):
     check : further value checks ``(x, y, z, sigma_model_m) -> None`` (raise a row error).
     unit_columns : further columns that together are a unit vector (checked and
         renormalized like x, y, z).
+    row_check : checks that need the extra columns, ``({column: value}) -> None``.
     """
 
     usage: tuple[str, ...]
@@ -200,6 +276,7 @@ class _Kind(NamedTuple):
     unit_vector: bool = False
     check: Callable | None = None
     unit_columns: tuple[str, ...] = ()
+    row_check: Callable | None = None
 
 
 _XYZ = ("r", "r", "r", "", "")
@@ -231,6 +308,18 @@ _KIND_SPEC: dict[str, _Kind] = {
                                  "unit vector to a star, body; star_x,star_y,star_z = its "
                                  "catalogue unit vector, EME2000", *_ANGLE, unit_vector=True,
                                  unit_columns=STAR_COLUMNS),
+    "body_star_angle": _Kind(("r", "", "", "", "", "r", "r", "r", "r", ""),
+                             "x = angle between the body's centre and a star, rad; star_x,"
+                             "star_y,star_z = the star, EME2000; body", *_ANGLE,
+                             check=_check_angle, unit_columns=STAR_COLUMNS),
+    "limb_star_angle": _Kind(("r", "r", "", "", "", "r", "r", "r", "r", ""),
+                             "x = angle between the body's near limb and a star, rad; y = limb "
+                             "radius, m; star_x,star_y,star_z = the star, EME2000; body", *_ANGLE,
+                             check=_check_limb_angle, unit_columns=STAR_COLUMNS,
+                             row_check=_check_limb_body),
+    "body_body_angle": _Kind(("r", "", "", "", "", "", "", "", "r", "r"),
+                             "x = angle between the centres of body and body2, rad", *_ANGLE,
+                             check=_check_angle, row_check=_check_two_bodies),
 }
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""
@@ -245,7 +334,8 @@ _NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
 _NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
 _EPOCH_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$")
 _EPOCH_EXPECTED = "an ISO-8601 UTC epoch YYYY-MM-DDTHH:MM:SS[.fffffffff]Z"
-_HEADER_TEXT = "epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]"
+_HEADER_TEXT = ("epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]"
+                "[,body][,body2]")
 _NS_PER_DAY = 86400 * 10**9
 
 
@@ -256,7 +346,7 @@ class MeasurementLog:
     ``t_s`` are seconds from ``epoch0`` (``datetime64[ns]``, UTC); ``kind`` a str array;
     ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
     ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ``star_y``,
-    ``star_z``) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
+    ``star_z``, ``body``, ``body2``: codes, :data:`BODIES`) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
     ``warnings`` human-readable notes; ``dropped`` rows dropped per reason.
     """
 
@@ -300,7 +390,9 @@ class _RowError(Exception):
         self.reason, self.column, self.expected, self.found = reason, column, expected, found
 
 
-def _fmt_found(v: float) -> str:
+def _fmt_found(v: float, column: str = "") -> str:
+    if column in BODY_COLUMNS and float(v) in range(len(BODIES)):
+        return BODIES[int(v)]
     return repr(float(v))
 
 
@@ -324,10 +416,11 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
     for col, use in cols_usage.items():
         j = _VALUE_COLUMNS.index(col)
         if use == "r" and np.isnan(v[j]):
-            raise _RowError("missing_value", col, f"a number ({kind}: {what})", "empty field")
+            raise _RowError("missing_value", col, f"{'a body name' if col in BODY_COLUMNS else 'a number'} "
+                            f"({kind}: {what})", "empty field")
         if use == "" and not np.isnan(v[j]):
             raise _RowError("unexpected_value", col, f"an empty field ({kind} does not use "
-                            f"column {col})", _fmt_found(v[j]))
+                            f"column {col})", _fmt_found(v[j], col))
     if math.isnan(sigma):
         raise _RowError("missing_value", "sigma", "a 1-sigma > 0", "empty field")
     if not sigma > 0.0:
@@ -358,12 +451,29 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
             renorm = True
     if spec.check is not None:
         spec.check(x, y, z, sigma_model)
+    for col in BODY_COLUMNS:
+        j = _VALUE_COLUMNS.index(col)
+        if not (np.isnan(v[j]) or float(v[j]) in range(len(BODIES))):
+            raise _RowError("unknown_body", col, f"a body, one of {', '.join(BODIES)}",
+                            _fmt_found(v[j]))
+    if spec.row_check is not None:
+        spec.row_check(dict(zip(_VALUE_COLUMNS, (float(a) for a in v))))
     return v, renorm
+
+
+def _parse_body(text: str, column: str) -> float:
+    if text == "":
+        return math.nan
+    if text.lower() not in BODIES:
+        raise _RowError("unknown_body", column, f"a body, one of {', '.join(BODIES)}", text)
+    return float(BODIES.index(text.lower()))
 
 
 def _parse_number(text: str, column: str) -> float:
     if text == "":
         return math.nan
+    if column in BODY_COLUMNS:
+        return _parse_body(text, column)
     if _NUMBER_RE.match(text):
         x = float(text)
         if not math.isfinite(x):
@@ -632,7 +742,13 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     E = np.full((M, len(EXTRA_COLUMNS)), np.nan)
     for j, c in enumerate(EXTRA_COLUMNS):
         if c in extra:
-            a = np.asarray(extra[c], dtype=float).reshape(-1)
+            if c in BODY_COLUMNS:
+                try:
+                    a = body_codes(extra[c])
+                except ValueError as exc:
+                    raise UserError(f"log_from_arrays: extra[{c!r}]: {exc}") from None
+            else:
+                a = np.asarray(extra[c], dtype=float).reshape(-1)
             if a.shape != (M,):
                 raise UserError(f"log_from_arrays: extra[{c!r}] must have shape ({M},), "
                                 f"found {a.shape}")
@@ -659,8 +775,10 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
         line=line, warnings=warnings, dropped={})
 
 
-def _fmt(v: float) -> str:
-    return "" if math.isnan(v) else repr(float(v))
+def _fmt(v: float, column: str = "") -> str:
+    if math.isnan(v):
+        return ""
+    return BODIES[int(v)] if column in BODY_COLUMNS else repr(float(v))
 
 
 def _fmt_epoch(ns: int) -> str:
@@ -677,8 +795,8 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     kind = np.asarray(log.kind).astype(str)
     xyz = np.asarray(log.xyz, dtype=float)
     sigma = np.asarray(log.sigma, dtype=float)
-    extra = {c: np.asarray(log.extra[c], dtype=float) for c in EXTRA_COLUMNS
-             if c in (log.extra or {})}
+    extra = {c: body_codes(log.extra[c]) if c in BODY_COLUMNS else
+             np.asarray(log.extra[c], dtype=float) for c in EXTRA_COLUMNS if c in (log.extra or {})}
     unknown = set(log.extra or {}) - set(EXTRA_COLUMNS)
     if unknown:
         raise UserError(f"write_log: unknown extra column(s) {sorted(unknown)}")
@@ -697,7 +815,7 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
             raise UserError(f"write_log: row {i}, column '{err.column}': expected "
                             f"{err.expected}, found {err.found!r}") from None
         row = [_fmt_epoch(int(ns[i])), str(kind[i]), _fmt(xyz[i, 0]), _fmt(xyz[i, 1]),
-               _fmt(xyz[i, 2]), _fmt(sigma[i])] + [_fmt(extra[c][i]) for c in used]
+               _fmt(xyz[i, 2]), _fmt(sigma[i])] + [_fmt(extra[c][i], c) for c in used]
         out.append(",".join(row) + "\n")
     with atomic_writer(path, "w") as f:
         f.write("".join(out))

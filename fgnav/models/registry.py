@@ -16,6 +16,9 @@ import numpy as np
 
 from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
+from factors.celestial_angles import (BODY_BODY, BODY_STAR, body_body_angle_residual,
+                                      body_star_angle_residual, celestial_angle_kernel,
+                                      limb_star_angle_residual, make_celestial_angle_factor)
 from factors.attitude import attitude_residual, make_attitude_prior_factor, triad
 from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
@@ -32,9 +35,10 @@ from factors.refraction import (make_refraction_bias_factor, make_refraction_fac
                                 refraction_residual, refraction_sigma_m)
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
-from fgnav.io.log_csv import STAR_COLUMNS
+from fgnav.io.log_csv import BODIES, STAR_COLUMNS
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
+from fgnav.simulate.celestial_angles import body_position_eci_m, simulate_angle_rows
 from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
                                             simulate_body_direction_rows, sun_target)
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
@@ -48,7 +52,8 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
-           "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "refraction_ray_eci"]
+           "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
+           "BODY_BODY_ANGLE", "refraction_ray_eci"]
 
 
 def _xyz(log, i):
@@ -447,10 +452,87 @@ STAR_DIRECTION_BODY = MeasurementModel(
     scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max"))
 
 
+# ---- attitude-free angles (the INS/CNS lecture's position surfaces) ----------------------------
+# A sextant-like instrument measures the angle between two lines of sight: near body - star
+# (a cone), near body's limb - star (the sextant), near body - near body (a torus). No
+# attitude enters (factors/celestial_angles.py).
+# The limb form is a kind of its own rather than a flag on body_star_angle: it carries a
+# further value (the limb sphere's radius, column y, as limb_radius rows do) and another
+# residual, and a reader that ignored a flag would take a limb angle for a centre angle
+# silently (wrong by the apparent radius, ~60 deg in LEO), where an unknown kind is refused.
+
+def _bodies_at(codes, t_j2000_s):
+    """Centres (M, 3), ECI, m, of the bodies with log codes ``codes`` (M,) at the rows' epochs."""
+    out = np.zeros((len(codes), 3))
+    for c in np.unique(codes):
+        i = np.flatnonzero(codes == c)
+        out[i] = body_position_eci_m(BODIES[int(c)], t_j2000_s[i])
+    return out
+
+
+def _angle_values(star, limb):
+    """``values(log, rows)`` of an angle kind: ``a_rad`` (M,) the measured angle; the body's
+    centre ``p_body_eci_m`` (M, 3) at the row's epoch; the star ``s_eci`` (M, 3) or the second
+    body ``p_body2_eci_m``; ``r_limb_m`` (limb form); and the rows packed for the kernel,
+    ``data`` (M, 3) and ``B`` (M, 2, 3) (``factors.celestial_angles.celestial_angle_kernel``)."""
+    def values(log, i):
+        xyz = _xyz(log, i)
+        tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
+        out = {"a_rad": xyz[:, 0],
+               "p_body_eci_m": _bodies_at(np.asarray(log.extra["body"], float)[i], tj)}
+        data = np.zeros((len(tj), 3))
+        data[:, 0] = out["a_rad"]
+        if star:
+            out["s_eci"] = np.column_stack([np.asarray(log.extra[c], dtype=float)[i]
+                                            for c in STAR_COLUMNS])
+            other = out["s_eci"]
+            data[:, 2] = BODY_STAR
+            if limb:
+                out["r_limb_m"] = xyz[:, 1]
+                data[:, 1] = out["r_limb_m"]
+        else:
+            out["p_body2_eci_m"] = _bodies_at(np.asarray(log.extra["body2"], float)[i], tj)
+            other = out["p_body2_eci_m"]
+            data[:, 2] = BODY_BODY
+        out["data"], out["B"] = data, np.stack([out["p_body_eci_m"], other], axis=1)
+        return out
+    return values
+
+
+def _angle_model(kind, summary, residual, star, limb, keys):
+    return MeasurementModel(
+        kind=kind, dim=1, unit="rad", observes_orbit=True, summary=summary,
+        values=_angle_values(star, limb), residual=_position_model(residual),
+        factor=lambda fam, j, keys_, noise: make_celestial_angle_factor(
+            keys_["orbit"], fam.values["data"][j], fam.values["B"][j], noise),
+        numba_kernel=celestial_angle_kernel,
+        numba_data=lambda fam: (fam.values["data"], fam.values["B"]),
+        simulate=functools.partial(simulate_angle_rows, star=star, limb=limb),
+        scenario_keys=keys)
+
+
+_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg")
+BODY_STAR_ANGLE = _angle_model(
+    "body_star_angle", "angle between a near body's centre and a star (rad)",
+    lambda r, fam: body_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],
+                                            fam.values["a_rad"]),
+    star=True, limb=False, keys=_STAR_KEYS)
+LIMB_STAR_ANGLE = _angle_model(
+    "limb_star_angle", "angle between a near body's limb and a star (rad): the sextant",
+    lambda r, fam: limb_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],
+                                            fam.values["a_rad"], fam.values["r_limb_m"]),
+    star=True, limb=True, keys=_STAR_KEYS + ("r_limb_km",))
+BODY_BODY_ANGLE = _angle_model(
+    "body_body_angle", "angle between two near bodies' centres (rad)",
+    lambda r, fam: body_body_angle_residual(r, fam.values["p_body_eci_m"],
+                                            fam.values["p_body2_eci_m"], fam.values["a_rad"]),
+    star=False, limb=False, keys=("sigma_deg", "body", "body2"))
+
+
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
     PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
     ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO,
-    STAR_DIRECTION_BODY)}
+    STAR_DIRECTION_BODY, BODY_STAR_ANGLE, LIMB_STAR_ANGLE, BODY_BODY_ANGLE)}
 """Every log kind the project reads, by kind."""
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{

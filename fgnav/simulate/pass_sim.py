@@ -7,6 +7,8 @@ order with one shared seeded Generator, so a seed gives the same log). Noise:
 
 * direction, limb angular radius, altimeter: :mod:`fgnav.simulate.sensors`;
 * body-frame Sun / Moon / Earth directions: :mod:`fgnav.simulate.body_directions`;
+* attitude-free angles (body - star, limb - star, body - body):
+  :mod:`fgnav.simulate.celestial_angles`;
 * refraction: :mod:`fgnav.simulate.refraction_sim`; an atmosphere-model bias path ``b(t)``
   (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`) draws its random walk
   from its own stream, ``numpy.random.default_rng([seed, REFRACTION_BIAS_STREAM])``, so

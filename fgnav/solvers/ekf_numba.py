@@ -13,7 +13,8 @@ Same math, step for step (SI, ECI, state ``x = [r_eci_m; v_eci_mps]``):
   ``P <- (I - K A) P (I - K A)^T + K K^T`` (Joseph form).
 
 Residuals ``e`` and Jacobians ``H`` come from the models' row kernels in ``factors/``
-(:data:`ROW_KERNELS`: the priors, the geocentric direction, the limb radius, the altimeter),
+(:data:`ROW_KERNELS`: the priors, the geocentric direction, the limb radius, the altimeter,
+the attitude-free celestial angles),
 the same compiled functions their numpy residuals call. A model registers its kernel in
 ``fgnav.models.registry`` (``numba_kernel``); a pass with any other family, or with
 graph variables beyond the orbit state, is not handled here: :func:`numba_supports` says so
@@ -33,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from factors.altimeter import altitude_kernel
+from factors.celestial_angles import celestial_angle_kernel
 from factors.direction import earth_direction_row_kernel
 from factors.dynamics import process_noise_terms, propagate_nb
 from factors.limb import limb_radius_kernel
@@ -48,10 +50,10 @@ __all__ = ["ROW_KERNELS", "numba_supports", "run_ekf_numba", "pack_pass", "first
            "prior_covariance"]
 
 ROW_KERNELS = (prior_position_kernel, prior_velocity_kernel, earth_direction_row_kernel,
-               limb_radius_kernel, altitude_kernel)
+               limb_radius_kernel, altitude_kernel, celestial_angle_kernel)
 """The row kernels :func:`_rows` dispatches on (a model's code = index of its ``numba_kernel``).
 Each is ``kernel(x (6,), data (3,), B (2, 3), e (m,), H (m, 6)) -> rows written, or -1``."""
-_K0, _K1, _K2, _K3, _K4 = ROW_KERNELS
+_K0, _K1, _K2, _K3, _K4, _K5 = ROW_KERNELS
 _MAX_ROWS = 64            # rows of one (epoch, family) group handled by the kernel at once
 
 
@@ -125,8 +127,10 @@ def _rows(code, x, data, B, sigma, A, b, r0):
         m = _K2(x, data, B, e, H)
     elif code == 3:
         m = _K3(x, data, B, e, H)
-    else:
+    elif code == 4:
         m = _K4(x, data, B, e, H)
+    else:
+        m = _K5(x, data, B, e, H)
     if m < 0:
         return -1
     for i in range(m):

@@ -1,0 +1,130 @@
+"""The angle kinds in the log format: body_star_angle, limb_star_angle, body_body_angle and their
+``body``/``body2`` columns (fgnav.io.log_csv), read, validated, written back, and the
+simulator's rows at the truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgnav.errors import InputFormatError, UserError
+from fgnav.io.log_csv import BODIES, body_names, log_from_arrays, read_log, write_log
+from fgnav.measurements import build_pass
+from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.pass_sim import simulate_pass
+
+HEAD = "epoch,kind,x,y,z,sigma,star_x,star_y,star_z,body,body2\n"
+ROWS = [
+    "2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8,Moon,",
+    "2025-03-06T12:00:00Z,limb_star_angle,0.3,6375000,,8e-5,0,0.6,0.8,earth,",
+    "2025-03-06T12:01:00Z,body_body_angle,2.8,,,8e-5,,,,earth,moon",
+    "2025-03-06T12:01:00Z,body_star_angle,1.9,,,1e-4,0,0,1,sun,",
+]
+
+
+def _write(tmp_path, rows, head=HEAD):
+    p = tmp_path / "log.csv"
+    p.write_text(head + "\n".join(rows) + "\n", encoding="utf-8")
+    return p
+
+
+def test_the_angle_kinds_are_read_and_written_back(tmp_path):
+    log = read_log(_write(tmp_path, ROWS))
+    assert list(log.kind) == [BODY_STAR_ANGLE.kind, LIMB_STAR_ANGLE.kind, BODY_BODY_ANGLE.kind,
+                              BODY_STAR_ANGLE.kind]
+    assert body_names(log.extra["body"]) == ["moon", "earth", "earth", "sun"]
+    assert body_names(log.extra["body2"]) == [None, None, "moon", None]
+    write_log(tmp_path / "again.csv", log)
+    text = (tmp_path / "again.csv").read_text()
+    assert ",moon," in text and text.rstrip().endswith(",sun,")
+    again = read_log(tmp_path / "again.csv")
+    for c in log.extra:
+        np.testing.assert_array_equal(again.extra[c], log.extra[c])
+    np.testing.assert_array_equal(again.xyz, log.xyz)
+    p = build_pass(log)
+    fam = p.families[BODY_BODY_ANGLE.kind]
+    assert np.linalg.norm(fam.values["p_body2_eci_m"][0]) > 3e8      # the Moon, not the origin
+    assert np.all(fam.values["p_body_eci_m"] == 0.0)                  # the Earth
+
+
+@pytest.mark.parametrize("row, column, what", [
+    ("2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8,mars,", "body",
+     "a body, one of sun, earth, moon"),
+    ("2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8,,", "body", "a body name"),
+    ("2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,,,,moon,", "star_x", "a number"),
+    ("2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8,moon,sun", "body2",
+     "an empty field"),
+    ("2025-03-06T12:00:00Z,body_star_angle,3.5,,,3e-5,0.6,0,0.8,moon,", "x",
+     "an angle in [0, pi]"),
+    ("2025-03-06T12:00:00Z,limb_star_angle,0.3,6375000,,8e-5,0,0.6,0.8,sun,", "body",
+     "a body with a limb"),
+    ("2025-03-06T12:00:00Z,limb_star_angle,0.3,,,8e-5,0,0.6,0.8,earth,", "y", "a number"),
+    ("2025-03-06T12:01:00Z,body_body_angle,2.8,,,8e-5,,,,earth,earth", "body2",
+     "a body other than"),
+    ("2025-03-06T12:01:00Z,body_body_angle,2.8,,,8e-5,,,,earth,", "body2", "a body name"),
+    ("2025-03-06T12:01:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.9,moon,", "star_x,star_y,star_z",
+     "a unit vector"),
+])
+def test_a_bad_angle_row_names_its_line_column_and_expectation(tmp_path, row, column, what):
+    with pytest.raises(InputFormatError) as exc:
+        read_log(_write(tmp_path, ROWS[:1] + [row]))
+    assert exc.value.line == 3 and exc.value.column == column, str(exc.value)
+    assert what in str(exc.value)
+
+
+def test_the_body_columns_are_needed_in_the_header(tmp_path):
+    head = "epoch,kind,x,y,z,sigma,star_x,star_y,star_z\n"
+    with pytest.raises(InputFormatError) as exc:
+        read_log(_write(tmp_path, ["2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8"],
+                        head))
+    assert exc.value.column == "body" and "a body name" in str(exc.value)
+    with pytest.raises(InputFormatError) as exc:
+        read_log(_write(tmp_path, ["2025-03-06T12:00:00Z,body_star_angle,0.9,,,3e-5,0.6,0,0.8,x,y,z"],
+                        HEAD.replace("body2", "planet")))
+    assert exc.value.column == "planet"
+
+
+def test_log_from_arrays_takes_body_names_and_refuses_unknown_ones():
+    kw = dict(t_s=[0.0], kind=[BODY_BODY_ANGLE.kind], xyz=[[1.0, np.nan, np.nan]], sigma=[1e-4])
+    log = log_from_arrays("2025-03-06T12:00:00Z", **kw, extra={"body": ["sun"], "body2": ["moon"]})
+    assert log.extra["body"][0] == BODIES.index("sun")
+    with pytest.raises(UserError, match="unknown body 'pluto'"):
+        log_from_arrays("2025-03-06T12:00:00Z", **kw, extra={"body": ["pluto"], "body2": ["moon"]})
+
+
+def test_simulated_angles_are_the_true_geometry_plus_noise_of_the_stated_sigma():
+    """The sextant-leo pass: every angle row's residual at the truth, divided by its sigma,
+    is a standard normal draw (mean ~0, spread ~1)."""
+    scn = load_scenario("sextant-leo").with_options(duration_h=1.0)
+    sim = simulate_pass(scn, seed=5)
+    p = build_pass(sim.log)
+    x_true = sim.x_true[np.searchsorted(sim.t_s, p.t_s)]
+    for mdl in (LIMB_STAR_ANGLE, BODY_STAR_ANGLE, BODY_BODY_ANGLE):
+        fam = p.families[mdl.kind]
+        e, _ = mdl.residual(fam, {"orbit": x_true[fam.k]})
+        z = np.asarray(e)[:, 0] / fam.sigma
+        assert len(z) > 20, mdl.kind
+        assert abs(z.mean()) < 4 / np.sqrt(len(z)) and 0.7 < z.std() < 1.3, (mdl.kind, z.mean(),
+                                                                              z.std())
+
+
+def test_a_scenario_with_a_limb_on_the_sun_is_refused_with_the_key(tmp_path, capsys):
+    from fgnav.cli import main
+
+    text = (Path(__file__).resolve().parents[1] / "fgnav/data/scenarios/sextant-leo.toml").read_text()
+    bad = text.replace('body = "earth"\nstars_per_epoch = 3', 'body = "sun"\nstars_per_epoch = 3')
+    assert bad != text
+    (tmp_path / "s.toml").write_text(bad)
+    assert main(["simulate", str(tmp_path / "s.toml"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "body = 'sun'" in err and "earth or moon" in err
+    text2 = text.replace('body2 = "moon"', 'body2 = "earth"')
+    (tmp_path / "t.toml").write_text(text2)
+    assert main(["simulate", str(tmp_path / "t.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "two different bodies" in capsys.readouterr().err
+    (tmp_path / "u.toml").write_text(text.replace('body2 = "moon"', 'body2 = "mars"'))
+    assert main(["simulate", str(tmp_path / "u.toml"), "--out", str(tmp_path / "o")]) == 2
+    assert "sensor[3].body2" in capsys.readouterr().err
