@@ -30,31 +30,46 @@ import functools
 
 import numpy as np
 
-from factors.adapters import custom_factor, rot3_matrix
-from factors.direction import star_direction_residual
+from factors.adapters import custom_factor, rot3_matrix, vector_state
+from factors.direction import star_direction_apparent_residual
 from factors.geometry import tangent_basis
 
-__all__ = ["aligned_star_direction_residual", "make_aligned_star_direction_factor"]
+__all__ = ["aligned_star_direction_residual", "aligned_star_direction_apparent_residual",
+           "make_aligned_star_direction_factor", "make_aligned_star_direction_apparent_factor"]
 
 
-def aligned_star_direction_residual(R_eci_from_body, R_body_from_cam, s_eci, u_meas_cam, B=None):
-    """Star direction measured by a separately mounted star camera (module docstring).
+def aligned_star_direction_apparent_residual(R_eci_from_body, R_body_from_cam, s_eci,
+                                             v_observer_bcrs_mps, u_meas_cam, B=None):
+    """Star direction measured by a separately mounted star camera (module docstring), the
+    catalogue direction first aberrated by the observer's velocity
+    (:func:`factors.direction.star_direction_apparent_residual` with ``C = A M``).
 
     Parameters
     ----------
     R_eci_from_body : (N, 3, 3) attitude ``A``; R_body_from_cam : (N, 3, 3) the camera's
-    mounting ``M``; s_eci : (N, 3) catalogue unit direction, ECI; u_meas_cam : (N, 3)
+    mounting ``M``; s_eci : (N, 3) catalogue unit direction, ECI; v_observer_bcrs_mps : (N, 3)
+    the observer's barycentric velocity, m/s, or None (no aberration); u_meas_cam : (N, 3)
     measured unit direction, star-camera frame; B : (N, 2, 3), optional
     ``tangent_basis(u_meas_cam)``.
 
     Returns
     -------
-    e : (N, 2) rad; H_A : (N, 2, 3) rad/rad (attitude); H_M : (N, 2, 3) rad/rad (mounting).
+    e : (N, 2) rad; H_A : (N, 2, 3) rad/rad (attitude); H_M : (N, 2, 3) rad/rad (mounting);
+    H_v : (N, 2, 3) rad/(m/s) (the observer's velocity).
     """
     A = np.asarray(R_eci_from_body, dtype=float)
     M = np.asarray(R_body_from_cam, dtype=float)
-    e, H_C = star_direction_residual(A @ M, s_eci, u_meas_cam, B)
-    return e, H_C @ np.swapaxes(M, -1, -2), H_C
+    e, H_C, H_v = star_direction_apparent_residual(A @ M, s_eci, v_observer_bcrs_mps,
+                                                   u_meas_cam, B)
+    return e, H_C @ np.swapaxes(M, -1, -2), H_C, H_v
+
+
+def aligned_star_direction_residual(R_eci_from_body, R_body_from_cam, s_eci, u_meas_cam, B=None):
+    """:func:`aligned_star_direction_apparent_residual` without aberration (the catalogue
+    direction taken as seen): ``e, H_A, H_M``."""
+    e, H_A, H_M, _ = aligned_star_direction_apparent_residual(
+        R_eci_from_body, R_body_from_cam, s_eci, None, u_meas_cam, B)
+    return e, H_A, H_M
 
 
 def _aligned_star(key_A, key_M, s, u_meas, B, values):
@@ -74,3 +89,28 @@ def make_aligned_star_direction_factor(key_A, key_M, s_eci, u_meas_cam, sigma_ra
     return custom_factor([key_A, key_M], sigma_rad,
                          functools.partial(_aligned_star, int(key_A), int(key_M), s, u,
                                            tangent_basis(u)), dim=2)
+
+
+def _aligned_star_apparent(key_x, key_A, key_M, s, v_earth, u_meas, B, values):
+    x = vector_state(values, key_x)
+    A, M = rot3_matrix(values, key_A), rot3_matrix(values, key_M)
+    v_obs = None if v_earth is None else v_earth + x[None, 3:6]
+    e, H_A, H_M, H_v = aligned_star_direction_apparent_residual(A[None], M[None], s, v_obs,
+                                                                u_meas, B)
+    H_x = np.zeros((2, x.shape[0]))
+    H_x[:, 3:6] = H_v[0]
+    return e[0], [H_x, H_A[0], H_M[0]]
+
+
+def make_aligned_star_direction_apparent_factor(key_x, key_A, key_M, s_eci, v_earth_bcrs_mps,
+                                                u_meas_cam, sigma_rad):
+    """CustomFactor on the state ``[r; v]``, the attitude ``A`` and the mounting ``M``: the
+    star seen through the mounting, aberrated by the observer's velocity
+    ``v_earth_bcrs_mps + v`` (:func:`aligned_star_direction_apparent_residual`; ``None``: no
+    aberration). Jacobians (2, 6) (velocity columns only), (2, 3), (2, 3)."""
+    s = np.asarray(s_eci, dtype=float).reshape(1, 3)
+    u = np.asarray(u_meas_cam, dtype=float).reshape(1, 3)
+    v = None if v_earth_bcrs_mps is None else np.asarray(v_earth_bcrs_mps, float).reshape(1, 3)
+    return custom_factor([key_x, key_A, key_M], sigma_rad,
+                         functools.partial(_aligned_star_apparent, int(key_x), int(key_A),
+                                           int(key_M), s, v, u, tangent_basis(u)), dim=2)

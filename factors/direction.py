@@ -59,11 +59,13 @@ import math
 import numpy as np
 from numba import njit
 
-from factors.adapters import custom_factor, noise_model, rot3_matrix
+from factors.aberration import apparent_direction
+from factors.adapters import custom_factor, noise_model, rot3_matrix, vector_state
 from factors.geometry import skew, tangent_basis, unit_and_jacobian
 
 __all__ = [
     "earth_direction_residual", "body_direction_residual", "star_direction_residual",
+    "star_direction_apparent_residual", "make_star_direction_apparent_factor",
     "make_earth_direction_factor", "make_body_direction_factor", "make_star_direction_factor",
     "sphere_log", "sphere_log_kernel", "SERIES_BELOW", "earth_direction_row_kernel",
 ]
@@ -235,6 +237,40 @@ def star_direction_residual(R_eci_from_body, s_eci, u_meas_body, B=None):
     return e, J_u @ skew(u_pred)
 
 
+def star_direction_apparent_residual(R_eci_from_body, s_eci, v_observer_bcrs_mps, u_meas_body,
+                                     B=None):
+    """A star seen from a moving spacecraft: the catalogue direction aberrated first.
+
+    ``s' = ab(s, v/c)`` (:func:`factors.aberration.apparent_direction`: relativistic stellar
+    aberration, Urban & Seidelmann 2013, eq. 7.40; SOFA ``ab``), ``u_pred_body = R^T s'``,
+    ``e = Log_{u_meas_body}(u_pred_body)`` (:func:`sphere_log`);
+    ``H_R = J_u skew(u_pred_body)``, ``H_v = J_u R^T ds'/dv``.
+
+    Parameters
+    ----------
+    R_eci_from_body : (N, 3, 3); s_eci : (N, 3) catalogue unit direction (EME2000, BCRS);
+    v_observer_bcrs_mps : (N, 3) the observer's barycentric velocity, m/s (the Earth's
+        barycentric velocity plus the spacecraft's geocentric ``v_eci_mps``), or None: no
+        aberration (the catalogue direction is taken as seen; ``H_v`` is then zero);
+    u_meas_body : (N, 3) measured unit direction, body frame;
+    B : (N, 2, 3), optional: ``tangent_basis(u_meas_body)``, if already computed.
+
+    Returns
+    -------
+    e : (N, 2) rad; H_R : (N, 2, 3) rad/rad; H_v : (N, 2, 3) rad/(m/s), the Jacobian with
+    respect to the observer's velocity (hence to the spacecraft's ``v_eci_mps``).
+    """
+    R = np.asarray(R_eci_from_body, dtype=float)
+    s = np.asarray(s_eci, dtype=float)
+    if v_observer_bcrs_mps is None:
+        s_app, J_v = s / np.linalg.norm(s, axis=-1, keepdims=True), np.zeros(s.shape + (3,))
+    else:
+        s_app, J_v = apparent_direction(s, v_observer_bcrs_mps)
+    u_pred = np.einsum("nji,nj->ni", R, s_app)
+    e, J_u = sphere_log(u_meas_body, u_pred, B)
+    return e, J_u @ skew(u_pred), J_u @ np.swapaxes(R, -1, -2) @ J_v
+
+
 # --- GTSAM CustomFactor adapters (one epoch each) -------------------------------------
 
 @njit(cache=True)
@@ -399,3 +435,32 @@ def make_star_direction_factor(key_R, s_eci, u_meas_body, sigma_rad):
     u = np.asarray(u_meas_body, dtype=float).reshape(1, 3)
     return custom_factor([key_R], sigma_rad,
                          functools.partial(_star_direction, key_R, s, u, tangent_basis(u)), dim=2)
+
+
+def _star_direction_apparent(key_x, key_R, s, v_earth, u_meas, B, values):
+    x = vector_state(values, key_x)
+    R = rot3_matrix(values, key_R)
+    v_obs = None if v_earth is None else v_earth + x[None, 3:6]
+    e, H_R, H_v = star_direction_apparent_residual(R[None], s, v_obs, u_meas, B)
+    H_x = np.zeros((2, x.shape[0]))
+    H_x[:, 3:6] = H_v[0]
+    return e[0], [H_x, H_R[0]]
+
+
+def make_star_direction_apparent_factor(key_x, key_R, s_eci, v_earth_bcrs_mps, u_meas_body,
+                                        sigma_rad):
+    """CustomFactor on a state key ``[r; v]`` and a ``Rot3`` key (R_eci_from_body): a star's
+    measured body-frame direction against its catalogue direction aberrated by the observer's
+    velocity ``v_earth_bcrs_mps + v`` (:func:`star_direction_apparent_residual`); Jacobians
+    (2, 6), non-zero in the velocity columns only, and (2, 3).
+
+    ``s_eci``: (3,) catalogue direction; ``v_earth_bcrs_mps``: (3,) the Earth's barycentric
+    velocity at the row's epoch, m/s (``factors.aberration.earth_velocity_bcrs_mps``), or None
+    for no aberration at all; ``u_meas_body``: (3,) measured, body frame.
+    """
+    s = np.asarray(s_eci, dtype=float).reshape(1, 3)
+    u = np.asarray(u_meas_body, dtype=float).reshape(1, 3)
+    v = None if v_earth_bcrs_mps is None else np.asarray(v_earth_bcrs_mps, float).reshape(1, 3)
+    return custom_factor([key_x, key_R], sigma_rad,
+                         functools.partial(_star_direction_apparent, key_x, key_R, s, v, u,
+                                           tangent_basis(u)), dim=2)

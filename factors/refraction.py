@@ -9,8 +9,10 @@ here (:func:`refraction_sigma_m`) so a study can switch each off; a uniform erro
 ``[-D, D]`` has ``sigma = D / sqrt(3)``.
 
 Measurement geometry (the classic model, Ning & Fang): with star direction ``s`` (unit,
-ECI, catalogue, from the spacecraft towards the star) and spacecraft position ``r``, the
-apparent tangent height is
+ECI, from the spacecraft towards the star: the direction of the ray before bending, i.e. the
+catalogue direction aberrated by the Earth's barycentric velocity, the geocentric apparent
+place of ``factors.aberration``, ~20 arcsec off the catalogue's; the caller applies it) and
+spacecraft position ``r``, the apparent tangent height is
 
     h_a = sqrt(|r|^2 - (r.s)^2) + |r.s| tan(gamma) - R_e - a,
 

@@ -58,14 +58,16 @@ from pathlib import Path
 
 import numpy as np
 
+from factors.aberration import earth_velocity_bcrs_mps
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import log_from_arrays, read_log
 from fgnav.io.text import read_utf8_text
 from fgnav.models.registry import (ATTITUDE, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LIMB_RADIUS,
-                                   prior_kinds)
+                                   PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds)
+from fgnav.orbit import integrate_truth
 from fgnav.progress import progress
-from fgnav.time import format_utc, parse_utc, seconds_since
+from fgnav.time import format_utc, j2000_seconds, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.catalogue import decimal_year
@@ -260,10 +262,14 @@ def _load_image(e: FrameEntry) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------ front ends
-def attitude_from_star_frame(img: np.ndarray, e: FrameEntry, epoch_year: float):
-    """(R_eci_from_body, P_att_rad2 (body frame, right perturbation), matched stars)."""
+def attitude_from_star_frame(img: np.ndarray, e: FrameEntry, epoch_year: float,
+                             v_observer_bcrs_mps=None):
+    """(R_eci_from_body, P_att_rad2 (body frame, right perturbation), matched stars);
+    ``v_observer_bcrs_mps`` (3,) m/s: the camera's barycentric velocity, for the stars'
+    apparent directions (:func:`fgnav.vision.star_id.solve_lost_in_space`)."""
     det = detect_stars(img)
-    sol = solve_lost_in_space(det.uv_px, e.camera, sigma_px=det.sigma_px, epoch_year=epoch_year)
+    sol = solve_lost_in_space(det.uv_px, e.camera, sigma_px=det.sigma_px, epoch_year=epoch_year,
+                              v_observer_bcrs_mps=v_observer_bcrs_mps)
     Rbc = e.R_body_from_cam
     return sol.R_eci_from_camera @ Rbc.T, Rbc @ sol.cov_theta_rad2 @ Rbc.T, sol.matched
 
@@ -330,6 +336,28 @@ def _priors_log(priors_path, index_path: Path):
     return log, np.sort(idx)
 
 
+def _prior_velocities(pri, epochs) -> np.ndarray | None:
+    """The spacecraft's best known velocity (N, 3) m/s ECI at the datetime64 ``epochs``: the
+    priors log's first ``prior_position`` + ``prior_velocity`` pair propagated (two-body + J2,
+    ``fgnav.orbit.integrate_truth``: a prior good to km and m/s gives the velocity to ~m/s,
+    the aberration to ~1 mas); None without such a pair."""
+    if pri is None:
+        return None
+    plog, idx = pri
+    kinds = np.asarray(plog.kind).astype(str)[idx]
+    pos = idx[kinds == PRIOR_POSITION.kind]
+    vel = {float(plog.t_s[i]): i for i in idx[kinds == PRIOR_VELOCITY.kind]}
+    for i in pos:
+        j = vel.get(float(plog.t_s[i]))
+        if j is None:
+            continue
+        t0 = plog.epoch0 + np.timedelta64(int(round(plog.t_s[i] * 1e9)), "ns")
+        x0 = np.concatenate([plog.xyz[i], plog.xyz[j]]).astype(float)
+        dt = np.asarray(seconds_since(np.asarray(epochs), t0), float)
+        return integrate_truth(x0, dt, t0_j2000_s=float(j2000_seconds(t0)))[:, 3:]
+    return None
+
+
 def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str = "eci",
                    priors=None, seed: int = 0, edge_floor_px: float = 0.0,
                    curvature_correction: bool = True, quiet: bool = True) -> ExtractionResult:
@@ -354,6 +382,14 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
     for e in entries:
         by_epoch.setdefault(int(np.datetime64(e.epoch, "ns").astype(np.int64)), []).append(e)
     epoch_year = decimal_year(format_utc(entries[0].epoch))
+    # the camera's barycentric velocity for the stars' apparent directions (aberration):
+    # the Earth's at each epoch plus the spacecraft's where the priors give an orbit
+    ns_all = sorted(by_epoch)
+    v_obs = earth_velocity_bcrs_mps(np.array([float(j2000_seconds(np.datetime64(n, "ns")))
+                                              for n in ns_all]))
+    v_sc = _prior_velocities(pri, np.array(ns_all, dtype="datetime64[ns]"))
+    if v_sc is not None:
+        v_obs = v_obs + v_sc
     failures: dict[str, int] = {}
     products: list[EpochProducts] = []
 
@@ -368,7 +404,7 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
             img = _load_image(stars[0])
             try:
                 ep.R_eci_from_body, ep.P_att_rad2, ep.stars_matched = attitude_from_star_frame(
-                    img, stars[0], epoch_year)
+                    img, stars[0], epoch_year, v_obs[k])
             except UserError:
                 fail("star_identification")
         fixes = []

@@ -522,7 +522,7 @@ def filter_normalized_innovations(p, sol, model) -> dict:
             L = np.linalg.cholesky(S[ok])
             z[ok] = np.linalg.solve(L, b[ok][..., None])[..., 0]
         out[kind] = z
-        if not model_of(kind).variables:
+        if not model_of(kind).variables or model_of(kind).weak_orbit_dependence:
             _update_with_rows(P_blk, fam.k[ok], A[ok])
     return out
 

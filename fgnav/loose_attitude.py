@@ -19,23 +19,39 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.geometry import so3_log
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, STAR_COLUMNS, log_from_arrays
 from fgnav.models.registry import ATTITUDE, MODELS, STAR_DIRECTION_BODY
+from fgnav.time import j2000_seconds
 from fgnav.vision.attitude import wahba_by_epoch
 
 __all__ = ["attitude_rows_from_stars"]
 
 
-def attitude_rows_from_stars(log: MeasurementLog) -> tuple[MeasurementLog, dict]:
+def attitude_rows_from_stars(log: MeasurementLog, v_eci_mps=None,
+                             aberration: bool = True) -> tuple[MeasurementLog, dict]:
     """``log`` with its ``star_direction_body`` rows replaced by one ``attitude`` row per epoch
     with >= 2 stars (module docstring), and without the body-frame rows (``body_frame_of``
     kinds) at epochs left without an attitude. Returns the new log and counts
-    ``{"attitude_rows", "epochs_without_attitude", "body_rows_dropped"}``."""
+    ``{"attitude_rows", "epochs_without_attitude", "body_rows_dropped"}``.
+
+    The reference directions are the stars' apparent directions (the catalogue aberrated by
+    the observer's barycentric velocity, ``factors.aberration``; Urban & Seidelmann 2013,
+    eq. 7.40): the Earth's velocity at the row's epoch plus ``v_eci_mps(t_s)`` ((M,) s from
+    the log's epoch -> (M, 3) m/s), the best known spacecraft velocity, when given. Without
+    it the spacecraft's own aberration (up to ~7 arcsec in LEO, 2 arcsec in GEO) stays in
+    the attitude; ``aberration=False``: the catalogue directions as seen (for comparison)."""
     kinds = np.asarray(log.kind).astype(str)
     star = kinds == STAR_DIRECTION_BODY.kind
-    t_u, k = np.unique(np.asarray(log.t_s, dtype=float)[star], return_inverse=True)
+    t_star = np.asarray(log.t_s, dtype=float)[star]
+    t_u, k = np.unique(t_star, return_inverse=True)
     s_eci = np.column_stack([log.extra[c][star] for c in STAR_COLUMNS])
+    if aberration and len(t_star):
+        v_obs = earth_velocity_bcrs_mps(float(j2000_seconds(log.epoch0)) + t_star)
+        if v_eci_mps is not None:
+            v_obs = v_obs + np.asarray(v_eci_mps(t_star), dtype=float)
+        s_eci, _ = apparent_direction(s_eci, v_obs)
     ep, R, cov = wahba_by_epoch(k, log.xyz[star], s_eci, log.sigma[star])
     t_att = t_u[ep]
     sig_att = np.sqrt(np.linalg.eigvalsh(cov)[:, -1])

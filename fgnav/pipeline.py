@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.analysis.crb import check_observability, cramer_rao_bound
+from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
 from fgnav.initial_orbit import (
@@ -224,22 +225,27 @@ class SmoothResult:
 
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
-                progress=None, ignore_prior: bool = False, **solve_kw) -> tuple[SmoothResult, Pass]:
+                progress=None, ignore_prior: bool = False, aberration: bool = True,
+                **solve_kw) -> tuple[SmoothResult, Pass]:
     """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
 
     ``ignore_prior``: start from the measurements' own orbit, leaving the log's prior rows
-    out of the solution and of the Cramer-Rao bound (:func:`solve`).
+    out of the solution and of the Cramer-Rao bound (:func:`solve`). ``aberration=False``:
+    the star models take the catalogue directions as seen, without the stellar-aberration
+    correction (:func:`fgnav.apparent.without_aberration`; for comparison only).
     """
     t0 = time.perf_counter()
     log = read_measurements(log_path, options.estimate)
     return smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
-                      progress=progress, ignore_prior=ignore_prior, t0=t0, **solve_kw)
+                      progress=progress, ignore_prior=ignore_prior, aberration=aberration,
+                      t0=t0, **solve_kw)
 
 
 def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOptions(), *,
                truth_path: str | Path | None = None, truth: tuple | None = None,
                lag_s: float = 300.0, progress=None, ignore_prior: bool = False,
-               t0: float | None = None, **solve_kw) -> tuple[SmoothResult, Pass]:
+               aberration: bool = True, t0: float | None = None,
+               **solve_kw) -> tuple[SmoothResult, Pass]:
     """:func:`smooth_file` on a log already in memory (a
     :class:`~fgnav.io.log_csv.MeasurementLog`). The truth comes from the OEM ``truth_path``
     or as ``truth = (t_s, x_eci)``: seconds from ``log.epoch0`` (covering the log's epochs)
@@ -247,6 +253,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     (default: now)."""
     t0 = time.perf_counter() if t0 is None else t0
     p = build_pass(log)
+    if not aberration:
+        p = without_aberration(p)
     if truth is None and truth_path is not None:
         truth = read_truth(truth_path, p)  # checked before solving
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,

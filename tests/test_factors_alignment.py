@@ -89,3 +89,38 @@ def test_two_attitudes_and_a_known_direction_recover_the_mounting(rng):
     est = gtsam.LevenbergMarquardtOptimizer(graph, values).optimize()
     err = so3_log(M_true.T @ est.atRot3(key_M).matrix())
     assert np.linalg.norm(err) < 1 * ARCSEC
+
+
+def test_aberrated_through_the_mounting_jacobians_and_factor(rng):
+    """The mounted star camera with aberration: Jacobians on both rotations and on the
+    observer's velocity (~1/c, checked with a step it resolves), and the three-key factor."""
+    from factors.alignment import (aligned_star_direction_apparent_residual,
+                                   make_aligned_star_direction_apparent_factor)
+    from factors.aberration import SPEED_OF_LIGHT_MPS
+
+    R, Mt = random_rotations(rng, N), random_rotations(rng, N)
+    s = _stars(rng, N)
+    v = rng.normal(size=(N, 3)) * 2e4
+    u = _seen(R, Mt @ so3_exp(rng.normal(0, 30 * ARCSEC, (N, 3))), s)
+    e, H_A, H_M, H_v = aligned_star_direction_apparent_residual(R, Mt, s, v, u)
+    check_jacobians(lambda RR, MM, vv: aligned_star_direction_apparent_residual(RR, MM, s, vv, u)[0],
+                    [R, Mt, v], [H_A, H_M, H_v], ["rot3", "rot3", "vector"], rtol=1e-5,
+                    eps=[1e-6, 1e-6, 100.0])
+    assert 2.0e-9 < np.max(np.abs(H_v)) < 1.01 / SPEED_OF_LIGHT_MPS
+    e0, _, _ = aligned_star_direction_residual(R, Mt, s, u)
+    assert np.max(np.abs(e - e0)) > 5 * ARCSEC          # the aberration is not lost
+
+    X = gtsam.symbol("x", 3)
+    x = np.concatenate([rng.normal(size=3) * 7e6, v[0] * 0.3])
+    v_earth = v[0] * 0.7
+    f = make_aligned_star_direction_apparent_factor(X, A, M, s[0], v_earth, u[0], 5 * ARCSEC)
+    values = gtsam.Values()
+    values.insert(X, x)
+    values.insert(A, gtsam.Rot3(R[0]))
+    values.insert(M, gtsam.Rot3(Mt[0]))
+    e1, HA1, HM1, Hv1 = aligned_star_direction_apparent_residual(
+        R[:1], Mt[:1], s[:1], (v_earth + x[3:])[None], u[:1])
+    H_x = np.zeros((1, 2, 6))
+    H_x[..., 3:] = Hv1
+    (W_x, W_A, W_M), b = whiten(e1, [H_x, HA1, HM1], 5 * ARCSEC)
+    check_linearization(f, values, [W_x[0], W_A[0], W_M[0]], b[0])

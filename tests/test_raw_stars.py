@@ -4,7 +4,7 @@ A GEO pass (the ``geo-limb`` scenario) whose Earth sensor reports the Earth's di
 the body frame and whose zenith star camera reports the identified stars one by one: the
 attitude is a ``Rot3`` per epoch solved with the orbit (tight coupling). Checked here: the
 log format carries the rows; the simulated stars are the truth attitude's view of the
-catalogue within their noise; the registry's first guess (Wahba/SVD per frame) is near the
+catalogue's apparent (aberrated) directions within their noise; the registry's first guess (Wahba/SVD per frame) is near the
 truth; the solution's position is within its sigma of the independent DOP853 truth and its
 attitude within its sigma of the simulator's true attitude; against the loosely coupled
 route (one solved attitude row per frame from the same stars) the position is no worse;
@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
 from factors.constants import ARCSEC
 from factors.direction import star_direction_residual
 from factors.geometry import so3_exp, so3_log
@@ -34,6 +35,7 @@ from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import RAW_STAR_CAMERA, raw_star_scenario, simulate_pass
 from fgnav.simulate.star_camera import BORESIGHT_BODY
 from fgnav.solvers.options import SmootherOptions
+from fgnav.time import j2000_seconds
 
 ATT = replace(SmootherOptions(third_body=True), estimate=(ATTITUDE_VARIABLE.name,))
 CHI2_3_999 = 16.27   # 99.9 % point of chi-square with 3 degrees of freedom
@@ -84,8 +86,18 @@ def test_simulated_stars_are_the_true_attitude_view_of_the_catalogue(sim):
     assert len(log.select(EARTH_DIRECTION_BODY.kind)) == len(sim.t_s)
     i, s = _stars(log)
     np.testing.assert_allclose(np.linalg.norm(s, axis=1), 1.0, atol=1e-12)
-    R = sim.truth_attitude()[np.searchsorted(sim.t_s, log.t_s[i])]
-    u_true = np.einsum("nji,nj->ni", R, s)
+    n = np.searchsorted(sim.t_s, log.t_s[i])
+    R = sim.truth_attitude()[n]
+    # the apparent direction: aberrated by the spacecraft's barycentric velocity (first
+    # order here, u + beta - (u.beta) u, independent of factors.aberration; 1e-8 rad off)
+    beta = (earth_velocity_bcrs_mps(float(j2000_seconds(log.epoch0)) + log.t_s[i])
+            + sim.x_true[n, 3:]) / SPEED_OF_LIGHT_MPS
+    s_app = s + beta - np.sum(s * beta, axis=1)[:, None] * s
+    s_app /= np.linalg.norm(s_app, axis=1, keepdims=True)
+    u_true = np.einsum("nji,nj->ni", R, s_app)
+    u_cat = np.einsum("nji,nj->ni", R, s)
+    shift = np.arccos(np.clip(np.sum(u_true * u_cat, axis=1), -1.0, 1.0)) / ARCSEC
+    assert 5.0 < np.median(shift) < 30.0       # the aberration the rows carry: arcseconds
     # in the camera's 12.85 deg square field about the zenith (body -z)
     assert np.all(u_true @ BORESIGHT_BODY > np.cos(np.radians(6.425 * np.sqrt(2)) + 1e-9))
     ang = np.arccos(np.clip(np.sum(u_true * log.xyz[i], axis=1), -1.0, 1.0))

@@ -21,7 +21,7 @@ from factors.dynamics import process_noise, propagate
 from factors.refraction import refraction_residual
 from fgnav.cli import main
 from fgnav.measurements import build_pass, with_estimates
-from fgnav.models.registry import REFRACTION_BIAS, model
+from fgnav.models.registry import REFRACTION_BIAS, model, refraction_ray_eci
 from fgnav.pipeline import accuracy_metrics, solve, summarize
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
@@ -98,7 +98,7 @@ def test_block_marginals_equal_a_dense_inverse():
     t0 = float(j2000_seconds(p.epoch0))
     rows = []
     fam = p.families["refraction"]
-    e, H_r, H_b = refraction_residual(X[fam.k, :3], fam.values["s_eci"], fam.values["gamma_rad"],
+    e, H_r, H_b = refraction_residual(X[fam.k, :3], refraction_ray_eci(fam), fam.values["gamma_rad"],
                                       bias_m=X[fam.k, 6])
     sig = model("refraction").noise_sigma(fam, X[fam.k, :6])
     for j in range(len(fam)):

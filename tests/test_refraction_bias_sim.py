@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.constants import ARCSEC
 from factors.refraction import refraction_residual, refraction_sigma_m
 from fgnav.cli import main
@@ -19,7 +20,7 @@ from fgnav.io.truth_params import (TRUTH_REFRACTION_BIAS_CSV, read_truth_params_
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.simulate.refraction_sim import has_model_bias, refraction_bias_path_m
-from fgnav.time import add_seconds, parse_utc
+from fgnav.time import add_seconds, j2000_seconds, parse_utc
 
 
 def _spec(b0=0.0, drift=0.0, q=0.0):
@@ -88,7 +89,9 @@ def test_the_residual_sees_the_simulated_bias(bias_pass):
     k = np.searchsorted(sim.t_s, log.t_s[rows])
     np.testing.assert_array_equal(sim.t_s[k], log.t_s[rows])
     r = sim.x_true[k, :3]
-    s = log.xyz[rows]
+    # the ray's direction: the catalogue one aberrated by the Earth's velocity
+    s, _ = apparent_direction(log.xyz[rows], earth_velocity_bcrs_mps(
+        float(j2000_seconds(log.epoch0)) + log.t_s[rows]))
     g = log.extra["gamma"][rows]
     b = sim.truth_params["refraction_bias_m"][k]
     n = rows.size
@@ -169,7 +172,9 @@ def test_bias_recovered_through_the_gtsam_factor_at_known_states():
     epochs = np.unique(k_row)                     # epochs with refraction rows
     j_row = np.searchsorted(epochs, k_row)        # bias index of each row
     n_b = epochs.size
-    s, g = log.xyz[rows], log.extra["gamma"][rows]
+    s, _ = apparent_direction(log.xyz[rows], earth_velocity_bcrs_mps(   # the rays (aberration)
+        float(j2000_seconds(log.epoch0)) + log.t_s[rows]))
+    g = log.extra["gamma"][rows]
     r = sim.x_true[k_row, :3]
     sig = refraction_sigma_m(g, spec.gamma_halfwidth_arcsec * ARCSEC / math.sqrt(3),
                              spec.sigma_model_m, los_range_m=np.abs(np.sum(r * s, axis=1)))

@@ -39,7 +39,7 @@ import numpy as np
 from factors.constants import R_EARTH_M
 from factors.refraction import (refraction_residual, refraction_sigma_m,
                                 tangent_height_from_refraction_m)
-from fgnav.models.registry import REFRACTION
+from fgnav.models.registry import REFRACTION, refraction_ray_eci
 from fgnav.sun_earth_moon import preprocess_log
 
 __all__ = ["cone_axis", "cone_fix_candidates", "refine_refraction_fix", "refraction_direct_fix",
@@ -194,6 +194,7 @@ def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
     fam = p.families.get(REFRACTION.kind)
     ks, rs, Ps = [], [], []
     if fam is not None:
+        s_ray = refraction_ray_eci(fam)     # the geocentric apparent directions (aberration)
         order = np.argsort(fam.k, kind="stable")
         kk = fam.k[order]
         bounds = np.flatnonzero(np.diff(kk)) + 1
@@ -201,7 +202,7 @@ def refraction_direct_fixes(p, x_ref, model="exponential-seed004"):
             if len(rows) < 3:
                 continue
             k = int(fam.k[rows[0]])
-            out = refraction_direct_fix(fam.values["s_eci"][rows], fam.values["gamma_rad"][rows],
+            out = refraction_direct_fix(s_ray[rows], fam.values["gamma_rad"][rows],
                                         fam.sigma[rows], fam.values["sigma_model_m"][rows],
                                         x_ref[k, :3], model)
             if out is None:

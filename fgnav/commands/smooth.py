@@ -176,6 +176,10 @@ def register(sub):
                         "attitude rows before solving; estimate: the attitude is a graph "
                         "variable per epoch (the same as --estimate attitude), written to "
                         "DIR/attitude.aem (CCSDS AEM) and DIR/attitude_covariance.csv")
+    p.add_argument("--no-aberration", action="store_true",
+                   help="take the star rows' catalogue directions (star_direction_body, "
+                        "refraction) as seen, without the stellar-aberration correction "
+                        "(~20-27 arcsec); for comparison only")
     add_solver_options(p)
     p.set_defaults(func=run)
 
@@ -230,7 +234,8 @@ def run(args) -> int:
         res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
                              lag_s=args.lag_s, checkpoint=args.checkpoint,
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
-                             ignore_prior=args.ignore_prior, progress=bar)
+                             ignore_prior=args.ignore_prior, progress=bar,
+                             aberration=not args.no_aberration)
     finally:
         bar.close()
     write_outputs(args.out, res, p)

@@ -19,6 +19,10 @@ gives:
   ECI kind its rows become, with the measured attitude, until then);
 * ``initial(fam)``: first guesses of further variables from the rows (variable name ->
   (M, d) block values, e.g. a measured attitude), used where a row exists at an epoch;
+* ``weak_orbit_dependence``: the rows touch the orbit state only through a correction far
+  below their noise (a star's aberration by the spacecraft's velocity, ~3e-9 rad per m/s):
+  the online gate and the integrity tests treat them like rows of the further variables
+  alone (an epoch's star rows tighten the attitude its body-frame rows are gated with);
 * ``between``: a row at epoch k relates the variables of epochs k - 1 and k (a gyro interval):
   then ``residual(fam, v0, v1, dt_s) -> (e, {variable: H0}, {variable: H1})``,
   ``sigma(fam, dt_s)`` and ``factor(fam, j, keys0, keys1, noise, dt_s)``, with ``dt_s`` the
@@ -75,6 +79,7 @@ class MeasurementModel:
     requires: str | None = None
     initial: Callable | None = None
     between: bool = False
+    weak_orbit_dependence: bool = False
 
     @property
     def solved(self) -> bool:

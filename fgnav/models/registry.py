@@ -14,8 +14,9 @@ import functools
 
 import numpy as np
 
-from factors.alignment import (aligned_star_direction_residual,
-                               make_aligned_star_direction_factor)
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
+from factors.alignment import (aligned_star_direction_apparent_residual,
+                               make_aligned_star_direction_apparent_factor)
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
 from factors.celestial_angles import (BODY_BODY, BODY_STAR, body_body_angle_residual,
                                       body_star_angle_residual, celestial_angle_kernel,
@@ -24,8 +25,9 @@ from factors.attitude import attitude_residual, make_attitude_prior_factor, tria
 from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
                                earth_direction_row_kernel, make_body_direction_factor,
-                               make_earth_direction_factor, make_star_direction_factor,
-                               star_direction_residual)
+                               make_earth_direction_factor,
+                               make_star_direction_apparent_factor,
+                               star_direction_apparent_residual)
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
@@ -54,7 +56,7 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
            "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
-           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT"]
+           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "refraction_ray_eci"]
 
 
 def _xyz(log, i):
@@ -169,8 +171,24 @@ walk of spectral density 1 m^2/s (60 m in an hour), prior 1 km (see docs/refract
 def _refraction_values(log, i):
     extra = log.extra
     sig_model = extra.get("sigma_model_m", np.full(len(log.kind), np.nan))[i]
+    t = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
     return {"s_eci": _xyz(log, i), "gamma_rad": extra["gamma"][i],
-            "sigma_model_m": np.nan_to_num(sig_model, nan=0.0)}
+            "sigma_model_m": np.nan_to_num(sig_model, nan=0.0),
+            "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
+
+
+def refraction_ray_eci(fam, rows=slice(None)):
+    """The direction of the star's ray before bending, in the geocentric frame: the
+    catalogue direction aberrated by the Earth's barycentric velocity (the geocentric
+    apparent place, ~20 arcsec; ``factors.aberration``). The spacecraft's own velocity
+    changes how the camera sees the ray, not where it passes the atmosphere, and aberrates
+    the refracted and the unrefracted star alike, leaving gamma as measured (to
+    ``beta gamma`` < 0.1 arcsec); rows with ``aberration`` off keep the catalogue direction.
+    ``rows``: a slice or index array of the family's rows (default all)."""
+    s = fam.values["s_eci"][rows]
+    on = fam.values["aberration"][rows]
+    s_app, _ = apparent_direction(s, fam.values["v_earth_bcrs_mps"][rows])
+    return np.where(on[:, None], s_app, s)
 
 
 def _refraction_sigma(fam, x_orbit=None):
@@ -188,7 +206,7 @@ def _refraction_sigma(fam, x_orbit=None):
 
 def _refraction_residual(fam, v):
     M = len(fam)
-    args = (v["orbit"][:, :3], fam.values["s_eci"], fam.values["gamma_rad"],
+    args = (v["orbit"][:, :3], refraction_ray_eci(fam), fam.values["gamma_rad"],
             np.full(M, R_EARTH_M), np.zeros(M))
     if REFRACTION_BIAS.name not in v:
         e, H_r = refraction_residual(*args)
@@ -198,7 +216,7 @@ def _refraction_residual(fam, v):
 
 
 def _refraction_factor(fam, j, keys, noise):
-    s, g = fam.values["s_eci"][j], fam.values["gamma_rad"][j]
+    s, g = refraction_ray_eci(fam, slice(j, j + 1))[0], fam.values["gamma_rad"][j]
     if REFRACTION_BIAS.name in keys:
         return make_refraction_bias_factor(keys["orbit"], keys[REFRACTION_BIAS.name], s, g, noise,
                                            R_EARTH_M, 0.0)
@@ -396,19 +414,56 @@ def _star_initial(fam):
     return {ATTITUDE_VARIABLE.name: so3_log(R[pick])}
 
 
+def _star_values(log, i):
+    """A star row's ``u_body``, catalogue ``s_eci`` and, for the aberration (the observer's
+    barycentric velocity is the Earth's plus the spacecraft's), the Earth's barycentric
+    velocity ``v_earth_bcrs_mps`` (M, 3) at the row's epoch and ``aberration`` (M,) True
+    (:func:`fgnav.apparent.without_aberration` switches it off for comparison)."""
+    t = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
+    return {"u_body": _xyz(log, i), "s_eci": np.column_stack(
+        [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS]),
+        "v_earth_bcrs_mps": earth_velocity_bcrs_mps(t), "aberration": np.ones(len(t), bool)}
+
+
+def _observer_velocity(fam, v):
+    """The observer's barycentric velocity (M, 3), m/s, of star rows (zero where the
+    aberration is switched off) and the mask ``on`` (M,)."""
+    on = fam.values["aberration"]
+    return (fam.values["v_earth_bcrs_mps"] + v["orbit"][:, 3:6]) * on[:, None], on
+
+
+def _velocity_columns(H_v, on):
+    H_x = np.zeros(H_v.shape[:-1] + (6,))
+    H_x[..., 3:6] = H_v * on[:, None, None]
+    return H_x
+
+
 def _star_residual(fam, v):
+    """The apparent direction at the orbit's velocity estimate (stellar aberration, ~20-27
+    arcsec); ``H`` on the orbit's velocity columns is ~3e-9 rad per m/s. Through the star
+    camera's mounting when it is estimated (:data:`CAMERA_ALIGNMENT`)."""
+    v_obs, on = _observer_velocity(fam, v)
     if CAMERA_ALIGNMENT.name in v:
-        return _aligned_star_residual(fam, v)
-    e, H_R = star_direction_residual(v[ATTITUDE_VARIABLE.name], fam.values["s_eci"],
-                                     fam.values["u_body"])
-    return e, {ATTITUDE_VARIABLE.name: H_R}
+        e, H_A, H_M, H_v = aligned_star_direction_apparent_residual(
+            v[ATTITUDE_VARIABLE.name], v[CAMERA_ALIGNMENT.name], fam.values["s_eci"], v_obs,
+            fam.values["u_body"])
+        return e, {"orbit": _velocity_columns(H_v, on), ATTITUDE_VARIABLE.name: H_A,
+                   CAMERA_ALIGNMENT.name: H_M}
+    e, H_R, H_v = star_direction_apparent_residual(v[ATTITUDE_VARIABLE.name],
+                                                   fam.values["s_eci"], v_obs,
+                                                   fam.values["u_body"])
+    return e, {"orbit": _velocity_columns(H_v, on), ATTITUDE_VARIABLE.name: H_R}
 
 
 def _star_factor(fam, j, keys, noise):
+    v_earth = fam.values["v_earth_bcrs_mps"][j] if fam.values["aberration"][j] else None
     if CAMERA_ALIGNMENT.name in keys:
-        return _aligned_star_factor(fam, j, keys, noise)
-    return make_star_direction_factor(keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j],
-                                      fam.values["u_body"][j], noise)
+        return make_aligned_star_direction_apparent_factor(
+            keys["orbit"], keys[ATTITUDE_VARIABLE.name], keys[CAMERA_ALIGNMENT.name],
+            fam.values["s_eci"][j], v_earth, fam.values["u_body"][j], noise)
+    return make_star_direction_apparent_factor(
+        keys["orbit"], keys[ATTITUDE_VARIABLE.name], fam.values["s_eci"][j], v_earth,
+        fam.values["u_body"][j], noise)
 
 
 # A star camera on its own mount (not the Earth camera's detector): its rows are in its own
@@ -430,27 +485,12 @@ Pitone 1991, "Batch estimation of spacecraft sensor alignments I", J. Astronauti
 Sciences 39(4))."""
 
 
-def _aligned_star_residual(fam, v):
-    e, H_A, H_M = aligned_star_direction_residual(
-        v[ATTITUDE_VARIABLE.name], v[CAMERA_ALIGNMENT.name], fam.values["s_eci"],
-        fam.values["u_body"])
-    return e, {ATTITUDE_VARIABLE.name: H_A, CAMERA_ALIGNMENT.name: H_M}
-
-
-def _aligned_star_factor(fam, j, keys, noise):
-    return make_aligned_star_direction_factor(
-        keys[ATTITUDE_VARIABLE.name], keys[CAMERA_ALIGNMENT.name], fam.values["s_eci"][j],
-        fam.values["u_body"][j], noise)
-
-
 STAR_DIRECTION_BODY = MeasurementModel(
     kind="star_direction_body", dim=2, unit="rad",
     summary="unit vector to a star, body frame; its catalogue unit vector (EME2000)",
-    values=lambda log, i: {"u_body": _xyz(log, i), "s_eci": np.column_stack(
-        [np.asarray(log.extra[c], dtype=float)[i] for c in STAR_COLUMNS])},
-    residual=_star_residual, variables=(),
-    optional_variables=(ATTITUDE_VARIABLE, CAMERA_ALIGNMENT),
-    requires=ATTITUDE_VARIABLE.name, initial=_star_initial, factor=_star_factor,
+    values=_star_values, residual=_star_residual, factor=_star_factor,
+    optional_variables=(ATTITUDE_VARIABLE, CAMERA_ALIGNMENT), weak_orbit_dependence=True,
+    requires=ATTITUDE_VARIABLE.name, initial=_star_initial,
     simulate=simulate_star_camera_rows,
     scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max", "mounting_sigma_arcsec"))
 

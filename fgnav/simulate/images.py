@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from factors.aberration import earth_velocity_bcrs_mps
 from factors.constants import DEG, R_LIMB_UV_M
 from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_writer
@@ -46,7 +47,7 @@ from fgnav.simulate.limb_render import LimbScene, render_limb
 from fgnav.simulate.noise import perturb_directions
 from fgnav.simulate.pass_sim import sensor_epochs
 from fgnav.simulate.star_render import render_star_field
-from fgnav.time import add_seconds, format_utc, seconds_since
+from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 from fgnav.vision.attitude import quat_from_matrix
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.catalogue import decimal_year, load_catalogue
@@ -205,6 +206,7 @@ def render_pass_frames(sim, out_dir, *, seed: int = 0, config: ImageConfig = Ima
     R_all = earth_pointing_attitude(x[:, :3], x[:, 3:], b_point, np.cross(b_point, [0.0, 0.0, 1.0]))
     r_limb = _r_limb_of(sim.scenario, cfg)
     epochs = add_seconds(sim.epoch0, t)
+    v_earth = earth_velocity_bcrs_mps(float(j2000_seconds(sim.epoch0)) + t)
     cat = load_catalogue(epoch_year=decimal_year(format_utc(epochs[0])))
     out = Path(out_dir)
     fdir = out / "frames"
@@ -217,7 +219,8 @@ def render_pass_frames(sim, out_dir, *, seed: int = 0, config: ImageConfig = Ima
         r = x[k, :3]
         # star field: camera = body frame
         img, _ = render_star_field(star_cam, R, cat, np.random.default_rng([seed, k, 0]),
-                                   flux_v0_e=cfg.star_flux_v0_e, vmag_max=cfg.vmag_max)
+                                   flux_v0_e=cfg.star_flux_v0_e, vmag_max=cfg.vmag_max,
+                                   v_observer_bcrs_mps=v_earth[k] + x[k, 3:])  # aberration
         name = f"{k:06d}_star.png"
         if not cv2.imwrite(str(fdir / name), img, png):
             raise UserError(f"{fdir / name}: cannot write the image")

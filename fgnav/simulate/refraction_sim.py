@@ -9,9 +9,14 @@ upper part the sky (unrefracted stars, >= 50 deg^2 for fields >= 10 deg as Li et
 and the refraction band (20-50 km) crosses the field horizontally.
 
 Stars (step 3): the project's BSC5 catalogue (``fgnav.vision.catalogue``, V <=
-``spec.vmag_max``, proper motion to the pass epoch) rotated into each head. For a catalogue
-direction ``s`` at the true position ``r`` the refracted ray's tangent height ``h`` solves
-the factor's own geometry (``factors.refraction.apparent_tangent_height_m`` with
+``spec.vmag_max``, proper motion to the pass epoch) rotated into each head. The ray crosses the
+atmosphere, at rest in the geocentric frame, along the star's geocentric apparent direction
+``s_g = ab(s, v_E/c)``: the catalogue direction ``s`` aberrated by the Earth's barycentric
+velocity ``v_E`` (relativistic stellar aberration, Urban & Seidelmann 2013, *Explanatory
+Supplement to the Astronomical Almanac*, eq. 7.40; ~20 arcsec; ``factors.aberration``); the
+spacecraft's own velocity changes the direction its camera sees (the field test uses
+``ab(s, (v_E + v)/c)``) but not the ray's path. For that direction ``s_g`` at the true
+position ``r`` the refracted ray's tangent height ``h`` solves the factor's own geometry (``factors.refraction.apparent_tangent_height_m`` with
 ``R_e``, ``a = 0``):
 
     h = sqrt(|r|^2 - (r.s)^2) + |r.s| tan(gamma_real(h)) - R_e,
@@ -39,10 +44,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.constants import ARCSEC, DEG, R_EARTH_M
 from factors.geometry import so3_exp, so3_log
 from factors.refraction import REFRACTION_VALID_BAND_M, refraction_model
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
+from fgnav.time import j2000_seconds
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["UNREFRACTED_MIN_HEIGHT_M", "head_frames_body", "true_tangent_height_m",
@@ -147,11 +154,15 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
     R_all = lvlh_R_eci_from_body(x_true)
     t_r, s_r, g_r, t_a, w_a, sig_a = [], [], [], [], [], []
     h_lo, h_hi = REFRACTION_VALID_BAND_M
-    for n, t in enumerate(np.asarray(t_s, dtype=float)):
+    t_s = np.asarray(t_s, dtype=float)
+    v_earth = earth_velocity_bcrs_mps(float(j2000_seconds(epoch0)) + t_s)
+    for n, t in enumerate(t_s):
         r = x_true[n, :3]
         rn = float(np.linalg.norm(r))
         heads = head_frames_body(rn, spec.azimuths_deg, spec.boresight_tangent_km * 1e3)
-        s_body = S @ R_all[n]                         # (M, 3): R^T s for every star
+        # the camera sees every star aberrated by the spacecraft's barycentric velocity
+        s_seen, _ = apparent_direction(S, np.broadcast_to(v_earth[n] + x_true[n, 3:6], S.shape))
+        s_body = s_seen @ R_all[n]                    # (M, 3): R^T s' for every star
         in_field = np.zeros(len(S), dtype=bool)
         for F in heads:
             c = s_body @ F                            # (M, 3): horizontal, up, boresight
@@ -161,7 +172,8 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
         idx = np.flatnonzero(in_field)
         if not len(idx):
             continue
-        s = S[idx]
+        s_cat = S[idx]
+        s, _ = apparent_direction(s_cat, np.broadcast_to(v_earth[n], s_cat.shape))  # the ray
         p = s @ r
         q = np.sqrt(np.maximum(rn * rn - p * p, 0.0))
         ahead = p < 0                                  # closest approach in front
@@ -175,7 +187,7 @@ def simulate_refraction_rows(spec, t_s, x_true, epoch0, rng, model="exponential-
         g_true = m.gamma_rad(h[keep] + dh[keep])
         g_meas = g_true + (rng.uniform(-D, D, size=len(g_true)) if D > 0 else 0.0)
         t_r.append(np.full(int(keep.sum()), t))
-        s_r.append(s[cand[keep]])
+        s_r.append(s_cat[cand[keep]])                 # rows carry the catalogue direction
         g_r.append(g_meas)
         n_clear = int(clear.sum())
         if n_clear >= 3:

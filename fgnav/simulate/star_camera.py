@@ -10,9 +10,14 @@ zenith: its boresight is ``-z_body`` (away from the Earth), and its field is a s
 
 Stars: the project's BSC5 catalogue (``fgnav.vision.catalogue``), V <= ``spec.vmag_max``,
 proper motion applied to the pass epoch: the catalogue place ``s`` (EME2000) that the row's
-``star_x, star_y, star_z`` carry. The true body-frame direction is ``R_eci_from_body^T s``
-(aberration and the stars' parallax are not simulated: the measured direction is the
-catalogue direction rotated into the body); the measurement is that direction rotated by
+``star_x, star_y, star_z`` carry. The true body-frame direction is the apparent one,
+``R_eci_from_body^T s'`` with ``s' = ab(s, v/c)`` the catalogue direction aberrated by the
+spacecraft's barycentric velocity ``v`` = the Earth's barycentric velocity
+(``factors.aberration.earth_velocity_bcrs_mps``) + the true ``v_eci_mps``: relativistic
+stellar aberration (Urban & Seidelmann 2013, *Explanatory Supplement to the Astronomical
+Almanac*, eq. 7.40), ~20 arcsec from the Earth's orbit and up to ~7 arcsec from a LEO
+orbit's own velocity (the stars' parallax, < 0.8 arcsec, is not simulated); the field
+test uses the apparent directions; the measurement is that direction rotated by
 isotropic tangent-plane noise of 1σ ``spec.star_sigma_arcsec`` per axis
 (:func:`fgnav.simulate.noise.perturb_directions`), the centroid error of a star tracker
 mapped to angle (Liebe 2002, "Accuracy performance of star trackers - a tutorial", IEEE
@@ -33,10 +38,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.constants import ARCSEC, DEG
 from factors.geometry import so3_exp
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.noise import perturb_directions
+from fgnav.time import j2000_seconds
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
 __all__ = ["BORESIGHT_BODY", "CAMERA_FROM_BODY", "stars_in_field", "simulate_star_camera_rows",
@@ -45,6 +52,9 @@ __all__ = ["BORESIGHT_BODY", "CAMERA_FROM_BODY", "stars_in_field", "simulate_sta
 CAMERA_FROM_BODY = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
 """Rotation taking body-frame vectors into the camera frame (x_cam = x_body, y_cam = -y_body,
 z_cam = -z_body): the camera's boresight +z_cam is the zenith of the Earth-pointing body."""
+_ABERRATION_MARGIN_DEG = 0.02
+"""Extra field width (deg) for the catalogue directions' first cut: aberration moves a star by
+< 30 arcsec = 0.008 deg."""
 BORESIGHT_BODY = CAMERA_FROM_BODY[2]
 """The camera boresight in the body frame (-z_body, the zenith)."""
 
@@ -79,11 +89,15 @@ def simulate_star_camera_rows(spec, t_s, x_true, epoch0, rng, catalogue=None,
     S = catalogue.u_eci
     R = lvlh_R_eci_from_body(x_true)
     t_out, s_out, u_out = [], [], []
-    for n, t in enumerate(np.asarray(t_s, dtype=float)):
-        u_body = S @ R[n]                              # R^T s for every star
+    t_s = np.asarray(t_s, dtype=float)
+    v_obs = earth_velocity_bcrs_mps(float(j2000_seconds(epoch0)) + t_s) + np.asarray(x_true)[:, 3:6]
+    for n, t in enumerate(t_s):
+        near = np.flatnonzero(stars_in_field(S @ R[n], spec.fov_deg + _ABERRATION_MARGIN_DEG))
+        s_app, _ = apparent_direction(S[near], np.broadcast_to(v_obs[n], (len(near), 3)))
+        u_body = s_app @ R[n]                          # R^T s' for the stars near the field
         i = np.flatnonzero(stars_in_field(u_body, spec.fov_deg))
         t_out.append(np.full(len(i), t))
-        s_out.append(S[i])
+        s_out.append(S[near[i]])
         u_out.append(u_body[i])
     t_all = np.concatenate(t_out)
     sig = spec.star_sigma_arcsec * ARCSEC

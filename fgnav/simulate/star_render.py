@@ -7,7 +7,9 @@ Signal model (electrons for one exposure): a star of magnitude V gives
 plus a uniform sky background ``background_e`` per pixel. Noise: Poisson shot noise on the
 total, Gaussian read noise ``read_noise_e``; then ``ADU = bias_adu + e / gain_e_per_adu``,
 rounded and clipped to [0, 65535] (saturation). Star positions: ``camera.project`` of the
-catalogue direction in the camera frame, ``v_cam = R_eci_from_camera^T u_eci``.
+catalogue direction in the camera frame, ``v_cam = R_eci_from_camera^T u_eci``, or, with the
+camera's barycentric velocity given, of the apparent direction (stellar aberration,
+``factors.aberration``; Urban & Seidelmann 2013, eq. 7.40).
 Deterministic for a given ``numpy.random.Generator`` state.
 """
 
@@ -18,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from factors.aberration import apparent_direction
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.catalogue import Catalogue
 
@@ -43,18 +46,24 @@ def render_star_field(camera: PinholeCamera, R_eci_from_camera: np.ndarray, cata
                       psf_sigma_px: float = 1.0, background_e: float = 200.0,
                       read_noise_e: float = 10.0, gain_e_per_adu: float = 1.0,
                       bias_adu: float = 100.0, vmag_max: float | None = None,
-                      ) -> tuple[np.ndarray, StarFieldTruth]:
+                      v_observer_bcrs_mps=None) -> tuple[np.ndarray, StarFieldTruth]:
     """Render one frame (uint16, shape (height_px, width_px)) and its truth list.
 
     flux_v0_e : electrons from a V = 0 star in the exposure; psf_sigma_px : PSF 1-sigma (px);
-    background_e, read_noise_e : per pixel (electrons); vmag_max : faintest star drawn.
+    background_e, read_noise_e : per pixel (electrons); vmag_max : faintest star drawn;
+    v_observer_bcrs_mps : (3,) m/s, optional: the camera's barycentric velocity (the stars
+    drawn at their apparent directions; truth ``u_eci`` stays the catalogue's).
     """
     R = np.asarray(R_eci_from_camera, float)
     cat = catalogue if vmag_max is None else catalogue.brighter_than(vmag_max)
     W, H = camera.width_px, camera.height_px
     half = 0.5 * camera.fov_diag_rad + 0.02
     front = cat.u_eci @ R[:, 2] > np.cos(min(half, 1.5))
-    v_cam = cat.u_eci[front] @ R
+    u_seen = cat.u_eci[front]
+    if v_observer_bcrs_mps is not None:
+        u_seen, _ = apparent_direction(u_seen, np.broadcast_to(
+            np.asarray(v_observer_bcrs_mps, float), u_seen.shape))
+    v_cam = u_seen @ R
     uv = camera.project(v_cam)
     rad = int(np.ceil(4.0 * psf_sigma_px)) + 1
     near = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv, margin_px=-rad)

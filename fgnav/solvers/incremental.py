@@ -209,7 +209,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     kept = _gate_rows(p, kind, rows, gated[0], gated[1], gate)
                     rejected_rows[kind][np.setdiff1d(rows, kept)] = True
                     rows = kept
-                if not mdl.variables:   # rows of further variables alone (attitude rows)
+                if not mdl.variables or mdl.weak_orbit_dependence:
+                    # rows of further variables alone (attitude rows, stars)
                     gated[:] = _gate_update(p, lay, kind, rows, *gated)
             for f in mdl.factors(p.families[kind], rows, k, lay, kernel, guess[:6], p.t_s):
                 graph.add(f)

@@ -50,6 +50,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from factors.aberration import apparent_direction
 from factors.constants import ARCSEC, DEG
 from factors.geometry import so3_exp
 from fgnav.errors import UserError
@@ -407,14 +408,21 @@ def solve_lost_in_space(uv_px: np.ndarray, camera_guess: PinholeCamera, *, sigma
                         ratio_tol: float = 0.01, match_radius_frac: float = 0.01,
                         final_radius_px: float = 3.0, min_matches: int = 6,
                         false_match_max: float = 1e-5, fit_k1: bool = False,
-                        max_verifications: int = 2000, catalogue_path: str | None = None) -> StarSolution:
+                        max_verifications: int = 2000, catalogue_path: str | None = None,
+                        v_observer_bcrs_mps=None) -> StarSolution:
     """Identify stars with no attitude prior and the focal length known to +-fov_tolerance.
 
     uv_px : (N, 2) star centroids sorted by decreasing brightness (pixels, OpenCV convention);
     camera_guess : image size, principal point and the approximate focal length;
     sigma_px : centroid 1-sigma (px), scalar or (N,) (default 0.3 px; only relative weights
     matter for the attitude, the covariance uses the a-posteriori variance factor);
-    epoch_year : observation epoch for proper motion (Julian years).
+    epoch_year : observation epoch for proper motion (Julian years);
+    v_observer_bcrs_mps : (3,) m/s, optional: the camera's barycentric velocity (the Earth's,
+    ``factors.aberration.earth_velocity_bcrs_mps``, plus the spacecraft's best known one);
+    the attitude is then fitted to the stars' apparent directions (stellar aberration,
+    ``factors.aberration``; Urban & Seidelmann 2013, eq. 7.40), not the catalogue's, which
+    would turn it by the aberration (~20-27 arcsec; identification tolerates that either way).
+    The solution's ``u_eci`` stays the catalogue directions.
     Raises :class:`StarIdentificationError` if no candidate verifies.
     """
     t0 = time.perf_counter()
@@ -427,6 +435,10 @@ def solve_lost_in_space(uv_px: np.ndarray, camera_guess: PinholeCamera, *, sigma
             math.degrees(camera_guess.fov_x_rad), fov_tolerance)), catalogue_path)
     db = database
     vcat, vtree = _verify_catalogue(float(epoch_year), float(vmag_verify), catalogue_path)
+    u_ref = vcat.u_eci                 # the directions the attitude is fitted to
+    if v_observer_bcrs_mps is not None:
+        u_ref, _ = apparent_direction(u_ref, np.broadcast_to(
+            np.asarray(v_observer_bcrs_mps, float), u_ref.shape))
     nb = _n_bins(db.params.ratio_bin)
     f0 = camera_guess.f_px
     pmax = db.params.pattern_max_rad
@@ -497,7 +509,7 @@ def solve_lost_in_space(uv_px: np.ndarray, camera_guess: PinholeCamera, *, sigma
         ip, jd = _match(uvp, uv_v, r0)
         if len(ip) < min_matches:
             continue
-        R2, cam2, cov, res = refine_attitude(R, cam1, uv_v[jd], vcat.u_eci[idx[ip]], sig_all[jd])
+        R2, cam2, cov, res = refine_attitude(R, cam1, uv_v[jd], u_ref[idx[ip]], sig_all[jd])
         idx, uvp = _predict(R2, cam2, vcat, vtree)
         rfin = max(final_radius_px, 4.0 * float(np.sqrt(np.mean(res**2))))
         ip, jd = _match(uvp, uv_v, rfin)
@@ -507,17 +519,17 @@ def solve_lost_in_space(uv_px: np.ndarray, camera_guess: PinholeCamera, *, sigma
         if len(ip) < min_matches or log_pf > math.log(false_match_max):
             continue
         for _ in range(2):
-            R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], vcat.u_eci[idx[ip]], sig_all[jd],
+            R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], u_ref[idx[ip]], sig_all[jd],
                                                  fit_k1=fit_k1)
             idx, uvp = _predict(R2, cam2, vcat, vtree)
             ip, jd = _match(uvp, uv_v, rfin)
-        R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], vcat.u_eci[idx[ip]], sig_all[jd],
+        R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], u_ref[idx[ip]], sig_all[jd],
                                              fit_k1=fit_k1)
         rn = np.linalg.norm(res, axis=1)
         keep = rn <= 5.0 * np.median(rn)  # outliers: > ~6 sigma for Gaussian residuals
         if not np.all(keep) and keep.sum() >= min_matches:
             ip, jd = ip[keep], jd[keep]
-            R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], vcat.u_eci[idx[ip]], sig_all[jd],
+            R2, cam2, cov, res = refine_attitude(R2, cam2, uv_v[jd], u_ref[idx[ip]], sig_all[jd],
                                                  fit_k1=fit_k1)
         log_pf = _log_binom_sf(len(ip), len(idx), p1) + math.log(max(len(db), 1))
         return StarSolution(R2, cam2, cov[:3, :3], float(math.sqrt(cov[3, 3])), jd, vcat.hr[idx[ip]],
