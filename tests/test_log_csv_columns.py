@@ -88,6 +88,7 @@ def _row_by_row(monkeypatch, path, mode):
 
 @pytest.mark.parametrize("seed", range(12))
 def test_columns_and_rows_read_the_same(tmp_path, monkeypatch, seed):
+    monkeypatch.setattr(lc, "COLUMN_WISE_MIN_ROWS", 0)
     rng = np.random.default_rng(seed)
     rows = list(GOOD) + [GOOD[2 + k % 3].replace("00:00:0", f"00:01:{10 + k}.") for k in range(30)]
     for _ in range(int(rng.integers(0, 5))):
