@@ -219,26 +219,36 @@ class SmoothResult:
 
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
-                progress=None, ignore_prior: bool = False, **solve_kw) -> tuple[SmoothResult, Pass]:
+                progress=None, ignore_prior: bool = False, stage=None,
+                **solve_kw) -> tuple[SmoothResult, Pass]:
     """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
 
     ``ignore_prior``: start from the measurements' own orbit, leaving the log's prior rows
-    out of the solution and of the Cramer-Rao bound (:func:`solve`).
+    out of the solution and of the Cramer-Rao bound (:func:`solve`). ``stage``: optional
+    ``stage(what, size)`` returning a context manager around each long step (reading the
+    log, solving and summarizing), e.g. to print it (``fgnav smooth``).
     """
+    from contextlib import nullcontext
+
+    stage = stage or (lambda what, size: nullcontext())
     t0 = time.perf_counter()
-    log = read_measurements(log_path, options.estimate)
+    size_mb = Path(log_path).stat().st_size / 1e6 if Path(log_path).is_file() else 0.0
+    with stage(f"reading {log_path} ({size_mb:.0f} MB)", int(size_mb * 1e6 / 130)):
+        log = read_measurements(log_path, options.estimate)
     p = build_pass(log)
     truth = None if truth_path is None else read_truth(truth_path, p)  # checked before solving
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
                                                                       options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
-    p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
-    sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
-                **solve_kw)
+    with stage(f"solving {p.n_epochs:,} epochs ({method})", p.n_epochs):
+        p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
+        sol = solve(p, method, options, lag_s=lag_s, progress=progress,
+                    ignore_prior=ignore_prior, **solve_kw)
     if ignore_prior:
         p = strip_prior(p)
     sol.wall_s = time.perf_counter() - t0
-    summary = summarize(sol, p, options)
+    with stage("checking the solution (Cramer-Rao bound, integrity tests)", p.n_epochs):
+        summary = summarize(sol, p, options)
     x_true = None
     if truth is not None:
         x_true = truth_at(*truth, sol.t_s)
