@@ -643,13 +643,14 @@ _FAST_NUMBER = r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$"
 _FAST_EPOCH = r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$"
 
 
-def _regular_lines(raw_lines, start: int, ncol: int) -> np.ndarray:
+def _regular_lines(raw_lines, start: int, ncol: int) -> tuple[np.ndarray, bytes]:
     """Indices (into ``raw_lines``, from ``start``) of the lines that may be read
     column-wise: ASCII, exactly ``ncol - 1`` commas, not starting with ``#`` or blank space
-    (comments, blank lines and anything unusual are read row by row)."""
+    (comments, blank lines and anything unusual are read row by row); and the lines from
+    ``start`` joined (each ended by a newline)."""
     n = len(raw_lines) - start
     if n <= 0:
-        return np.zeros(0, dtype=np.int64)
+        return np.zeros(0, dtype=np.int64), b""
     body = b"\n".join(raw_lines[start:]) + b"\n"
     buf = np.frombuffer(body, dtype=np.uint8)
     ends = np.flatnonzero(buf == 10)                      # one per line
@@ -665,7 +666,7 @@ def _regular_lines(raw_lines, start: int, ncol: int) -> np.ndarray:
     ok = (n_commas == ncol - 1) & (n_high == 0) & (first != ord("#")) & (first != ord(" ")) \
         & (first != ord("\t")) & (first != 10) & (first != 13) \
         & ((n_cr == 0) | ((n_cr == 1) & cr_last))
-    return np.flatnonzero(ok) + start
+    return np.flatnonzero(ok) + start, body
 
 
 def _arrow_text_table(pa, pcsv, body: bytes, names: list[str]):
@@ -706,10 +707,11 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
     except ImportError:  # pragma: no cover (a dependency; row by row without it)
         return none
     ncol = len(header)
-    reg = _regular_lines(raw_lines, start, ncol)
+    reg, body = _regular_lines(raw_lines, start, ncol)
     if not len(reg):
         return none
-    body = b"\n".join([raw_lines[i].removesuffix(b"\r") for i in reg.tolist()]) + b"\n"
+    if len(reg) < len(raw_lines) - start:  # only the regular lines (Arrow reads CRLF as a line end)
+        body = b"\n".join([raw_lines[i] for i in reg.tolist()]) + b"\n"
     names = [f"c{j}" for j in range(ncol)]
     try:
         table = _arrow_text_table(pa, pcsv, body, names)

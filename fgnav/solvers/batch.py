@@ -79,16 +79,22 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
     A0 = np.zeros((max(N - 1, 0), n, n))
-    A1 = np.zeros_like(A0)
     b = np.zeros((max(N - 1, 0), n))
     if N < 2:
-        return A0, A1, b
+        return A0, np.zeros_like(A0), b
     dt = np.diff(p.t_s)
     F, Phi = propagate_many(Xs[:-1, :6], dt, model, t0_j2000_s + p.t_s[:-1])
     W = process_noise_sqrt_information(dt, q)
     A0[:, :6, :6] = -np.einsum("kij,kjl->kil", W, Phi)
-    A1[:, :6, :6] = W
+    del Phi   # (N, 6, 6) arrays are 288 MB each at 1,000,000 epochs: free them early
     b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
+    del F
+    if n == 6:
+        A1 = W   # the orbit alone: its rows on X_{k+1} are W itself
+    else:
+        A1 = np.zeros_like(A0)
+        A1[:, :6, :6] = W
+    del W
     for v in lay.extra:
         sl = lay.slices[v.name]
         if v.manifold == "rot3":
@@ -304,7 +310,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
 
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
+        lin = None
         for _ in range(max_iterations):
+            lin = None   # the previous linearization is not needed: free it first (memory)
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected)
             _check_rank(p, lin)
             dx = back_substitute(lin.R, lin.S, lin.d)
