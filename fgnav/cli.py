@@ -13,6 +13,11 @@ from fgnav import __version__
 from fgnav.errors import UserError
 
 
+KERNEL_COMMANDS = ("smooth", "demo", "campaign", "schemes", "formation", "check", "simulate")
+"""Commands that run numba kernels: a one-line notice while these compile the first time
+(:mod:`fgnav.first_run`)."""
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the parser; every module in ``fgnav.commands`` registers one subcommand."""
     parser = argparse.ArgumentParser(
@@ -34,6 +39,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    if args.command in KERNEL_COMMANDS and not getattr(args, "quiet", False):
+        from fgnav.first_run import announce_first_compile
+        announce_first_compile()
     try:
         rc = args.func(args)
     except UserError as exc:

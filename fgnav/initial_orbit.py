@@ -587,7 +587,7 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
     prior farther from that data than the data's own span).
     """
-    from scipy.stats import chi2
+    from fgnav.chi2 import chi2_ppf
 
     k0, x_prior = prior_state(p)
     P_prior = prior_covariance(p, k0)
@@ -596,7 +596,7 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     S = P_prior + P_iod
     s = 1.0 / np.sqrt(np.diag(S))
     m2 = float((d * s) @ np.linalg.solve(S * np.outer(s, s), d * s))
-    gate = float(chi2.ppf(probability, 6))
+    gate = chi2_ppf(probability, 6)
     return {"prior_mahalanobis": math.sqrt(max(m2, 0.0)), "prior_mahalanobis2": m2,
             "prior_dof": 6, "prior_gate_chi2": gate, "prior_gate_probability": probability,
             "prior_consistent": bool(m2 <= gate),

@@ -78,10 +78,10 @@ ADVICE = {
 def _chi2_test(chi2: float, dof: int) -> dict:
     """chi2 of ``dof`` whitened components: normalized value and the log10 of its tail
     probability under the chi-square distribution (``-inf`` for an impossible value)."""
-    from scipy.stats import chi2 as chi2_dist
+    from fgnav.chi2 import chi2_logsf
 
     dof = max(int(dof), 1)
-    logsf = float(chi2_dist.logsf(chi2, dof)) if math.isfinite(chi2) else -math.inf
+    logsf = chi2_logsf(chi2, dof) if math.isfinite(chi2) else -math.inf
     return {"chi2": float(chi2), "dof": dof, "normalized": float(chi2) / dof,
             "log10_p": logsf / math.log(10.0)}
 
@@ -108,7 +108,7 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
     Bonferroni threshold for the number of windows tested (family-wise false-alarm
     probability :data:`RUN_FALSE_ALARM`).
     """
-    from scipy.stats import norm as normal_dist
+    from fgnav.chi2 import norm_isf
 
     r = np.asarray(r, dtype=float)
     ok = np.all(np.isfinite(r), axis=1)
@@ -130,7 +130,7 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
         if abs(z[i, j]) > abs(best[0]):
             best = (float(z[i, j]), int(i), int(w), int(j))
     z, i, w, j = best
-    threshold = float(normal_dist.isf(RUN_FALSE_ALARM / (2.0 * max(n_tests, 1))))
+    threshold = norm_isf(RUN_FALSE_ALARM / (2.0 * max(n_tests, 1)))
     return {"z": z, "threshold": threshold, "window": w, "component": j,
             "t_start_s": float(t[i]), "t_end_s": float(t[i + w - 1])}
 
@@ -392,7 +392,7 @@ def manoeuvre_glr(m: _Mapped) -> dict | None:
     ``C = Phi(t_k, t_0)^-1 [0; I]``: chi-square with 3 degrees of freedom without a
     manoeuvre; the largest over the epochs is tested against the Bonferroni threshold.
     """
-    from scipy.stats import chi2 as chi2_dist
+    from fgnav.chi2 import chi2_isf
 
     N = m.N
     if N < 8 or len(m.b) < 12:
@@ -419,7 +419,7 @@ def manoeuvre_glr(m: _Mapped) -> dict | None:
     stat = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
     stat[[0, -1]] = 0.0  # a manoeuvre before the first or after the last row is no test
     k = int(np.argmax(stat))
-    threshold = float(chi2_dist.isf(RUN_FALSE_ALARM / max(N - 2, 1), 3))
+    threshold = chi2_isf(RUN_FALSE_ALARM / max(N - 2, 1), 3)
     return {"glr": float(stat[k]), "threshold": threshold, "epoch_index": k}
 
 

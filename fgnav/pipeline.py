@@ -226,31 +226,42 @@ class SmoothResult:
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
                 progress=None, ignore_prior: bool = False, aberration: bool = True,
+                stage=None,
                 **solve_kw) -> tuple[SmoothResult, Pass]:
     """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
 
     ``ignore_prior``: start from the measurements' own orbit, leaving the log's prior rows
     out of the solution and of the Cramer-Rao bound (:func:`solve`). ``aberration=False``:
     the star models take the catalogue directions as seen, without the stellar-aberration
-    correction (:func:`fgnav.apparent.without_aberration`; for comparison only).
+    correction (:func:`fgnav.apparent.without_aberration`; for comparison only). ``stage``:
+    optional ``stage(what, size)`` returning a context manager around each long step
+    (reading the log, solving and summarizing), e.g. to print it (``fgnav smooth``).
     """
+    from contextlib import nullcontext
+
+    stage = stage or (lambda what, size: nullcontext())
     t0 = time.perf_counter()
-    log = read_measurements(log_path, options.estimate)
+    size_mb = Path(log_path).stat().st_size / 1e6 if Path(log_path).is_file() else 0.0
+    with stage(f"reading {log_path} ({size_mb:.0f} MB)", int(size_mb * 1e6 / 130)):
+        log = read_measurements(log_path, options.estimate)
     return smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
                       progress=progress, ignore_prior=ignore_prior, aberration=aberration,
-                      t0=t0, **solve_kw)
+                      stage=stage, t0=t0, **solve_kw)
 
 
 def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOptions(), *,
                truth_path: str | Path | None = None, truth: tuple | None = None,
                lag_s: float = 300.0, progress=None, ignore_prior: bool = False,
-               aberration: bool = True, t0: float | None = None,
+               aberration: bool = True, stage=None, t0: float | None = None,
                **solve_kw) -> tuple[SmoothResult, Pass]:
     """:func:`smooth_file` on a log already in memory (a
     :class:`~fgnav.io.log_csv.MeasurementLog`). The truth comes from the OEM ``truth_path``
     or as ``truth = (t_s, x_eci)``: seconds from ``log.epoch0`` (covering the log's epochs)
     and (N, 6) states, SI. ``t0`` is the ``time.perf_counter()`` the wall time counts from
     (default: now)."""
+    from contextlib import nullcontext
+
+    stage = stage or (lambda what, size: nullcontext())
     t0 = time.perf_counter() if t0 is None else t0
     p = build_pass(log)
     if not aberration:
@@ -260,13 +271,15 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
                                                                       options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
-    p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
-    sol = solve(p, method, options, lag_s=lag_s, progress=progress, ignore_prior=ignore_prior,
-                **solve_kw)
+    with stage(f"solving {p.n_epochs:,} epochs ({method})", p.n_epochs):
+        p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
+        sol = solve(p, method, options, lag_s=lag_s, progress=progress,
+                    ignore_prior=ignore_prior, **solve_kw)
     if ignore_prior:
         p = strip_prior(p)
     sol.wall_s = time.perf_counter() - t0
-    summary = summarize(sol, p, options)
+    with stage("checking the solution (Cramer-Rao bound, integrity tests)", p.n_epochs):
+        summary = summarize(sol, p, options)
     x_true = None
     if truth is not None:
         x_true = truth_at(*truth, sol.t_s)

@@ -61,11 +61,11 @@ class RobustKernel:
 
 def chi2_gate(dim: int, probability: float) -> float:
     """The NIS threshold of a ``dim``-row measurement at the given acceptance probability."""
-    from scipy.stats import chi2
+    from fgnav.chi2 import chi2_ppf
 
     if not 0.0 < probability < 1.0:
         raise UserError(f"gate probability must be in (0, 1), got {probability}")
-    return float(chi2.ppf(probability, dim))
+    return chi2_ppf(probability, dim)
 
 
 def passes_gate(A: np.ndarray, b: np.ndarray, P: np.ndarray, probability: float):

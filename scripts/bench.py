@@ -25,6 +25,16 @@ Cold start: ``fgnav --help`` wall time (median of 3) with the slowest imports fr
 ``python -X importtime``, and ``fgnav demo`` run twice with ``NUMBA_DEBUG_CACHE=1``: the
 second run must load every JIT kernel from the on-disk cache (``recompiled == 0``).
 
+Whole ``fgnav smooth`` processes (``process_241``, ``process_4h``, ``batch_1m``): the command
+as a user runs it on a simulated gto-transfer log (241 epochs at 60 s; 14,401 at 1 s; and
+1,000,000 at 1 s, ~278 h), after a warm-up run (numba cache filled); wall seconds (median of
+``--repeat``), the in-process ``wall_s`` of summary.json (reading + solving: the solve's
+fixed cost on the short pass), CPU seconds and the peak RSS of the process (``os.wait4``).
+With ``--before-tree DIR`` (a checkout of an earlier commit, e.g. ``git worktree add DIR
+a98a318``) every process case also runs the same command in that tree in the same session,
+interleaved, and reports both figures and their ratio. ``--quick``: 241, 1,441 and 5,000
+epochs.
+
 ``--quick`` (CI smoke, < 60 s): short passes, one run per case.
 """
 
@@ -319,6 +329,106 @@ def cold_start(quick: bool, tmp: Path) -> dict:
     return out
 
 
+PROCESS_CASES = {  # name -> (simulate options, quick simulate options)
+    "process_241": (["--step-s", "60"], ["--step-s", "60"]),
+    "process_4h": (["--step-s", "1"], ["--step-s", "10"]),
+    "batch_1m": (["--step-s", "1", "--duration-h", "277.7775"],
+                 ["--step-s", "1", "--duration-h", "1.3886"]),
+}
+PROCESS_TARGETS = {"process_241": {"wall_s_max": 1.0, "summary_wall_s_max": 0.2},
+                   "process_4h": {"wall_s_max": 2.0},
+                   "batch_1m": {"wall_s_max": 90.0, "peak_rss_mb_max": 2560.0}}
+
+
+def _run_smooth(tree: Path, log: Path, out: Path, timeout_s: float) -> dict:
+    """``fgnav smooth LOG --out OUT --quiet`` as a fresh process run from ``tree``."""
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    cmd = [sys.executable, "-m", "fgnav", "smooth", str(log), "--out", str(out), "--quiet"]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=str(tree), env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
+    deadline = t0 + timeout_s
+    while True:
+        pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.perf_counter() > deadline:
+            proc.kill()
+            os.wait4(proc.pid, 0)
+            return {"error": f"timeout after {timeout_s:g} s"}
+        time.sleep(0.02)
+    wall = time.perf_counter() - t0
+    err = proc.stderr.read().decode(errors="replace")
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    r = {"wall_s": wall, "cpu_s": ru.ru_utime + ru.ru_stime, "peak_rss_mb": ru.ru_maxrss / 1024.0,
+         "returncode": proc.returncode}
+    if proc.returncode not in (0, 3):
+        r["error"] = err.strip().splitlines()[-1:] or ["failed"]
+    else:
+        try:
+            r["summary_wall_s"] = json.loads((out / "summary.json").read_text())["wall_s"]
+        except (OSError, ValueError, KeyError):
+            pass
+    return r
+
+
+def process_case(name: str, quick: bool, repeat: int, tmp: Path, before_tree: Path | None,
+                 timeout_s: float) -> dict:
+    """One whole-process case, after and (with ``before_tree``) before, interleaved."""
+    sim_opts = PROCESS_CASES[name][1 if quick else 0]
+    logdir = tmp / f"log_{name}"
+    sim = subprocess.run([sys.executable, "-m", "fgnav", "simulate", "gto-transfer", "--out",
+                          str(logdir), "--quiet", *sim_opts], cwd=str(ROOT),
+                         env=dict(os.environ, PYTHONPATH=str(ROOT)), capture_output=True,
+                         text=True)
+    if sim.returncode != 0:
+        return {"error": sim.stderr.strip().splitlines()[-1:]}
+    log = logdir / "measurements.csv"
+    trees = {"after": ROOT}
+    if before_tree is not None:
+        trees["before"] = before_tree
+    runs: dict = {k: [] for k in trees}
+    for label, tree in trees.items():   # warm-up: numba kernels compiled / cached in each tree
+        _run_smooth(tree, log, tmp / f"warm_{name}_{label}", timeout_s)
+    for i in range(repeat):
+        for label, tree in trees.items():
+            runs[label].append(_run_smooth(tree, log, tmp / f"out_{name}_{label}_{i}", timeout_s))
+    c: dict = {"command": f"python -m fgnav smooth LOG --out DIR --quiet (LOG: fgnav simulate "
+                          f"gto-transfer {' '.join(sim_opts)})",
+               "epochs": sum(1 for line in log.open() if ",earth_direction," in line)}
+    for label, rs in runs.items():
+        ok = [r for r in rs if "error" not in r]
+        if not ok:
+            c[label] = {"error": rs[0]["error"]}
+            continue
+        c[label] = {k: statistics.median(r[k] for r in ok if k in r)
+                    for k in ("wall_s", "cpu_s", "summary_wall_s") if any(k in r for r in ok)}
+        c[label]["peak_rss_mb"] = max(r["peak_rss_mb"] for r in ok)
+        c[label]["wall_s_runs"] = [r["wall_s"] for r in ok]
+    if "before" in c and "error" not in c["before"] and "error" not in c["after"]:
+        c["after_over_before"] = {k: c["after"][k] / c["before"][k]
+                                  for k in ("wall_s", "cpu_s", "peak_rss_mb", "summary_wall_s")
+                                  if k in c["after"] and k in c["before"] and c["before"][k]}
+        a, b = (tmp / f"out_{name}_{lab}_0" / "trajectory.oem" for lab in ("after", "before"))
+        if a.exists() and b.exists():
+            c["trajectory_identical"] = _states_identical(a, b)
+    t = PROCESS_TARGETS.get(name)
+    if t and "error" not in c["after"]:
+        c["targets"] = t
+        c["meets_targets"] = all(c["after"].get(k.rsplit("_", 1)[0], 0) <= lim
+                                 for k, lim in t.items())
+    return c
+
+
+def _states_identical(a: Path, b: Path) -> bool:
+    """Two trajectory.oem files equal in every state and covariance line (CREATION_DATE and
+    comments aside)."""
+    def body(path):
+        return [line for line in path.read_text().splitlines()
+                if not line.startswith(("CREATION_DATE", "COMMENT"))]
+    return body(a) == body(b)
+
+
 def machine() -> dict:
     import importlib.metadata as md
 
@@ -341,6 +451,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0, help="noise seed of the simulated pass")
     ap.add_argument("--timeout-s", type=float, default=3600.0, help="per-subprocess time limit (s)")
     ap.add_argument("--out", help="also write the JSON object to this file")
+    ap.add_argument("--before-tree", help="a checkout of an earlier commit: the process cases also "
+                    "run there, in the same session (e.g. git worktree add /tmp/before a98a318)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--pass-file", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -353,10 +465,12 @@ def main(argv=None) -> int:
     if args.isam2_hours is not None:
         cases["isam2_4h"] = ("isam2", args.isam2_hours)
         cases["isam2_att_4h"] = ("isam2", args.isam2_hours, "att")
-    wanted = set(args.cases.split(",")) if args.cases else set(cases) | {"cold_start"}
-    unknown = wanted - set(cases) - {"cold_start"}
+    wanted = (set(args.cases.split(",")) if args.cases
+              else set(cases) | {"cold_start"} | set(PROCESS_CASES))
+    unknown = wanted - set(cases) - {"cold_start"} - set(PROCESS_CASES)
     if unknown:
-        ap.error(f"unknown case(s) {sorted(unknown)}; choose from {sorted(cases)} and cold_start")
+        ap.error(f"unknown case(s) {sorted(unknown)}; choose from "
+                 f"{sorted(cases) + sorted(PROCESS_CASES)} and cold_start")
     repeat = args.repeat or (1 if args.quick else 3)
     result: dict = {"mode": "quick" if args.quick else "full", "repeat": repeat, "seed": args.seed,
                     "scenario": "gto-transfer (Pan & Yao 2017), earth_direction 0.01 deg at 1 Hz",
@@ -396,6 +510,11 @@ def main(argv=None) -> int:
         if b4 and b24 and "error" not in b4 and "error" not in b24:
             # 1.0 = exactly linear cost in the number of epochs
             result["batch_cost_growth"] = (b24["solver_s"] / b24["epochs"]) / (b4["solver_s"] / b4["epochs"])
+        before = Path(args.before_tree).resolve() if args.before_tree else None
+        for name in PROCESS_CASES:
+            if name in wanted:
+                result["cases"][name] = process_case(name, args.quick, repeat, tmp, before,
+                                                     args.timeout_s)
         if "cold_start" in wanted:
             cs = cold_start(args.quick, tmp)
             check_targets("cold_start", cs)

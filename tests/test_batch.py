@@ -145,3 +145,22 @@ def test_long_steps_integrate_in_substeps_and_third_body_option_runs():
     assert with_tb["nees_mean"] < 15
     # The truth has Sun/Moon gravity: leaving it out of a tight motion model shows.
     assert without["position_rms_m"] > with_tb["position_rms_m"]
+
+
+def test_elimination_in_chunks_is_the_whole_chain_bit_for_bit():
+    """Eliminating the chain a few epochs at a time (bounded memory on long passes) gives the
+    conditionals of the one-graph elimination exactly, for any chunk length."""
+    from fgnav.solvers.batch import _Factors, eliminate_in_chunks
+
+    sim, p = gto(step_s=120.0, duration_h=1.0)
+    opt = SmootherOptions()
+    model = opt.motion_model()
+    t0 = float(j2000_seconds(p.epoch0))
+    Xs = sim.x_true + np.array([300.0, -200.0, 100.0, 0.1, 0.05, -0.02])  # a non-trivial point
+    graph, *_ = build_linear_graph(p, Xs, opt.q_m2_s3, model, t0)
+    R, S, d = eliminate_chain(graph, p.n_epochs)
+    fs = _Factors(p, Xs, opt.q_m2_s3, model, t0)
+    for chunk in (1, 2, 7, p.n_epochs - 1, p.n_epochs, 10 * p.n_epochs):
+        R2, S2, d2 = eliminate_in_chunks(fs, chunk=chunk)
+        for a, b in ((R, R2), (S, S2), (d, d2)):
+            np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))

@@ -53,6 +53,27 @@ def test_bench_quick_prints_one_json_object():
         assert c["attitude_rms_arcsec"] < 20.0
     assert cases["batch_att_4h"]["targets"] == {"att_ratio_max": 2.5}
     assert LATENCY_KEYS <= set(cases["isam2_att_4h"])
+    for name, epochs in (("process_241", 241), ("process_4h", 1441), ("batch_1m", 5000)):
+        c = cases[name]
+        assert "error" not in c.get("after", {}), (name, c)
+        assert c["epochs"] == epochs and "fgnav smooth" in c["command"]
+        assert {"wall_s", "cpu_s", "summary_wall_s", "peak_rss_mb"} <= set(c["after"])
+        assert c["after"]["wall_s"] >= c["after"]["summary_wall_s"] > 0
+        assert "meets_targets" in c
+
+
+@pytest.mark.bench
+def test_bench_process_cases_beside_a_before_tree():
+    """``--before-tree``: the same command in another checkout, same session; this checkout
+    against itself gives identical trajectories and ratios near 1."""
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "bench.py"), "--quick",
+                        "--cases", "process_241", "--before-tree", str(ROOT)],
+                       capture_output=True, text=True, timeout=600, cwd=str(ROOT))
+    assert r.returncode == 0, r.stderr[-2000:]
+    c = json.loads(r.stdout)["cases"]["process_241"]
+    assert c["trajectory_identical"] is True
+    assert {"wall_s", "cpu_s", "peak_rss_mb"} <= set(c["after_over_before"])
+    assert 0.5 < c["after_over_before"]["peak_rss_mb"] < 2.0
 
 
 def _bench_module():

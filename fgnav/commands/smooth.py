@@ -219,6 +219,21 @@ class ProgressCallback:
         self.bar.close()
 
 
+class StageLines:
+    """The long steps of a big log (reading, solving, writing) as ``fgnav: ...`` lines on
+    stderr (:class:`fgnav.progress.stage`): ``stage(what, size)`` for a step on ``size``
+    rows or epochs, shown from ``BIG`` up."""
+
+    BIG = 100_000
+
+    def __init__(self, quiet: bool):
+        self.quiet = quiet
+
+    def __call__(self, what: str, size: int):
+        from fgnav.progress import stage
+        return stage(what, self.quiet, show=size >= self.BIG)
+
+
 def run(args) -> int:
     import json
 
@@ -235,10 +250,13 @@ def run(args) -> int:
                              lag_s=args.lag_s, checkpoint=args.checkpoint,
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
                              ignore_prior=args.ignore_prior, progress=bar,
-                             aberration=not args.no_aberration)
+                             aberration=not args.no_aberration,
+                             stage=StageLines(args.quiet))
     finally:
         bar.close()
-    write_outputs(args.out, res, p)
+    with StageLines(args.quiet)(f"writing {len(res.solution.t_s):,} epochs to {args.out}",
+                                len(res.solution.t_s)):
+        write_outputs(args.out, res, p)
     if not args.quiet:
         import sys
         for note in p.warnings:

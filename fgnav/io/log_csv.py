@@ -566,80 +566,70 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         dropped[err.reason] = dropped.get(err.reason, 0) + 1
         first_msg.setdefault(err.reason, str(exc))
 
+    # The header: the first line that is neither blank nor a comment.
     header = None
-    ncol = 0
-    col_index: dict[str, int] = {}
-    epochs: list[int] = []
-    kinds: list[str] = []
-    values: list[np.ndarray] = []
-    lines: list[int] = []
-    n_renorm = 0
+    i_body = n_lines
     for i, raw in enumerate(raw_lines):
-        lineno = i + 1
-        is_last_unterminated = (not terminated) and i == n_lines - 1
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
-            err = _RowError("encoding", None, "UTF-8 text",
-                            f"byte 0x{raw[exc.start]:02x} at character {exc.start + 1}")
-            if header is None:
-                raise InputFormatError(path, lineno, None, err.expected, err.found) from None
-            bad(lineno, err)
-            continue
+            raise InputFormatError(path, i + 1, None, "UTF-8 text",
+                                   f"byte 0x{raw[exc.start]:02x} at character {exc.start + 1}"
+                                   ) from None
         if text.endswith("\r"):
             text = text[:-1]
         stripped = text.strip()
         if not stripped or stripped.startswith("#"):
             continue
-        if header is None:
-            header = _check_header(path, lineno, text)
-            ncol = len(header)
-            col_index = {c: j for j, c in enumerate(header)}
-            continue
-        fields = [s.strip() for s in text.split(",")]
+        header = _check_header(path, i + 1, text)
+        i_body = i + 1
+        break
+    if header is None:
+        raise _no_measurements(path, max(n_lines, 1), "empty file" if not n_lines
+                               else "no header line")
+
+    # The rows: column-wise (_fast_rows) where a row is plainly well formed, row by row
+    # (_parse_row, the reference reading with its precise messages) for the other lines;
+    # both give the same values for a valid row.
+    if n_lines - i_body >= COLUMN_WISE_MIN_ROWS:
+        fast_i, ns_f, kind_f, V_f, renorm_f, slow_i = _fast_rows(raw_lines, i_body, header)
+    else:  # a short log: row by row is quicker than loading Arrow
+        fast_i, ns_f, kind_f, V_f, renorm_f = (np.zeros(0, dtype=np.int64),
+                                               np.zeros(0, dtype=np.int64),
+                                               np.zeros(0, dtype="<U1"),
+                                               np.zeros((0, len(_VALUE_COLUMNS))), 0)
+        slow_i = range(i_body, n_lines)
+    epochs: list[int] = []
+    kinds: list[str] = []
+    values: list[np.ndarray] = []
+    lines: list[int] = []
+    n_renorm = int(renorm_f)
+    for i in slow_i:
+        lineno = i + 1
         try:
-            if len(fields) != ncol:
-                if len(fields) < ncol:
-                    col = header[len(fields)]
-                    if is_last_unterminated:
-                        raise _RowError("truncated", col, f"{ncol} fields ({','.join(header)}); "
-                                        "the last line is truncated (no newline at end of file)",
-                                        f"{len(fields)} fields")
-                else:
-                    col = f"field {ncol + 1}"
-                raise _RowError("field_count", col, f"{ncol} comma-separated fields "
-                                f"({','.join(header)})", f"{len(fields)} fields")
-            t = _parse_epoch(fields[0])
-            kind = fields[1]
-            if kind not in _KIND_SPEC:
-                raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}",
-                                kind)
-            v = np.full(len(_VALUE_COLUMNS), np.nan)
-            for j, col in enumerate(_VALUE_COLUMNS):
-                k = col_index.get(col)
-                if k is not None:
-                    v[j] = _parse_number(fields[k], col)
-            v, renorm = _check_values(kind, v)
+            row = _parse_row(raw_lines[i], header, (not terminated) and i == n_lines - 1)
         except _RowError as err:
             bad(lineno, err)
             continue
+        if row is None:  # blank or comment
+            continue
+        t, kind, v, renorm = row
         n_renorm += renorm
         epochs.append(int(t.astype(np.int64)))
         kinds.append(kind)
         values.append(v)
         lines.append(lineno)
-
-    if header is None:
-        raise _no_measurements(path, max(n_lines, 1), "empty file" if not n_lines
-                               else "no header line")
-    if not epochs:
+    if not len(fast_i) and not epochs:
         what = "header only" if not dropped else f"all {sum(dropped.values())} rows dropped"
         raise _no_measurements(path, n_lines + 1, what)
-
-    ns = np.array(epochs, dtype=np.int64)
-    V = np.array(values)
-    kind_arr = np.array(kinds, dtype=object)
-    line_arr = np.array(lines, dtype=np.int64)
+    ns = np.concatenate([ns_f, np.array(epochs, dtype=np.int64)])
+    V = np.concatenate([V_f, np.array(values, dtype=float).reshape(-1, len(_VALUE_COLUMNS))])
+    kind_arr = np.concatenate([kind_f, np.array(kinds, dtype=str)]) if kinds else kind_f
+    line_arr = np.concatenate([np.asarray(fast_i, dtype=np.int64) + 1,
+                               np.array(lines, dtype=np.int64)])
+    if len(lines) and len(fast_i):  # back into file order
+        order = np.argsort(line_arr, kind="stable")
+        ns, V, kind_arr, line_arr = ns[order], V[order], kind_arr[order], line_arr[order]
 
     # Epochs far from the others (median) are errors (a mistyped date).
     med = int(np.sort(ns)[(len(ns) - 1) // 2])
@@ -663,17 +653,7 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
                         f"{UNIT_TOL:g}] renormalized")
 
     # Exact duplicate rows: keep the first.
-    seen: dict[tuple, int] = {}
-    dup = np.zeros(len(ns), dtype=bool)
-    first_dup = None
-    for j in range(len(ns)):
-        key = (int(ns[j]), kind_arr[j], V[j].tobytes())
-        if key in seen:
-            dup[j] = True
-            if first_dup is None:
-                first_dup = (int(line_arr[j]), int(line_arr[seen[key]]))
-        else:
-            seen[key] = j
+    dup, first_dup = _duplicates(ns, kind_arr, V, line_arr)
     if dup.any():
         n = int(dup.sum())
         dropped["duplicate"] = dropped.get("duplicate", 0) + n
@@ -688,10 +668,259 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
 
     epoch0 = np.datetime64(int(ns[0]), "ns")
     t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
+    width = max(int(np.char.str_len(kind_arr.astype(str)).max()), 1)  # as wide as the kinds kept
     return MeasurementLog(
-        path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(str), xyz=V[:, :3].copy(),
+        path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(f"<U{width}"), xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
         line=line_arr, warnings=warnings, dropped=dropped)
+
+
+def _duplicates(ns, kind_arr, V, line_arr):
+    """Rows equal to an earlier row in epoch, kind and every value bit (NaN included):
+    (mask, (line of the first such row, line of the row it repeats) or None)."""
+    dup = np.zeros(len(ns), dtype=bool)
+    if len(ns) < 2:
+        return dup, None
+    _, code = np.unique(np.asarray(kind_arr, dtype=str), return_inverse=True)
+    key = np.empty((len(ns), 2 + V.shape[1]), dtype=np.int64)
+    key[:, 0] = ns
+    key[:, 1] = code.reshape(-1)
+    key[:, 2:] = np.ascontiguousarray(V, dtype=float).view(np.int64)
+    # cheap screen first: only rows sharing an epoch and kind with another row can repeat one
+    pair = key[:, :2]
+    order = np.lexsort((pair[:, 1], pair[:, 0]))
+    same = np.all(pair[order[1:]] == pair[order[:-1]], axis=1)
+    if not same.any():
+        return dup, None
+    cand = np.zeros(len(ns), dtype=bool)
+    cand[order[1:][same]] = True
+    cand[order[:-1][same]] = True
+    idx = np.flatnonzero(cand)
+    rows = np.ascontiguousarray(key[idx]).view(np.dtype((np.void, key.shape[1] * 8))).ravel()
+    _, first, inv = np.unique(rows, return_index=True, return_inverse=True)
+    first_of = idx[first[inv.reshape(-1)]]            # first row with the same bits
+    dup[idx] = first_of != idx
+    if not dup.any():
+        return dup, None
+    j = int(np.flatnonzero(dup)[0])
+    return dup, (int(line_arr[j]), int(line_arr[first_of[np.searchsorted(idx, j)]]))
+
+
+def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool):
+    """One line after the header, the reference reading: ``None`` for a blank or comment
+    line, else ``(epoch, kind, values, renormalized)``; raises :class:`_RowError`."""
+    ncol = len(header)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _RowError("encoding", None, "UTF-8 text",
+                        f"byte 0x{raw[exc.start]:02x} at character {exc.start + 1}") from None
+    if text.endswith("\r"):
+        text = text[:-1]
+    stripped = text.strip()
+    if not stripped or stripped.startswith("#"):
+        return None
+    fields = [s.strip() for s in text.split(",")]
+    if len(fields) != ncol:
+        if len(fields) < ncol:
+            col = header[len(fields)]
+            if is_last_unterminated:
+                raise _RowError("truncated", col, f"{ncol} fields ({','.join(header)}); "
+                                "the last line is truncated (no newline at end of file)",
+                                f"{len(fields)} fields")
+        else:
+            col = f"field {ncol + 1}"
+        raise _RowError("field_count", col, f"{ncol} comma-separated fields "
+                        f"({','.join(header)})", f"{len(fields)} fields")
+    t = _parse_epoch(fields[0])
+    kind = fields[1]
+    if kind not in _KIND_SPEC:
+        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
+    col_index = {c: j for j, c in enumerate(header)}
+    v = np.full(len(_VALUE_COLUMNS), np.nan)
+    for j, col in enumerate(_VALUE_COLUMNS):
+        k = col_index.get(col)
+        if k is not None:
+            v[j] = _parse_number(fields[k], col)
+    v, renorm = _check_values(kind, v)
+    return t, kind, v, renorm
+
+
+COLUMN_WISE_MIN_ROWS = 2000
+"""Logs with at least this many lines after the header are read column-wise (Arrow); shorter
+ones row by row (importing Arrow, ~0.3 s, costs more than reading them). Same result."""
+_FAST_NUMBER = r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$"
+_FAST_EPOCH = r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$"
+
+
+def _regular_lines(raw_lines, start: int, ncol: int) -> tuple[np.ndarray, bytes]:
+    """Indices (into ``raw_lines``, from ``start``) of the lines that may be read
+    column-wise: ASCII, exactly ``ncol - 1`` commas, not starting with ``#`` or blank space
+    (comments, blank lines and anything unusual are read row by row); and the lines from
+    ``start`` joined (each ended by a newline)."""
+    n = len(raw_lines) - start
+    if n <= 0:
+        return np.zeros(0, dtype=np.int64), b""
+    body = b"\n".join(raw_lines[start:]) + b"\n"
+    buf = np.frombuffer(body, dtype=np.uint8)
+    ends = np.flatnonzero(buf == 10)                      # one per line
+    begins = np.concatenate([[0], ends[:-1] + 1])
+    commas = np.flatnonzero(buf == 44)
+    n_commas = np.diff(np.searchsorted(commas, np.concatenate([[0], ends])))
+    high = np.flatnonzero(buf >= 128)
+    n_high = np.diff(np.searchsorted(high, np.concatenate([[0], ends])))
+    cr = np.flatnonzero(buf == 13)
+    n_cr = np.diff(np.searchsorted(cr, np.concatenate([[0], ends])))
+    cr_last = buf[np.maximum(ends - 1, 0)] == 13                # a CRLF line end
+    first = np.where(begins < ends, buf[np.minimum(begins, len(buf) - 1)], 10)
+    ok = (n_commas == ncol - 1) & (n_high == 0) & (first != ord("#")) & (first != ord(" ")) \
+        & (first != ord("\t")) & (first != 10) & (first != 13) \
+        & ((n_cr == 0) | ((n_cr == 1) & cr_last))
+    return np.flatnonzero(ok) + start, body
+
+
+def _arrow_text_table(pa, pcsv, body: bytes, names: list[str]):
+    """``body`` (lines of ``len(names)`` comma-separated fields) as Arrow text columns:
+    no quoting, no escapes, every field kept as written."""
+    return pcsv.read_csv(
+        pa.py_buffer(body),
+        read_options=pcsv.ReadOptions(column_names=names, block_size=1 << 24),
+        parse_options=pcsv.ParseOptions(quote_char=False, double_quote=False,
+                                        escape_char=False, newlines_in_values=False,
+                                        ignore_empty_lines=False),
+        convert_options=pcsv.ConvertOptions(column_types={c: pa.string() for c in names},
+                                            strings_can_be_null=False))
+
+
+def _fast_rows(raw_lines, start: int, header: list[str]):
+    """The plainly well-formed rows among ``raw_lines[start:]``, read column-wise.
+
+    The regular lines (:func:`_regular_lines`) are parsed by Arrow's CSV reader as text
+    columns; a row is kept here when every field matches the format (an ISO epoch, a kind,
+    a decimal number or an empty field, blanks and tabs around it) and its values pass the
+    kind's checks, done on whole columns with the same arithmetic as :func:`_check_values`
+    (``math.hypot`` norms, one division per component). Numbers are converted by Arrow
+    (correctly rounded, as Python's ``float``: the same bits). Every other line (comments,
+    blank lines, errors, leap seconds, epochs outside 1678..2261, values needing a per-row
+    check) is left to :func:`_parse_row`. Without ``pyarrow`` every line is. Returns (line
+    indices read here, epochs ns, kinds, values (n, 9), directions renormalized, line
+    indices left).
+    """
+    n_val = len(_VALUE_COLUMNS)
+    all_lines = list(range(start, len(raw_lines)))
+    none = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype="<U1"),
+            np.zeros((0, n_val)), 0, all_lines)
+    try:
+        import pyarrow as pa
+        import pyarrow.compute as pc
+        import pyarrow.csv as pcsv
+    except ImportError:  # pragma: no cover (a dependency; row by row without it)
+        return none
+    ncol = len(header)
+    reg, body = _regular_lines(raw_lines, start, ncol)
+    if not len(reg):
+        return none
+    if len(reg) < len(raw_lines) - start:  # only the regular lines (Arrow reads CRLF as a line end)
+        body = b"\n".join([raw_lines[i] for i in reg.tolist()]) + b"\n"
+    names = [f"c{j}" for j in range(ncol)]
+    try:
+        table = _arrow_text_table(pa, pcsv, body, names)
+    except pa.ArrowInvalid:  # pragma: no cover (regular lines are one row each)
+        return none
+    del body
+    n = table.num_rows
+    if n != len(reg):  # pragma: no cover (one row per regular line by construction)
+        return none
+
+    def text(j, last=False):
+        return pc.utf8_trim(table.column(j), " \t\r" if last else " \t")
+
+    def as_bool(a):
+        return np.asarray(a.to_numpy(zero_copy_only=False), dtype=bool)
+
+    # epoch: calendar label from numpy (exact in ns), then TAI - UTC of its era (fgnav.time)
+    ep = text(0, ncol == 1)
+    good = as_bool(pc.match_substring_regex(ep, _FAST_EPOCH))
+    ep = np.asarray(pc.utf8_slice_codeunits(ep, 0, 29).to_numpy(zero_copy_only=False)
+                    ).astype("S")
+    ep[~good] = b"2000-01-01T00:00:00"
+    digits = np.frombuffer(np.ascontiguousarray(ep).tobytes(), dtype=np.uint8).reshape(
+        n, ep.dtype.itemsize)[:, :19].astype(np.int64) - 48
+    year = digits[:, 0] * 1000 + digits[:, 1] * 100 + digits[:, 2] * 10 + digits[:, 3]
+    hh, mm, ss = (digits[:, k] * 10 + digits[:, k + 1] for k in (11, 14, 17))
+    good &= (year >= 1678) & (year <= 2261) & (hh <= 23) & (mm <= 59) & (ss <= 59)
+    ep = np.char.rstrip(ep, b"Z")
+    ep[~good] = b"2000-01-01T00:00:00"
+    try:
+        label = ep.astype("datetime64[ns]").astype(np.int64)
+    except ValueError:  # an invalid date somewhere: find it row by row
+        label = np.zeros(n, dtype=np.int64)
+        for i in np.flatnonzero(good):
+            try:
+                label[i] = np.datetime64(ep[i].decode(), "ns").astype(np.int64)
+            except ValueError:
+                good[i] = False
+    del ep, digits
+    ns = label + _era_shift_ns(label)
+    kinds = np.asarray(text(1, ncol == 2).to_numpy(zero_copy_only=False)).astype(str)
+    good &= np.isin(kinds, KINDS)
+    col_at = {c: j for j, c in enumerate(header)}
+    V = np.full((n, n_val), np.nan)
+    for j, c in enumerate(_VALUE_COLUMNS):
+        k = col_at.get(c)
+        if k is None:
+            continue
+        t = text(k, k == ncol - 1)
+        filled = as_bool(pc.not_equal(t, ""))
+        good &= ~filled | as_bool(pc.match_substring_regex(t, _FAST_NUMBER))
+        t = pc.if_else(pa.array(filled & good), t, "nan")
+        V[:, j] = np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False))
+    del table
+    good &= np.all(~np.isinf(V), axis=1)
+    renorm = np.zeros(n, dtype=bool)
+    for kind in np.unique(kinds[good]):
+        rows = np.flatnonzero((kinds == kind) & good)
+        spec = _KIND_SPEC[str(kind)]
+        Vk = V[rows]
+        usage = tuple(spec.usage) + ("",) * (len(_USAGE_COLUMNS) - len(spec.usage))
+        for col, use in zip(_USAGE_COLUMNS, usage):
+            nan = np.isnan(Vk[:, _VALUE_COLUMNS.index(col)])
+            good[rows] &= ~nan if use == "r" else (nan if use == "" else True)
+        if spec.check is not None:  # on the values as read (before any renormalization)
+            sm = _VALUE_COLUMNS.index("sigma_model_m")
+            for r in np.flatnonzero(good[rows]):
+                try:
+                    spec.check(*(float(Vk[r, j]) for j in (0, 1, 2, sm)))
+                except _RowError:
+                    good[rows[r]] = False
+        sig = Vk[:, 3]
+        good[rows] &= (sig > 0.0) & (sig >= spec.sigma_min) & (sig <= spec.sigma_max)
+        for cj in ([[0, 1, 2]] if spec.unit_vector else []) + (
+                [[_VALUE_COLUMNS.index(c) for c in spec.unit_columns]]
+                if spec.unit_columns else []):
+            a, b, c = (Vk[:, j].tolist() for j in cj)
+            norm = np.array(list(map(math.hypot, a, b, c)))
+            dev = np.abs(1.0 - norm)
+            good[rows] &= dev <= UNIT_TOL
+            fix = dev > _RENORM_TOL
+            if fix.any():
+                for j in cj:
+                    Vk[fix, j] = Vk[fix, j] / norm[fix]
+                renorm[rows[fix]] = True
+        V[rows] = Vk
+    kept = reg[good]
+    slow = np.setdiff1d(np.arange(start, len(raw_lines)), kept, assume_unique=True)
+    return kept, ns[good], kinds[good], V[good], int(renorm[good].sum()), slow.tolist()
+
+
+def _era_shift_ns(label_ns: np.ndarray) -> np.ndarray:
+    """(TAI - UTC in force at each naive UTC label - 37 s) in ns, as :func:`fgnav.time.parse_utc`
+    adds it (outside a leap second)."""
+    from fgnav.time import _LABEL_NS, _OFFSET_S, _PRE_1972_S, _SCALE_OFFSET_S
+
+    k = np.searchsorted(np.array(_LABEL_NS, dtype=np.int64), label_ns, side="right") - 1
+    off = np.where(k >= 0, np.array(_OFFSET_S, dtype=np.int64)[np.maximum(k, 0)], _PRE_1972_S)
+    return (off - _SCALE_OFFSET_S) * 10**9
 
 
 def _sort_rows(ns, V, kind_arr, line_arr, path):

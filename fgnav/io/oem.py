@@ -429,6 +429,23 @@ def _kvn_header(version_line, comments, creation_date, originator) -> list[str]:
     return out
 
 
+_CHUNK = 20000
+"""Epochs formatted and written at a time by :func:`write_oem` (bounded memory)."""
+
+
+def _ccsds_epochs(t64) -> list[str]:
+    """:func:`format_ccsds_epoch` of every epoch of a datetime64 array, vectorized."""
+    ns = np.asarray(t64).astype("datetime64[ns]").astype(np.int64)
+    us = ns % 1000 == 0
+    out = [""] * len(ns)
+    for sel, unit in ((us, "us"), (~us, "ns")):
+        idx = np.flatnonzero(sel)
+        if len(idx):
+            for i, t in zip(idx.tolist(), format_utc(ns[idx].astype("datetime64[ns]"), unit)):
+                out[i] = t[:-1]
+    return out
+
+
 def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
               object_id="UNKNOWN", originator="FGNAV", center_name="EARTH",
               ref_frame="EME2000", time_system="UTC", comments=(), creation_date=None) -> None:
@@ -463,26 +480,31 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME": ref_frame, "TIME_SYSTEM": time_system, "ORIGINATOR": originator}
     names = {k: _check_meta_value(k, v) for k, v in names.items()}
-    ep = [format_ccsds_epoch(t) for t in t64]
+    ep = _ccsds_epochs(t64)
 
     out = _kvn_header("CCSDS_OEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
         out.append(f"{k} = {names[k]}\n")
     out.append(f"START_TIME = {ep[0]}\nSTOP_TIME = {ep[-1]}\nMETA_STOP\n\n")
-    xk = x / _M_PER_KM
-    for i in range(N):
-        r, v = xk[i, :3], xk[i, 3:]
-        out.append(f"{ep[i]} {r[0]:.9f} {r[1]:.9f} {r[2]:.9f} "
-                   f"{v[0]:.12f} {v[1]:.12f} {v[2]:.12f}\n")
     has_cov = [] if P is None else np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
-    if len(has_cov):
-        Pk = P / _M_PER_KM**2
-        out.append("\nCOVARIANCE_START\n")
-        for i in has_cov:
-            out.append(f"EPOCH = {ep[i]}\nCOV_REF_FRAME = {names['REF_FRAME']}\n")
-            for a in range(6):
-                out.append(" ".join(f"{Pk[i, a, b]:.16e}" for b in range(a + 1)) + "\n")
-        out.append("COVARIANCE_STOP\n")
     with atomic_writer(path, "w") as f:
         f.write("".join(out))
+        # streamed in chunks (a 1,000,000-epoch solution is ~0.6 GB of text); "%" formats
+        # exactly as the f-string format spec of the same precision
+        line = "%s %.9f %.9f %.9f %.12f %.12f %.12f\n"
+        for i0 in range(0, N, _CHUNK):
+            xk = (x[i0:i0 + _CHUNK] / _M_PER_KM).T.tolist()
+            f.write("".join(map(line.__mod__, zip(ep[i0:i0 + _CHUNK], *xk))))
+        if len(has_cov):
+            f.write("\nCOVARIANCE_START\n")
+            frame = names['REF_FRAME'].replace('%', '%%')
+            block = (f"EPOCH = %s\nCOV_REF_FRAME = {frame}\n"
+                     + "".join(" ".join(["%.16e"] * (a + 1)) + "\n" for a in range(6)))
+            lower = np.tril_indices(6)
+            for i0 in range(0, len(has_cov), _CHUNK):
+                idx = has_cov[i0:i0 + _CHUNK]
+                low = (P[idx] / _M_PER_KM**2)[:, lower[0], lower[1]].tolist()
+                f.write("".join(block % (ep[i], *v) for i, v in zip(idx.tolist(), low)))
+            f.write("COVARIANCE_STOP\n")
+

@@ -79,16 +79,22 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
     A0 = np.zeros((max(N - 1, 0), n, n))
-    A1 = np.zeros_like(A0)
     b = np.zeros((max(N - 1, 0), n))
     if N < 2:
-        return A0, A1, b
+        return A0, np.zeros_like(A0), b
     dt = np.diff(p.t_s)
     F, Phi = propagate_many(Xs[:-1, :6], dt, model, t0_j2000_s + p.t_s[:-1])
     W = process_noise_sqrt_information(dt, q)
     A0[:, :6, :6] = -np.einsum("kij,kjl->kil", W, Phi)
-    A1[:, :6, :6] = W
+    del Phi   # (N, 6, 6) arrays are 288 MB each at 1,000,000 epochs: free them early
     b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
+    del F
+    if n == 6:
+        A1 = W   # the orbit alone: its rows on X_{k+1} are W itself
+    else:
+        A1 = np.zeros_like(A0)
+        A1[:, :6, :6] = W
+    del W
     for v in lay.extra:
         sl = lay.slices[v.name]
         if v.manifold == "rot3":
@@ -102,6 +108,72 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     return A0, A1, b
 
 
+class _Factors:
+    """The pass linearized at ``Xs``: its pre-whitened JacobianFactors, one per epoch (epoch
+    k's measurement rows over the motion rows of step k -> k + 1), made on demand for a range
+    of epochs (:meth:`make`), so that a long pass is never held as one graph."""
+
+    def __init__(self, p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
+                 robust=None, rejected=None):
+        N = p.n_epochs
+        n = layout_of(p).n
+        self.N, self.n = N, n
+        self.rows = rows = linearize_all(p, Xs, robust, rejected)
+        self.starts = np.searchsorted(rows.k, np.arange(N + 1))
+        self.A0_mot, self.W, self.b_mot = process_blocks(p, Xs, q, model, t0_j2000_s)
+        # rows between epochs k and k + 1 (a gyro interval), stacked under step k's motion rows
+        if rows.steps is not None:
+            self.s_k, self.s_A0, self.s_A1, self.s_b = rows.steps
+            self.s_starts = np.searchsorted(self.s_k, np.arange(N + 1))
+        else:
+            self.s_k = np.zeros(0, dtype=int)
+            self.s_A0 = self.s_A1 = np.zeros((0, n))
+            self.s_b = np.zeros(0)
+            self.s_starts = np.zeros(N + 1, dtype=int)
+        A_rows, b_rows, s_b, s_k = rows.A, rows.b, self.s_b, self.s_k
+        self.chi2_meas = float(b_rows @ b_rows + s_b @ s_b)
+        self.chi2_motion = float(np.sum(self.b_mot * self.b_mot))
+        col2 = np.zeros((N, n))
+        np.add.at(col2, rows.k, A_rows * A_rows)
+        np.add.at(col2, s_k, self.s_A0 * self.s_A0)
+        np.add.at(col2, s_k + 1, self.s_A1 * self.s_A1)
+        if N > 1:
+            col2[:-1] += np.sum(self.A0_mot * self.A0_mot, axis=1)
+            col2[1:] += np.sum(self.W * self.W, axis=1)
+        self.col_norm = np.sqrt(col2)
+
+    def make(self, k0: int, k1: int) -> list:
+        """The factors of epochs k0..k1-1 in epoch order (None for an epoch without one)."""
+        N, n = self.N, self.n
+        A_rows, b_rows = self.rows.A, self.rows.b
+        starts, s_starts = self.starts[k0:k1 + 1], self.s_starts[k0:k1 + 1]
+        # Stack each epoch's measurement rows over its motion rows, grouped by row count so
+        # the stacking is one numpy call per group rather than one per epoch (0.45 -> 0.35 s
+        # per iteration at 14,400 epochs, same factors in the same order).
+        counts, s_counts = np.diff(starts), np.diff(s_starts)
+        factors = [None] * (k1 - k0)
+        JF = gtsam.JacobianFactor
+        for m, ms in sorted(set(zip(counts.tolist(), s_counts.tolist()))):
+            js = np.flatnonzero((counts == m) & (s_counts == ms))
+            ks = js + k0
+            idx = starts[js][:, None] + np.arange(m)
+            Am, bm = A_rows[idx], b_rows[idx]
+            mot = ks < N - 1
+            km = ks[mot]
+            if len(km):
+                sidx = s_starts[js[mot]][:, None] + np.arange(ms)
+                A0 = np.concatenate([Am[mot], self.A0_mot[km], self.s_A0[sidx]], axis=1)
+                A1 = np.concatenate([np.zeros((len(km), m, n)), self.W[km], self.s_A1[sidx]],
+                                    axis=1)
+                b = np.concatenate([bm[mot], self.b_mot[km], self.s_b[sidx]], axis=1)
+                unit = _unit(m + n + ms)
+                for i, k in enumerate(km.tolist()):
+                    factors[k - k0] = JF(X(k), A0[i], X(k + 1), A1[i], b[i], unit)
+            if m and not mot.all():
+                factors[N - 1 - k0] = JF(X(N - 1), Am[~mot][0], bm[~mot][0], _unit(m))
+        return factors
+
+
 def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
                        robust=None, rejected=None):
     """The pass linearized at ``Xs`` (N, n): one pre-whitened JacobianFactor per epoch.
@@ -110,57 +182,27 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
     measurement rows (:class:`fgnav.graph.Rows`: residuals and robust weights per kind) and
     the norm of every column of the whitened system (N, n) (for :func:`_check_rank`).
     """
-    N = p.n_epochs
-    n = layout_of(p).n
-    rows = linearize_all(p, Xs, robust, rejected)
-    k_rows, A_rows, b_rows = rows.k, rows.A, rows.b
-    starts = np.searchsorted(k_rows, np.arange(N + 1))
-    A0_mot, W, b_mot = process_blocks(p, Xs, q, model, t0_j2000_s)
-    # rows between epochs k and k + 1 (a gyro interval), stacked under step k's motion rows
-    if rows.steps is not None:
-        s_k, s_A0, s_A1, s_b = rows.steps
-        s_starts = np.searchsorted(s_k, np.arange(N + 1))
-    else:
-        s_k = np.zeros(0, dtype=int)
-        s_A0 = s_A1 = np.zeros((0, n))
-        s_b = np.zeros(0)
-        s_starts = np.zeros(N + 1, dtype=int)
-    s_counts = np.diff(s_starts)
-    # Stack each epoch's measurement rows over its motion rows, grouped by row count so the
-    # stacking is one numpy call per group rather than one per epoch (0.45 -> 0.35 s per
-    # iteration at 14,400 epochs, same factors in the same order).
-    counts = np.diff(starts)
-    factors = [None] * N
-    JF = gtsam.JacobianFactor
-    for m, ms in sorted(set(zip(counts.tolist(), s_counts.tolist()))):
-        ks = np.flatnonzero((counts == m) & (s_counts == ms))
-        idx = starts[ks][:, None] + np.arange(m)
-        Am, bm = A_rows[idx], b_rows[idx]
-        mot = ks < N - 1
-        km = ks[mot]
-        if len(km):
-            sidx = s_starts[km][:, None] + np.arange(ms)
-            A0 = np.concatenate([Am[mot], A0_mot[km], s_A0[sidx]], axis=1)
-            A1 = np.concatenate([np.zeros((len(km), m, n)), W[km], s_A1[sidx]], axis=1)
-            b = np.concatenate([bm[mot], b_mot[km], s_b[sidx]], axis=1)
-            unit = _unit(m + n + ms)
-            for i, k in enumerate(km.tolist()):
-                factors[k] = JF(X(k), A0[i], X(k + 1), A1[i], b[i], unit)
-        if m and not mot.all():
-            factors[N - 1] = JF(X(N - 1), Am[~mot][0], bm[~mot][0], _unit(m))
+    fs = _Factors(p, Xs, q, model, t0_j2000_s, robust, rejected)
     graph = gtsam.GaussianFactorGraph()
-    for f in factors:
+    for f in fs.make(0, fs.N):
         if f is not None:
             graph.push_back(f)
-    col2 = np.zeros((N, n))
-    np.add.at(col2, k_rows, A_rows * A_rows)
-    np.add.at(col2, s_k, s_A0 * s_A0)
-    np.add.at(col2, s_k + 1, s_A1 * s_A1)
-    if N > 1:
-        col2[:-1] += np.sum(A0_mot * A0_mot, axis=1)
-        col2[1:] += np.sum(W * W, axis=1)
-    return (graph, float(b_rows @ b_rows + s_b @ s_b), float(np.sum(b_mot * b_mot)), rows,
-            np.sqrt(col2))
+    return graph, fs.chi2_meas, fs.chi2_motion, fs.rows, fs.col_norm
+
+
+def _singular(source, exc):
+    return NotObservableError(f"{source}: the linearized system is singular ({exc}); "
+                              f"the measurements do not observe every state")
+
+
+def _conditionals(bn, k0: int, k1: int, N: int, R, S, d) -> None:
+    """Copy the conditionals of X_k0..X_{k1-1} (in ``bn``, in that order) into R, S, d."""
+    for k in range(k0, k1):
+        c = bn.at(k - k0)
+        R[k] = c.R()
+        d[k] = c.d()
+        if k < N - 1:
+            S[k] = c.S()
 
 
 def eliminate_chain(graph, N: int, source: str = "", n: int = 6):
@@ -171,27 +213,60 @@ def eliminate_chain(graph, N: int, source: str = "", n: int = 6):
     try:
         bn = graph.eliminateSequential(ordering, gtsam.EliminateQR)
     except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
-        raise NotObservableError(f"{source}: the linearized system is singular ({exc}); "
-                                 f"the measurements do not observe every state") from exc
+        raise _singular(source, exc) from exc
     R = np.empty((N, n, n))
     S = np.zeros((N, n, n))
     d = np.empty((N, n))
-    for k in range(N):
-        c = bn.at(k)
-        R[k] = c.R()
-        d[k] = c.d()
-        if k < N - 1:
-            S[k] = c.S()
+    _conditionals(bn, 0, N, N, R, S, d)
+    return R, S, d
+
+
+ELIMINATION_CHUNK = 20_000
+"""Epochs eliminated at a time by :func:`eliminate_in_chunks`."""
+
+
+def eliminate_in_chunks(fs: _Factors, source: str = "", chunk: int | None = None):
+    """:func:`eliminate_chain` of the factors ``fs`` without building the whole graph: epochs
+    ``chunk`` at a time, each chunk's graph holding its factors and, last, the factor on its
+    first state left by eliminating the chunk before (GTSAM's partial sequential
+    elimination). A chain's elimination gathers, for state k, its own factor and then the
+    factor left by state k - 1, in that order, whether the graph is whole or cut: the
+    conditionals are the same bit for bit (``tests/test_batch.py``), in bounded memory."""
+    N, n = fs.N, fs.n
+    chunk = int(chunk or ELIMINATION_CHUNK)
+    R = np.empty((N, n, n))
+    S = np.zeros((N, n, n))
+    d = np.empty((N, n))
+    carried = None
+    for k0 in range(0, N, chunk):
+        k1 = min(N, k0 + chunk)
+        graph = gtsam.GaussianFactorGraph()
+        for f in fs.make(k0, k1):
+            if f is not None:
+                graph.push_back(f)
+        if carried is not None:
+            graph.push_back(carried)
+        ordering = gtsam.Ordering()
+        for k in range(k0, k1):
+            ordering.push_back(X(k))
+        try:
+            bn, rest = graph.eliminatePartialSequential(ordering, gtsam.EliminateQR)
+        except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
+            raise _singular(source, exc) from exc
+        _conditionals(bn, k0, k1, N, R, S, d)
+        carried = rest.at(0) if k1 < N and rest.size() else None
+        del graph, bn, rest
     return R, S, d
 
 
 def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
                             t0_j2000_s: float, robust=None, rejected=None) -> Linearization:
-    """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR)."""
-    graph, chi2_meas, chi2_motion, rows, col_norm = build_linear_graph(p, Xs, q, model, t0_j2000_s,
-                                                                        robust, rejected)
-    R, S, d = eliminate_chain(graph, p.n_epochs, p.source, layout_of(p).n)
-    return Linearization(R, S, d, chi2_meas, chi2_motion, rows.residuals, rows.weights, col_norm)
+    """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR), in chunks of
+    epochs (:func:`eliminate_in_chunks`)."""
+    fs = _Factors(p, Xs, q, model, t0_j2000_s, robust, rejected)
+    R, S, d = eliminate_in_chunks(fs, p.source)
+    return Linearization(R, S, d, fs.chi2_meas, fs.chi2_motion, fs.rows.residuals,
+                         fs.rows.weights, fs.col_norm)
 
 
 def _check_rank(p: Pass, lin: Linearization, rel_tol: float = 1e-13) -> None:
@@ -235,7 +310,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
 
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
+        lin = None
         for _ in range(max_iterations):
+            lin = None   # the previous linearization is not needed: free it first (memory)
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected)
             _check_rank(p, lin)
             dx = back_substitute(lin.R, lin.S, lin.d)
