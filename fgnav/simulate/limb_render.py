@@ -26,6 +26,7 @@ so the read noise is ``90,000 / 10^(96/20) = 1.43 e-``; 16-bit ADC spanning the 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 
@@ -146,10 +147,28 @@ class RenderedLimb:
         return self.scene.rho_rad
 
 
+@lru_cache(maxsize=4)
+def _pixel_grid(camera: PinholeCamera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, rays) of every pixel centre of ``camera`` (float64 (H, W) each, rays (H, W, 3)
+    unit vectors): the same for every frame of a camera, so computed once (read-only)."""
+    vv, uu = np.mgrid[0:camera.height_px, 0:camera.width_px].astype(np.float64)
+    rays = camera.pixel_to_ray(np.stack([uu, vv], axis=-1))
+    for a in (uu, vv, rays):
+        a.setflags(write=False)
+    return uu, vv, rays
+
+
 def _tangent_height_m(rays: np.ndarray, scene: LimbScene) -> np.ndarray:
     """Tangent height (m) of unit rays (..., 3) over the limb surface (see module doc)."""
-    U = scene.shape_factor()
     c = np.asarray(scene.c_cam_m, float)
+    if not scene.ellipsoid:
+        # sphere: the scaled space is a uniform scaling, so the closest approach of a unit
+        # ray is at t = s.c and the miss distance is sqrt(|c|^2 - t^2)
+        R = float(scene.r_limb_m)
+        t = rays @ c
+        h = np.sqrt(np.maximum(c @ c - t * t, 0.0)) - R
+        return np.where(t <= 0.0, np.linalg.norm(c) * 10.0, h)
+    U = scene.shape_factor()
     cp = U @ c
     sp = rays @ U.T
     sp_n = np.linalg.norm(sp, axis=-1, keepdims=True)
@@ -208,9 +227,7 @@ def render_limb_ideal(camera: PinholeCamera, scene: LimbScene, *,
     if supersample < 1:
         raise UserError(f"supersample must be >= 1, got {supersample}")
     H_px, W_px = camera.height_px, camera.width_px
-    vv, uu = np.mgrid[0:H_px, 0:W_px].astype(np.float64)
-    uv = np.stack([uu, vv], axis=-1)
-    rays = camera.pixel_to_ray(uv)
+    uu, vv, rays = _pixel_grid(camera)
     h = _tangent_height_m(rays, scene)
     img = _radiance_e(h, radiance)
     if supersample > 1:
