@@ -82,7 +82,7 @@ from fgnav.vision.star_id import solve_lost_in_space
 from fgnav.vision.stars import detect_stars
 
 __all__ = ["REQUIRED_COLUMNS", "FrameEntry", "EpochProducts", "ExtractionResult",
-           "find_frames_index", "read_frames_index", "StarFrameRows", "star_rows_from_frame",
+           "find_frames_index", "read_frames_index", "log_from_products", "StarFrameRows", "star_rows_from_frame",
            "pixel_sigma_to_angle_rad", "attitude_from_star_frame",
            "horizon_from_limb_frame", "fuse_horizons", "earth_direction_eci", "extract_frames"]
 
@@ -141,12 +141,18 @@ class EpochProducts:
 
 @dataclass
 class ExtractionResult:
-    """The log, the per-epoch products, and failures counted per reason."""
+    """The log, the per-epoch products, failures counted per reason, the frame count and
+    the copied prior rows (``(log, row indices)`` or None)."""
 
     log: object
     epochs: list[EpochProducts]
     failures: dict = field(default_factory=dict)
     n_frames: int = 0
+    priors: tuple | None = None
+
+    def log_as(self, rows: str):
+        """The same products as a log in another row mode (:func:`log_from_products`)."""
+        return log_from_products(self.epochs, rows, self.priors, str(self.log.path))
 
     def summary(self) -> dict:
         d = [e.sigma_dir_rad for e in self.epochs if e.sigma_dir_rad is not None]
@@ -399,6 +405,61 @@ def _priors_log(priors_path, index_path: Path):
     return log, np.sort(idx)
 
 
+class _NoRows(UserError):
+    """No row at all (the caller says why)."""
+
+
+def log_from_products(products: list[EpochProducts], rows: str = "eci", priors=None,
+                      path: str = "<extracted>"):
+    """The measurement log of per-epoch front-end products in one row mode (module doc,
+    step 3; ``rows`` one of :data:`ROW_MODES`): one extraction gives the loosely and the
+    tightly coupled logs alike. ``priors``: ``(log, row indices)`` of prior rows to copy."""
+    if rows not in ROW_MODES:
+        raise UserError(f"rows must be one of {ROW_MODES}, got {rows!r}")
+    pri = priors
+    epoch0 = min(p.epoch for p in products)
+    nan = np.nan
+    kinds, ts, xyz, sig, star = [], [], [], [], []
+
+    def add(kind, t64, v, s, s_eci=(nan, nan, nan)):
+        kinds.append(kind)
+        ts.append(float(seconds_since(t64, epoch0)))
+        xyz.append(np.asarray(v, float))
+        sig.append(float(s))
+        star.append(s_eci)
+
+    if pri is not None:
+        plog, idx = pri
+        epoch0 = min(epoch0, plog.epoch0 + np.timedelta64(int(round(plog.t_s[idx].min() * 1e9)), "ns")) \
+            if len(idx) else epoch0
+        for i in idx:
+            add(str(plog.kind[i]), plog.epoch0 + np.timedelta64(int(round(plog.t_s[i] * 1e9)), "ns"),
+                plog.xyz[i], plog.sigma[i])
+    for ep in products:
+        if rows == "eci" and ep.u_eci is not None:
+            add(EARTH_DIRECTION.kind, ep.epoch, ep.u_eci, ep.sigma_dir_rad)
+        if rows != "eci" and ep.u_body is not None and (rows == "raw-stars" or ep.R_eci_from_body is not None):
+            w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
+            add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
+        if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
+            add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
+                math.sqrt(np.max(np.diag(ep.P_att_rad2))))
+        if rows == "raw-stars" and ep.stars is not None:
+            for u, s_eci, sg in zip(ep.stars.u_body, ep.stars.s_eci, ep.stars.sigma_rad):
+                add(STAR_DIRECTION_BODY.kind, ep.epoch, u, sg, tuple(s_eci))
+        if ep.rho_rad is not None:
+            add(LIMB_RADIUS.kind, ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
+    if not kinds:
+        raise _NoRows(f"{path}: no measurement rows")
+    extra = None
+    if rows == "raw-stars":
+        st = np.array(star, float).reshape(-1, 3)
+        extra = {c: st[:, k] for k, c in enumerate(STAR_COLUMNS)}
+    log = log_from_arrays(epoch0, np.array(ts), np.array(kinds, dtype=object), np.array(xyz),
+                          np.array(sig), extra, path=path)
+    return log
+
+
 def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str = "eci",
                    priors=None, seed: int = 0, edge_floor_px: float = 0.0,
                    curvature_correction: bool = True, quiet: bool = True) -> ExtractionResult:
@@ -474,45 +535,9 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
             fail("direction_without_attitude")
         products.append(ep)
 
-    epoch0 = min(p.epoch for p in products)
-    nan = np.nan
-    kinds, ts, xyz, sig, star = [], [], [], [], []
-
-    def add(kind, t64, v, s, s_eci=(nan, nan, nan)):
-        kinds.append(kind)
-        ts.append(float(seconds_since(t64, epoch0)))
-        xyz.append(np.asarray(v, float))
-        sig.append(float(s))
-        star.append(s_eci)
-
-    if pri is not None:
-        plog, idx = pri
-        epoch0 = min(epoch0, plog.epoch0 + np.timedelta64(int(round(plog.t_s[idx].min() * 1e9)), "ns")) \
-            if len(idx) else epoch0
-        for i in idx:
-            add(str(plog.kind[i]), plog.epoch0 + np.timedelta64(int(round(plog.t_s[i] * 1e9)), "ns"),
-                plog.xyz[i], plog.sigma[i])
-    for ep in products:
-        if rows == "eci" and ep.u_eci is not None:
-            add(EARTH_DIRECTION.kind, ep.epoch, ep.u_eci, ep.sigma_dir_rad)
-        if rows != "eci" and ep.u_body is not None and (rows == "raw-stars" or ep.R_eci_from_body is not None):
-            w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
-            add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
-        if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
-            add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
-                math.sqrt(np.max(np.diag(ep.P_att_rad2))))
-        if rows == "raw-stars" and ep.stars is not None:
-            for u, s_eci, sg in zip(ep.stars.u_body, ep.stars.s_eci, ep.stars.sigma_rad):
-                add(STAR_DIRECTION_BODY.kind, ep.epoch, u, sg, tuple(s_eci))
-        if ep.rho_rad is not None:
-            add(LIMB_RADIUS.kind, ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
-    if not kinds:
+    try:
+        log = log_from_products(products, rows, pri, str(index_path))
+    except _NoRows:
         raise UserError(f"{index_path}: no measurement could be extracted from {len(entries)} frames "
-                        f"(failures: {failures})")
-    extra = None
-    if rows == "raw-stars":
-        st = np.array(star, float).reshape(-1, 3)
-        extra = {c: st[:, k] for k, c in enumerate(STAR_COLUMNS)}
-    log = log_from_arrays(epoch0, np.array(ts), np.array(kinds, dtype=object), np.array(xyz),
-                          np.array(sig), extra, path=str(index_path))
-    return ExtractionResult(log, products, failures, len(entries))
+                        f"(failures: {failures})") from None
+    return ExtractionResult(log, products, failures, len(entries), pri)
