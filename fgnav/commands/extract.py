@@ -15,7 +15,8 @@ angular radius). Written rows (CSV v1, see fgnav.io.log_csv):
   limb_radius      rho (rad), R_limb (m), sigma_rho (rad)
   (--rows body: earth_direction_body + attitude rows instead of earth_direction)
   (--raw-stars: every identified star as a star_direction_body row -- star_x, star_y,
-   star_z its catalogue unit vector, sigma its centroid 1-sigma in rad per tangent axis --
+   star_z its catalogue unit vector, sigma its centroid 1-sigma (scaled by the frame
+   fit's a-posteriori variance factor) in rad per tangent axis --
    plus earth_direction_body rows, instead of one solved attitude; solve with
    `fgnav smooth --estimate attitude`)
   prior_position / prior_velocity copied from --priors (default: measurements.csv beside
