@@ -1,8 +1,8 @@
 #!/usr/bin/env python
 """Consistency of the image route over seeds: simulate -> render -> extract -> smooth.
 
-    PYTHONPATH=$PWD python scripts/study_image_nees.py [--seeds 10] [--duration-h 2]
-                                                      [--step-s 120] [--out study.json]
+    PYTHONPATH=$PWD python scripts/study_image_nees.py [--seeds 10] [--first 0] [--duration-h 2]
+        [--step-s 120] [--runs-dir DIR] [--summarize] [--out study.json]
 
 Per seed: ``fgnav simulate geo-limb --images`` (truth from the DOP853 integrator), ONE
 extraction of the frames (:func:`fgnav.extract.extract_frames`), written as three logs of
@@ -100,23 +100,53 @@ def summarize(runs: list[dict]) -> dict:
                               "se": float(z.std() / np.sqrt(len(z))), "std": float(z.std())}}
 
 
-def study(seeds, duration_h: float, step_s: float) -> dict:
+def study(seeds, duration_h: float, step_s: float, runs_dir: Path | None = None) -> dict:
+    """Run the seeds (each run also written to ``runs_dir/seed<k>.json`` when given) and
+    summarize them together with any other runs already in ``runs_dir`` (so seeds can be
+    split over processes: ``--first``/``--seeds`` per process, then ``--summarize``)."""
     with tempfile.TemporaryDirectory(prefix="fgnav-image-nees-") as td:
-        runs = [run_seed(s, duration_h, step_s, Path(td)) for s in seeds]
+        runs = []
+        for s in seeds:
+            runs.append(run_seed(s, duration_h, step_s, Path(td)))
+            if runs_dir is not None:
+                Path(runs_dir).mkdir(parents=True, exist_ok=True)
+                (Path(runs_dir) / f"seed{s}.json").write_text(json.dumps(runs[-1]))
+    if runs_dir is not None:
+        runs = load_runs(runs_dir)
     out = summarize(runs)
-    out.update(scenario="geo-limb", duration_h=duration_h, step_s=step_s, seeds=list(seeds))
+    out.update(scenario="geo-limb", duration_h=duration_h, step_s=step_s,
+               seeds=[r["seed"] for r in runs])
     return out
+
+
+def load_runs(runs_dir) -> list[dict]:
+    """The runs written by :func:`study` into ``runs_dir``, by seed."""
+    runs = [json.loads(p.read_text()) for p in Path(runs_dir).glob("seed*.json")]
+    return sorted(runs, key=lambda r: r["seed"])
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=int, default=10, help="number of seeds (0..N-1; default 10)")
+    ap.add_argument("--seeds", type=int, default=10, help="number of seeds (default 10)")
+    ap.add_argument("--first", type=int, default=0, help="first seed (default 0)")
+    ap.add_argument("--runs-dir", help="also keep each run as DIR/seed<k>.json and summarize "
+                                       "every run found there")
+    ap.add_argument("--summarize", action="store_true",
+                    help="run nothing: summarize the runs in --runs-dir")
     ap.add_argument("--duration-h", type=float, default=2.0, help="pass length (h; default 2)")
     ap.add_argument("--step-s", type=float, default=120.0, help="image period (s; default 120)")
     ap.add_argument("--out", help="also write the JSON object to this file")
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
-    out = study(range(args.seeds), args.duration_h, args.step_s)
+    if args.summarize:
+        if not args.runs_dir:
+            ap.error("--summarize needs --runs-dir")
+        runs = load_runs(args.runs_dir)
+        out = summarize(runs)
+        out.update(scenario="geo-limb", seeds=[r["seed"] for r in runs])
+    else:
+        out = study(range(args.first, args.first + args.seeds), args.duration_h, args.step_s,
+                    Path(args.runs_dir) if args.runs_dir else None)
     out["wall_s"] = time.perf_counter() - t0
     text = json.dumps(out, indent=1)
     if args.out:
