@@ -3,7 +3,11 @@
 the DOP853 integrator), ANEES of the 6-D orbit state at the middle and the final epoch
 against the 95 % chi-square band, for the eci and the tightly coupled (raw stars, attitude
 in the graph) logs; the loosely coupled log (one ``attitude`` row per frame, whose single
-sigma is the frame's roll sigma) is only required not to be overconfident."""
+sigma is the frame's roll sigma) is only required not to be overconfident.
+
+Measured (seeds 0-9, band 4.05-8.33): ANEES eci 4.79, tight 6.52, loose 3.00 (pessimistic:
+its sigma 130 m against an 87 m RMS); position RMS 85 / 83 / 87 m; pooled limb-radius error
+-0.106 +- 0.040 of its sigma over 610 frames (the edge locator's remaining -1.7e-4 px)."""
 
 from __future__ import annotations
 
