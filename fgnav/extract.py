@@ -37,6 +37,13 @@ Per epoch:
    ``rows="body"``: ``earth_direction_body`` (largest eigenvalue of ``C_u``) and
    ``attitude`` rows (rotation vector of ``R_eci_from_body``, sigma = the largest per-axis
    sigma of ``P_att``) instead of the ECI direction.
+   With ``rows="raw-stars"`` (tight coupling): every identified star of the star frame
+   becomes a ``star_direction_body`` row (x, y, z = its measured direction, body frame;
+   star_x, star_y, star_z = its catalogue unit vector; sigma = the centroid 1-sigma scaled
+   by the frame fit's a-posteriori variance factor, :func:`star_sigma_px`, mapped to
+   angles, :func:`pixel_sigma_to_angle_rad`) instead of one solved attitude, and the
+   limb gives ``earth_direction_body`` rows, also at epochs whose star field failed (the
+   graph's attitude random walk carries the attitude there).
    ``edge_floor_px`` adds ``(edge_floor_px / f_px)^2`` to the direction and rho variances: a
    floor for the limb edge locator's systematic error (a few 1e-3 px, inward, growing with
    the PSF width -- the per-frame covariance of the horizon fit does not contain it).
@@ -63,8 +70,10 @@ from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import log_from_arrays, read_log
 from fgnav.io.text import read_utf8_text
+from fgnav.io.log_csv import STAR_COLUMNS
 from fgnav.models.registry import (ATTITUDE, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LIMB_RADIUS,
-                                   PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds)
+                                   PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
+                                   prior_kinds)
 from fgnav.orbit import integrate_truth
 from fgnav.progress import progress
 from fgnav.time import format_utc, j2000_seconds, parse_utc, seconds_since
@@ -77,13 +86,14 @@ from fgnav.vision.star_id import solve_lost_in_space
 from fgnav.vision.stars import detect_stars
 
 __all__ = ["REQUIRED_COLUMNS", "FrameEntry", "EpochProducts", "ExtractionResult",
-           "find_frames_index", "read_frames_index", "attitude_from_star_frame",
+           "find_frames_index", "read_frames_index", "log_from_products", "StarFrameRows", "star_rows_from_frame",
+           "pixel_sigma_to_angle_rad", "star_sigma_px", "attitude_from_star_frame",
            "horizon_from_limb_frame", "fuse_horizons", "earth_direction_eci", "extract_frames"]
 
 REQUIRED_COLUMNS = ("epoch", "file", "camera", "focal_mm", "pixel_um", "width_px", "height_px",
                     "cx_px", "cy_px", "field_radius_px", "q_body_from_cam_w", "q_body_from_cam_x",
                     "q_body_from_cam_y", "q_body_from_cam_z", "r_limb_m")
-ROW_MODES = ("eci", "body")
+ROW_MODES = ("eci", "body", "raw-stars")
 
 
 @dataclass
@@ -113,7 +123,8 @@ class EpochProducts:
 
     R_eci_from_body / P_att_rad2 (None without a star solution); u_body, C_u_body_rad2
     (3x3, rank 2), rho_rad, sigma_rho_rad (None without a limb fix); u_eci, C_eci_rad2
-    (2x2 on tangent_basis(u_eci)), sigma_dir_rad (isotropic, row sigma); star/limb details.
+    (2x2 on tangent_basis(u_eci)), sigma_dir_rad (isotropic, row sigma); star/limb details;
+    stars: the identified stars of the star frame (:class:`StarFrameRows`).
     """
 
     epoch: np.datetime64
@@ -129,16 +140,23 @@ class EpochProducts:
     u_eci: np.ndarray | None = None
     C_eci_rad2: np.ndarray | None = None
     sigma_dir_rad: float | None = None
+    stars: "StarFrameRows | None" = None
 
 
 @dataclass
 class ExtractionResult:
-    """The log, the per-epoch products, and failures counted per reason."""
+    """The log, the per-epoch products, failures counted per reason, the frame count and
+    the copied prior rows (``(log, row indices)`` or None)."""
 
     log: object
     epochs: list[EpochProducts]
     failures: dict = field(default_factory=dict)
     n_frames: int = 0
+    priors: tuple | None = None
+
+    def log_as(self, rows: str):
+        """The same products as a log in another row mode (:func:`log_from_products`)."""
+        return log_from_products(self.epochs, rows, self.priors, str(self.log.path))
 
     def summary(self) -> dict:
         d = [e.sigma_dir_rad for e in self.epochs if e.sigma_dir_rad is not None]
@@ -262,16 +280,96 @@ def _load_image(e: FrameEntry) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------ front ends
-def attitude_from_star_frame(img: np.ndarray, e: FrameEntry, epoch_year: float,
-                             v_observer_bcrs_mps=None):
-    """(R_eci_from_body, P_att_rad2 (body frame, right perturbation), matched stars);
+@dataclass
+class StarFrameRows:
+    """The identified stars of one star frame, as ``star_direction_body`` rows.
+
+    u_body (m, 3): measured unit directions, body frame; s_eci (m, 3): their catalogue unit
+    vectors (EME2000, catalogue place with proper motion to the frame's epoch); sigma_rad
+    (m,): 1-sigma per tangent axis (rad); uv_px (m, 2): the centroids; R_eci_from_body,
+    P_att_rad2: the frame's own attitude solution (lost-in-space refinement) and its
+    covariance (body frame, right perturbation, rad^2).
+    """
+
+    u_body: np.ndarray
+    s_eci: np.ndarray
+    sigma_rad: np.ndarray
+    uv_px: np.ndarray
+    R_eci_from_body: np.ndarray
+    P_att_rad2: np.ndarray
+
+    @property
+    def matched(self) -> int:
+        return len(self.sigma_rad)
+
+
+def pixel_sigma_to_angle_rad(camera: PinholeCamera, uv_px: np.ndarray, sigma_px) -> np.ndarray:
+    """Isotropic centroid 1-sigma (px) -> 1-sigma per tangent axis of the ray (rad).
+
+    The ray ``s(u, v) = camera.pixel_to_ray`` maps the centroid covariance ``sigma_px^2 I``
+    to ``sigma_px^2 J J^T`` on the tangent plane (``J`` = 2x2 Jacobian of the tangent-plane
+    coordinates of ``s`` with respect to (u, v), central differences of 0.5 px); the row
+    carries the square root of its largest eigenvalue (for a pinhole: ``sigma_px cos(a) /
+    f_px`` across and ``sigma_px cos^2(a) / f_px`` along the radial direction at an angle
+    ``a`` off the boresight), so it never claims more than the centroid gives.
+    """
+    uv = np.asarray(uv_px, float).reshape(-1, 2)
+    s0 = camera.pixel_to_ray(uv)
+    B = tangent_basis(s0)                                           # (m, 2, 3)
+    J = np.empty((len(uv), 2, 2))
+    for k in range(2):
+        d = np.zeros(2)
+        d[k] = 0.5
+        ds = camera.pixel_to_ray(uv + d) - camera.pixel_to_ray(uv - d)
+        J[:, :, k] = np.einsum("nij,nj->ni", B, ds)
+    lam = np.linalg.eigvalsh(J @ np.swapaxes(J, 1, 2))[:, -1]
+    return np.broadcast_to(np.asarray(sigma_px, float), (len(uv),)) * np.sqrt(lam)
+
+
+def star_sigma_px(sol, sigma_px: np.ndarray) -> np.ndarray:
+    """Centroid 1-sigma (px) of the identified stars of a frame, scaled by the a-posteriori
+    variance factor of the frame's own attitude fit (Mikhail & Ackermann 1976, "Observations
+    and least squares", ch. 4): ``s0^2 = sum |r_i|^2 / sigma_i^2 / (2 m - p)`` over its m
+    stars' pixel residuals ``r_i``, ``p`` = 4 fitted parameters (attitude, focal length; 5
+    with k1). The detector's per-star sigma (background MAD, clipped weights, a 0.02 px
+    floor) is a relative weight, not a calibrated noise: on simulated GEO frames its
+    squared normalized errors average 0.4 per axis; the residuals of the frame calibrate it,
+    exactly as the solved attitude's covariance (the loose route) already is."""
+    sig = np.asarray(sigma_px, float)
+    r = np.asarray(sol.residuals_px, float)
+    p = 4 + (sol.camera.k1 != 0.0)
+    dof = 2 * len(sig) - p
+    if dof < 1:
+        return sig
+    return sig * math.sqrt(float(np.sum(r * r / sig[:, None] ** 2)) / dof)
+
+
+def star_rows_from_frame(img: np.ndarray, e: FrameEntry, epoch_year: float,
+                         v_observer_bcrs_mps=None) -> StarFrameRows:
+    """Detect, identify (lost in space) and convert the stars of one star frame
+    (:class:`StarFrameRows`). The measured directions use the camera the identification
+    fitted (focal length refined on the frame's own stars); the per-star sigma is the
+    detector's centroid 1-sigma scaled by the fit's a-posteriori variance factor
+    (:func:`star_sigma_px`) and mapped to angles (:func:`pixel_sigma_to_angle_rad`).
     ``v_observer_bcrs_mps`` (3,) m/s: the camera's barycentric velocity, for the stars'
     apparent directions (:func:`fgnav.vision.star_id.solve_lost_in_space`)."""
     det = detect_stars(img)
     sol = solve_lost_in_space(det.uv_px, e.camera, sigma_px=det.sigma_px, epoch_year=epoch_year,
                               v_observer_bcrs_mps=v_observer_bcrs_mps)
     Rbc = e.R_body_from_cam
-    return sol.R_eci_from_camera @ Rbc.T, Rbc @ sol.cov_theta_rad2 @ Rbc.T, sol.matched
+    uv = det.uv_px[sol.det_index]
+    u_body = sol.camera.pixel_to_ray(uv) @ Rbc.T
+    sig = pixel_sigma_to_angle_rad(sol.camera, uv, star_sigma_px(sol, det.sigma_px[sol.det_index]))
+    return StarFrameRows(u_body, np.asarray(sol.cat_u_eci, float), sig, uv,
+                         sol.R_eci_from_camera @ Rbc.T, Rbc @ sol.cov_theta_rad2 @ Rbc.T)
+
+
+def attitude_from_star_frame(img: np.ndarray, e: FrameEntry, epoch_year: float,
+                             v_observer_bcrs_mps=None):
+    """(R_eci_from_body, P_att_rad2 (body frame, right perturbation), matched stars)
+    (:func:`star_rows_from_frame`)."""
+    st = star_rows_from_frame(img, e, epoch_year, v_observer_bcrs_mps)
+    return st.R_eci_from_body, st.P_att_rad2, st.matched
 
 
 def horizon_from_limb_frame(img: np.ndarray, e: FrameEntry, method: str, seed,
@@ -358,13 +456,68 @@ def _prior_velocities(pri, epochs) -> np.ndarray | None:
     return None
 
 
+class _NoRows(UserError):
+    """No row at all (the caller says why)."""
+
+
+def log_from_products(products: list[EpochProducts], rows: str = "eci", priors=None,
+                      path: str = "<extracted>"):
+    """The measurement log of per-epoch front-end products in one row mode (module doc,
+    step 3; ``rows`` one of :data:`ROW_MODES`): one extraction gives the loosely and the
+    tightly coupled logs alike. ``priors``: ``(log, row indices)`` of prior rows to copy."""
+    if rows not in ROW_MODES:
+        raise UserError(f"rows must be one of {ROW_MODES}, got {rows!r}")
+    pri = priors
+    epoch0 = min(p.epoch for p in products)
+    nan = np.nan
+    kinds, ts, xyz, sig, star = [], [], [], [], []
+
+    def add(kind, t64, v, s, s_eci=(nan, nan, nan)):
+        kinds.append(kind)
+        ts.append(float(seconds_since(t64, epoch0)))
+        xyz.append(np.asarray(v, float))
+        sig.append(float(s))
+        star.append(s_eci)
+
+    if pri is not None:
+        plog, idx = pri
+        epoch0 = min(epoch0, plog.epoch0 + np.timedelta64(int(round(plog.t_s[idx].min() * 1e9)), "ns")) \
+            if len(idx) else epoch0
+        for i in idx:
+            add(str(plog.kind[i]), plog.epoch0 + np.timedelta64(int(round(plog.t_s[i] * 1e9)), "ns"),
+                plog.xyz[i], plog.sigma[i])
+    for ep in products:
+        if rows == "eci" and ep.u_eci is not None:
+            add(EARTH_DIRECTION.kind, ep.epoch, ep.u_eci, ep.sigma_dir_rad)
+        if rows != "eci" and ep.u_body is not None and (rows == "raw-stars" or ep.R_eci_from_body is not None):
+            w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
+            add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
+        if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
+            add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
+                math.sqrt(np.max(np.diag(ep.P_att_rad2))))
+        if rows == "raw-stars" and ep.stars is not None:
+            for u, s_eci, sg in zip(ep.stars.u_body, ep.stars.s_eci, ep.stars.sigma_rad):
+                add(STAR_DIRECTION_BODY.kind, ep.epoch, u, sg, tuple(s_eci))
+        if ep.rho_rad is not None:
+            add(LIMB_RADIUS.kind, ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
+    if not kinds:
+        raise _NoRows(f"{path}: no measurement rows")
+    extra = None
+    if rows == "raw-stars":
+        st = np.array(star, float).reshape(-1, 3)
+        extra = {c: st[:, k] for k, c in enumerate(STAR_COLUMNS)}
+    log = log_from_arrays(epoch0, np.array(ts), np.array(kinds, dtype=object), np.array(xyz),
+                          np.array(sig), extra, path=path)
+    return log
+
+
 def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str = "eci",
                    priors=None, seed: int = 0, edge_floor_px: float = 0.0,
                    curvature_correction: bool = True, quiet: bool = True) -> ExtractionResult:
     """Run the front end over every frame of a ``frames.csv`` index (module doc).
 
     method : horizon estimator (``ellipse`` | ``christian-robinson``); rows : ``eci`` |
-    ``body``; priors : measurement log to copy the prior rows from (default
+    ``body`` | ``raw-stars`` (module doc, step 3); priors : measurement log to copy the prior rows from (default
     ``measurements.csv`` beside ``frames.csv``, if present); seed : RANSAC seed (limb frame j
     of epoch k uses ``default_rng([seed, k, j])``); edge_floor_px : limb-edge systematic floor (px);
     curvature_correction : apply the edge-curvature correction (module doc, step 2).
@@ -403,8 +556,9 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
         if stars:
             img = _load_image(stars[0])
             try:
-                ep.R_eci_from_body, ep.P_att_rad2, ep.stars_matched = attitude_from_star_frame(
-                    img, stars[0], epoch_year, v_obs[k])
+                ep.stars = star_rows_from_frame(img, stars[0], epoch_year, v_obs[k])
+                ep.R_eci_from_body, ep.P_att_rad2 = ep.stars.R_eci_from_body, ep.stars.P_att_rad2
+                ep.stars_matched = ep.stars.matched
             except UserError:
                 fail("star_identification")
         fixes = []
@@ -436,40 +590,13 @@ def extract_frames(frames_path, *, method: str = "christian-robinson", rows: str
             ep.u_eci, ep.C_eci_rad2 = earth_direction_eci(ep.R_eci_from_body, ep.P_att_rad2,
                                                           ep.u_body, ep.C_u_body_rad2)
             ep.sigma_dir_rad = float(math.sqrt(np.linalg.eigvalsh(ep.C_eci_rad2)[-1]))
-        elif ep.u_body is not None:
+        elif ep.u_body is not None and rows != "raw-stars":
             fail("direction_without_attitude")
         products.append(ep)
 
-    epoch0 = min(p.epoch for p in products)
-    kinds, ts, xyz, sig = [], [], [], []
-
-    def add(kind, t64, v, s):
-        kinds.append(kind)
-        ts.append(float(seconds_since(t64, epoch0)))
-        xyz.append(np.asarray(v, float))
-        sig.append(float(s))
-
-    if pri is not None:
-        plog, idx = pri
-        epoch0 = min(epoch0, plog.epoch0 + np.timedelta64(int(round(plog.t_s[idx].min() * 1e9)), "ns")) \
-            if len(idx) else epoch0
-        for i in idx:
-            add(str(plog.kind[i]), plog.epoch0 + np.timedelta64(int(round(plog.t_s[i] * 1e9)), "ns"),
-                plog.xyz[i], plog.sigma[i])
-    nan = np.nan
-    for ep in products:
-        if rows == "eci" and ep.u_eci is not None:
-            add(EARTH_DIRECTION.kind, ep.epoch, ep.u_eci, ep.sigma_dir_rad)
-        if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
-            w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
-            add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
-            add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
-                math.sqrt(np.max(np.diag(ep.P_att_rad2))))
-        if ep.rho_rad is not None:
-            add(LIMB_RADIUS.kind, ep.epoch, [ep.rho_rad, ep.r_limb_m, nan], ep.sigma_rho_rad)
-    if not kinds:
+    try:
+        log = log_from_products(products, rows, pri, str(index_path))
+    except _NoRows:
         raise UserError(f"{index_path}: no measurement could be extracted from {len(entries)} frames "
-                        f"(failures: {failures})")
-    log = log_from_arrays(epoch0, np.array(ts), np.array(kinds, dtype=object), np.array(xyz),
-                          np.array(sig), path=str(index_path))
-    return ExtractionResult(log, products, failures, len(entries))
+                        f"(failures: {failures})") from None
+    return ExtractionResult(log, products, failures, len(entries), pri)

@@ -35,6 +35,13 @@ a98a318``) every process case also runs the same command in that tree in the sam
 interleaved, and reports both figures and their ratio. ``--quick``: 241, 1,441 and 5,000
 epochs.
 
+Image simulation (``images``): ``fgnav simulate geo-limb --images`` (the default image
+pass) as a subprocess: wall and CPU (user + system) seconds, frames and their size on disk
+(MB, 1e6 bytes), beside :data:`IMAGES_BEFORE`, the same command measured on the code before
+the image pass was sized. The time target is on the CPU seconds: the renderer is one thread,
+so they are the wall time of an idle machine, and stay meaningful on a shared one. ``--quick`` renders a 30 min pass instead. Skip it
+with ``--cases`` (any list without ``images``).
+
 ``--quick`` (CI smoke, < 60 s): short passes, one run per case.
 """
 
@@ -92,9 +99,16 @@ TARGETS = {  # the speed targets the project set itself
     "batch_att_4h": {"att_ratio_max": 2.5},   # solver time / batch_4h's, same run
     "isam2_att_4h": {"latency_p50_s_max": 2e-3, "latency_p99_s_max": 10e-3},
     "cold_start": {"help_s_max": 1.0, "demo_second_run_recompiled_max": 0},
+    "images": {"cpu_s_max": 90.0, "frames_mb_max": 200.0},
 }
 STEP_S = 1.0
 LAG_S = 300.0
+IMAGES_BEFORE = {"wall_s": 621.0, "cpu_s": 198.9, "frames": 1442, "frames_mb": 1295.0,
+                 "epochs": 721, "commit": "a98a318", "load_average": 7.0}
+"""``fgnav simulate geo-limb --images`` before the image pass was sized (every 60 s epoch
+rendered, commit a98a318), measured on the development machine (2 cores shared by other
+jobs, load ~7: it got 32 % of a core, so ``cpu_s`` -- user + system -- is the figure that
+carries over to an idle machine)."""
 
 
 # ----------------------------------------------------------------------------- worker
@@ -427,6 +441,29 @@ def _states_identical(a: Path, b: Path) -> bool:
         return [line for line in path.read_text().splitlines()
                 if not line.startswith(("CREATION_DATE", "COMMENT"))]
     return body(a) == body(b)
+def images_case(quick: bool, tmp: Path) -> dict:
+    """Wall time and size on disk of the default image pass (module doc)."""
+    out_dir = tmp / "images"
+    cmd = [sys.executable, "-m", "fgnav", "simulate", "geo-limb", "--out", str(out_dir), "--images",
+           "--quiet"]   # from the checkout (cwd), as the estimator workers
+    if quick:
+        cmd += ["--duration-h", "0.5"]
+    import resource
+
+    t0 = time.perf_counter()
+    c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=str(ROOT))
+    wall = time.perf_counter() - t0
+    c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
+    if r.returncode != 0:
+        return {"error": (r.stderr or r.stdout).strip()[-500:]}
+    files = list((out_dir / "frames").iterdir())
+    out = {"command": " ".join(cmd[cmd.index("simulate"):]), "wall_s": wall, "cpu_s": cpu,
+           "load_average": os.getloadavg()[0], "frames": len(files),
+           "frames_mb": sum(f.stat().st_size for f in files) / 1e6, "before": IMAGES_BEFORE}
+    shutil.rmtree(out_dir, ignore_errors=True)
+    return out
 
 
 def machine() -> dict:
@@ -465,12 +502,12 @@ def main(argv=None) -> int:
     if args.isam2_hours is not None:
         cases["isam2_4h"] = ("isam2", args.isam2_hours)
         cases["isam2_att_4h"] = ("isam2", args.isam2_hours, "att")
-    wanted = (set(args.cases.split(",")) if args.cases
-              else set(cases) | {"cold_start"} | set(PROCESS_CASES))
-    unknown = wanted - set(cases) - {"cold_start"} - set(PROCESS_CASES)
+    special = {"cold_start", "images"} | set(PROCESS_CASES)   # their own functions below
+    wanted = set(args.cases.split(",")) if args.cases else set(cases) | special
+    unknown = wanted - set(cases) - special
     if unknown:
         ap.error(f"unknown case(s) {sorted(unknown)}; choose from "
-                 f"{sorted(cases) + sorted(PROCESS_CASES)} and cold_start")
+                 f"{sorted(cases) + sorted(special)}")
     repeat = args.repeat or (1 if args.quick else 3)
     result: dict = {"mode": "quick" if args.quick else "full", "repeat": repeat, "seed": args.seed,
                     "scenario": "gto-transfer (Pan & Yao 2017), earth_direction 0.01 deg at 1 Hz",
@@ -519,6 +556,10 @@ def main(argv=None) -> int:
             cs = cold_start(args.quick, tmp)
             check_targets("cold_start", cs)
             result["cases"]["cold_start"] = cs
+        if "images" in wanted:
+            im = images_case(args.quick, tmp)
+            check_targets("images", im)
+            result["cases"]["images"] = im
     result["all_targets_met"] = all(c.get("meets_targets", True) for c in result["cases"].values())
     result["bench_wall_s"] = time.perf_counter() - t_all
     text = json.dumps(result, indent=1, sort_keys=False)

@@ -44,6 +44,10 @@ def test_bench_quick_prints_one_json_object():
     assert all(run["returncode"] == 0 for run in cs["demo_runs"])
     assert cs["help_imports_heavy"] == []   # fgnav --help imports no numpy/gtsam/cv2/numba
     assert out["batch_cost_growth"] > 0
+    im = cases["images"]
+    assert "error" not in im, im
+    assert im["frames"] == 62 and 0 < im["frames_mb"] < 200 and im["wall_s"] > 0  # 31 epochs x 2
+    assert im["before"]["frames_mb"] > 1000 and "meets_targets" in im
     for name, base in (("batch_att_4h", "batch_4h"), ("isam2_att_4h", "isam2_4h")):
         c = cases[name]
         assert "error" not in c, (name, c)

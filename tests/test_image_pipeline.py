@@ -264,3 +264,22 @@ def test_attitude_csv_round_trips_and_its_covariance_is_credible(pass_dir, tmp_p
         nees.append(w @ np.linalg.solve(Pi, w))
     assert np.max(np.degrees(np.sqrt(np.diagonal(P, axis1=1, axis2=2)))) < 0.01  # arc-second class
     assert 0.5 < np.mean(nees) / 3 < 2.0  # 3-dof NEES near 3 over 31 frames
+
+
+def test_default_image_period_bounds_the_pass():
+    """Without --image-period-s a pass renders at most DEFAULT_MAX_IMAGE_EPOCHS epochs, on
+    the measurement grid: geo-limb (12 h at 60 s, 721 epochs) every 480 s (91 epochs, each
+    a measurement epoch); a short pass keeps every epoch; an explicit period wins."""
+    from fgnav.scenarios import load_scenario
+    from fgnav.simulate.images import DEFAULT_MAX_IMAGE_EPOCHS, default_image_period_s, frame_epochs
+    from fgnav.simulate.pass_sim import sensor_epochs
+
+    scn = load_scenario("geo-limb")
+    t = frame_epochs(scn, None)
+    assert default_image_period_s(scn) == 480.0 and len(t) == 91 <= DEFAULT_MAX_IMAGE_EPOCHS
+    assert np.all(np.isin(t, sensor_epochs(scn, None))) and t[-1] == 12 * 3600.0
+    short = scn.with_options(duration_h=1.0, step_s=120.0)
+    assert len(frame_epochs(short, None)) == 31 == len(sensor_epochs(short, None))
+    assert len(frame_epochs(scn, 60.0)) == 721
+    with pytest.raises(UserError, match="image period"):
+        frame_epochs(scn, 0.0)

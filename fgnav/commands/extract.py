@@ -14,6 +14,11 @@ angular radius). Written rows (CSV v1, see fgnav.io.log_csv):
                    eigenvalue of its tangent-plane covariance, attitude error folded in
   limb_radius      rho (rad), R_limb (m), sigma_rho (rad)
   (--rows body: earth_direction_body + attitude rows instead of earth_direction)
+  (--raw-stars: every identified star as a star_direction_body row -- star_x, star_y,
+   star_z its catalogue unit vector, sigma its centroid 1-sigma (scaled by the frame
+   fit's a-posteriori variance factor) in rad per tangent axis --
+   plus earth_direction_body rows, instead of one solved attitude; solve with
+   `fgnav smooth --estimate attitude`)
   prior_position / prior_velocity copied from --priors (default: measurements.csv beside
   frames.csv, when present).
 --json prints one object: frames, epochs, rows (per kind), failures (per reason),
@@ -30,9 +35,13 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="output measurement log (.csv, v1 format)")
     p.add_argument("--method", choices=("ellipse", "christian-robinson"), default="christian-robinson",
                    help="horizon estimator (default: christian-robinson)")
-    p.add_argument("--rows", choices=("eci", "body"), default="eci",
+    p.add_argument("--rows", choices=("eci", "body"), default=None,
                    help="eci: earth_direction rows with the attitude error folded in (default); "
                         "body: earth_direction_body + attitude rows")
+    p.add_argument("--raw-stars", action="store_true",
+                   help="tight coupling: the identified stars of each star frame as "
+                        "star_direction_body rows (and earth_direction_body rows) instead of "
+                        "one solved attitude")
     p.add_argument("--priors", metavar="LOG", help="measurement log whose prior rows are copied "
                                                    "(default: measurements.csv beside frames.csv)")
     p.add_argument("--edge-floor-px", type=T.number(0.0, unit="px"), default=0.0,
@@ -56,7 +65,13 @@ def run(args) -> int:
     from fgnav.extract import extract_frames
     from fgnav.io.log_csv import write_log
 
-    res = extract_frames(args.frames, method=args.method, rows=args.rows, priors=args.priors,
+    from fgnav.errors import UserError
+
+    if args.raw_stars and args.rows is not None:
+        raise UserError(f"--raw-stars writes star_direction_body and earth_direction_body rows; "
+                        f"it cannot be combined with --rows {args.rows}")
+    rows = "raw-stars" if args.raw_stars else (args.rows or "eci")
+    res = extract_frames(args.frames, method=args.method, rows=rows, priors=args.priors,
                          seed=args.seed, edge_floor_px=args.edge_floor_px,
                          curvature_correction=not args.no_curvature_correction,
                          quiet=args.quiet or args.json)
@@ -64,7 +79,7 @@ def run(args) -> int:
     if out.parent and not out.parent.exists():
         out.parent.mkdir(parents=True, exist_ok=True)
     write_log(out, res.log, comments=(f"fgnav extract {args.frames}: method {args.method}, "
-                                      f"rows {args.rows}, seed {args.seed}",))
+                                      f"rows {rows}, seed {args.seed}",))
     s = res.summary()
     s["out"] = str(out)
     if args.attitude_out:

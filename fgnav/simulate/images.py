@@ -54,7 +54,8 @@ from fgnav.vision.catalogue import decimal_year, load_catalogue
 from fgnav.vision.sensor import confocal_limb_subapertures
 
 __all__ = ["ImageConfig", "FrameRecord", "FRAME_COLUMNS", "STAR_FIELD_1024_CAMERA",
-           "earth_pointing_attitude", "limb_in_field", "frame_epochs", "render_pass_frames",
+           "earth_pointing_attitude", "limb_in_field", "frame_epochs", "default_image_period_s",
+           "DEFAULT_MAX_IMAGE_EPOCHS", "render_pass_frames",
            "write_frames_index", "ideal_log_like"]
 
 STAR_FIELD_1024_CAMERA = PinholeCamera(focal_mm=50.0, pixel_um=11.0, width_px=1024, height_px=1024)
@@ -81,7 +82,8 @@ class ImageConfig:
     star_camera : star-field camera (body frame = its frame, R_body_from_cam = I);
     point_limb : index of the limb sub-aperture put on the Earth's centre;
     margin_deg : required clearance of the limb circle inside the field stop (deg);
-    period_s : image period (s; default the scenario's step);
+    period_s : image period (s; default :func:`default_image_period_s`, the scenario's step
+    thinned to at most :data:`DEFAULT_MAX_IMAGE_EPOCHS` epochs);
     vmag_max : faintest star rendered; r_limb_m : limb sphere radius (default: the
     scenario's limb sensor, else 6,375 km); star_flux_v0_e : electrons of a V = 0 star.
     """
@@ -154,11 +156,27 @@ def limb_in_field(u_cam: np.ndarray, rho_rad: float, half_field_rad: float, marg
     return theta + rho_rad <= half_field_rad - margin_rad
 
 
+DEFAULT_MAX_IMAGE_EPOCHS = 100
+"""Image epochs of a pass when no image period is given (:func:`frame_epochs`): at ~1.8 MB
+and ~0.3 s per epoch (a 1024x1024 star frame and an 891x891 limb frame, 16-bit PNG of
+shot/read noise, which no lossless coder packs below ~6 and ~4 bits a pixel) this bounds a
+default pass to ~180 MB and well under 90 s, whatever its length."""
+
+
+def default_image_period_s(scenario, max_epochs: int = DEFAULT_MAX_IMAGE_EPOCHS) -> float:
+    """The scenario step times the smallest integer ``m`` for which the pass has at most
+    ``max_epochs`` image epochs (``m = 1`` for a short pass: every measurement epoch)."""
+    n = len(sensor_epochs(scenario, None))
+    return float(scenario.step_s) * max(1, math.ceil((n - 1) / (max_epochs - 1)))
+
+
 def frame_epochs(scenario, period_s: float | None) -> np.ndarray:
-    """Image epochs (s from the pass epoch): every ``period_s`` (default the scenario step)."""
+    """Image epochs (s from the pass epoch): every ``period_s`` (default
+    :func:`default_image_period_s`: the scenario step, thinned to at most
+    :data:`DEFAULT_MAX_IMAGE_EPOCHS` epochs)."""
     if period_s is not None and not period_s > 0:
         raise UserError(f"image period must be > 0 s, got {period_s}")
-    return sensor_epochs(scenario, period_s)
+    return sensor_epochs(scenario, default_image_period_s(scenario) if period_s is None else period_s)
 
 
 def _r_limb_of(scenario, cfg: ImageConfig) -> float:
