@@ -83,6 +83,17 @@ def run(args) -> int:
                 {"refraction_bias_m": sim.truth_params["refraction_bias_m"]},
                 comments=(f"scenario {scn.name}, seed {args.seed}: the real atmosphere's "
                           "tangent-height shift against the refraction model, m",))
+        if any(str(k).endswith("_body") for k in set(sim.log.kind)):
+            from factors.geometry import so3_log
+            from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
+                                               write_truth_params_csv)
+
+            written.append(out / TRUTH_ATTITUDE_CSV)
+            w = so3_log(sim.truth_attitude())
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s, dict(zip(TRUTH_ATTITUDE_COLUMNS, w.T)),
+                comments=(f"scenario {scn.name}, seed {args.seed}: the attitude plan's "
+                          "R_eci_from_body (body-frame rows refer to it) as a rotation vector, rad",))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     if not args.quiet:
