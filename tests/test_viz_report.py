@@ -314,8 +314,11 @@ def test_latency_legend_in_fitting_units():
     t = np.arange(1000.0)
     lat = np.full(1000, 4.0e-6)
     lat[-5:] = 2.0e-3
-    labels = report.plot_latency(t, lat).axes[0].get_legend_handles_labels()[1]
+    ax = report.plot_latency(t, lat).axes[0]
+    labels = ax.get_legend_handles_labels()[1]
     assert "median 4 µs" in labels and not any("0.00 ms" in s for s in labels)
+    assert ax.get_ylabel() == "update latency [µs]" and ax.get_yscale() == "log"   # 4 µs .. 2 ms
+    np.testing.assert_allclose(ax.lines[0].get_ydata(), lat * 1e6)
 
 
 def _attitude_case(n=120, seed=8):

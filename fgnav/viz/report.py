@@ -293,10 +293,15 @@ def _shade_gaps(ax, gaps, *, label=True):
                    label="gap in the log (no measurements)" if label and i == 0 else None)
 
 
+#: Estimates that start from the prior alone (filtered, online): their first minutes'
+#: envelope is the prior's, orders of magnitude wider than the rest.
+CAUSAL_LABELS = ("filtered", "online")
+
+
 def _limit_transient(ax, band, err=None):
-    """Keep the first minutes' large envelope (a wide prior converging) from flattening the
-    rest: the y range covers the 90th percentile of the envelope and 99.5 % of the error;
-    what lies beyond runs off the axes."""
+    """Keep the first minutes' large envelope of a causal estimate (a wide prior converging)
+    from flattening the rest: the y range covers the 90th percentile of the envelope and
+    99.5 % of the error; what lies beyond runs off the axes."""
     vals = [np.nanpercentile(band, 90)] if np.any(np.isfinite(band)) else []
     if err is not None and np.any(np.isfinite(err)):
         vals.append(np.nanpercentile(np.abs(err), 99.5))
@@ -313,7 +318,8 @@ def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, label
     ``label`` names the estimate (:func:`estimate_label`: "smoothed", "filtered", "online",
     ...): the error line is "<label> error" and the envelope "±kσ (<label> covariance)".
     Without truth, plots the ±kσ envelope alone. ``gaps`` (``(t_start_s, length_s)`` each)
-    are shaded. Returns the Figure (2 x 3 axes: rows position / velocity, columns R, T, N).
+    are shaded. For a causal estimate (:data:`CAUSAL_LABELS`) with truth the y range leaves
+    out the converging start (see :func:`_limit_transient`). Returns the Figure (2 x 3 axes: rows position / velocity, columns R, T, N).
     """
     t_h = np.asarray(t_s, float) * _H
     err, sig = _rtn_err_sigma(x_eci, P_eci, truth_x_eci)
@@ -331,7 +337,8 @@ def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, label
             ax.plot(t_h, -b, color="tab:red", lw=0.8)
             if err is not None:
                 ax.plot(t_h, err[:, off + c], color="tab:blue", lw=0.9, label=f"{label} error")
-            _limit_transient(ax, b, None if err is None else err[:, off + c])
+            if err is not None and label in CAUSAL_LABELS:
+                _limit_transient(ax, b, err[:, off + c])
             ax.axhline(0.0, color="0.5", lw=0.5)
             ax.set_ylabel(f"{RTN_NAMES[c].split()[0]} {block} {what} [{unit}]")
             ax.set_title(f"{block} {RTN_NAMES[c]}", fontsize=10)
@@ -545,22 +552,25 @@ def format_duration_s(seconds: float) -> str:
 
 
 def plot_latency(t_s, latency_s, *, title="Per-epoch update latency"):
-    """Update latency (ms, log scale when it spans more than a factor 30) vs time (h), with
-    its median and 99th percentile written to 3 significant digits in a fitting unit."""
+    """Update latency vs time (h) in ms, or in µs when the median is below 1 ms (an EKF
+    update), on a log scale when it spans more than a factor 30, with its median and 99th
+    percentile written to 3 significant digits in a fitting unit."""
     fig = _figure((9, 3.5))
     ax = fig.subplots()
     lat = np.asarray(latency_s, float)
-    ms = lat * 1e3
-    ax.plot(np.asarray(t_s, float) * _H, ms, ".", ms=2, color="tab:purple", label="latency")
-    if len(ms):
+    med = float(np.median(lat)) if len(lat) else 1.0
+    unit, scale = ("µs", 1e6) if med < 1e-3 else ("ms", 1e3)
+    v = lat * scale
+    ax.plot(np.asarray(t_s, float) * _H, v, ".", ms=2, color="tab:purple", label="latency")
+    if len(v):
         for q, ls, name in ((50, "--", "median"), (99, ":", "99th percentile")):
-            v = float(np.percentile(lat, q))
-            ax.axhline(v * 1e3, color="k", ls=ls, lw=0.8, label=f"{name} {format_duration_s(v)}")
-        pos = ms[ms > 0]
+            x = float(np.percentile(lat, q))
+            ax.axhline(x * scale, color="k", ls=ls, lw=0.8, label=f"{name} {format_duration_s(x)}")
+        pos = v[v > 0]
         if len(pos) and pos.max() > 30 * np.percentile(pos, 1):
             ax.set_yscale("log")
     ax.set_xlabel("time since epoch0 [h]")
-    ax.set_ylabel("update latency [ms]")
+    ax.set_ylabel(f"update latency [{unit}]")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)

@@ -8,11 +8,22 @@
   magnification, in the entity path, e.g. ``world/estimate/covariance_3sigma_x100``) both as
   a trail every ``ellipsoid_every`` epochs and at the cursor, and the measured directions
   (Earth direction, stars) as rays from the spacecraft;
+  With an attitude (estimated, or the log's ``attitude`` rows): the body axes at the cursor
+  (``world/estimate/body_axes``, x/y/z red/green/blue) and along the trajectory
+  (``.../body_axes_trail``);
+* ``camera/...`` (the body frame, unit length): the body axes and the log's body-frame rows
+  as rays (``camera/star_direction_body/measured``), with an estimated attitude also each
+  star's catalogue direction rotated into the body frame (``.../catalogue_in_body``);
 * time series on the ``t_s`` timeline (seconds from ``epoch0``; also the ``utc`` timeline):
   ``errors/position_{eci,rtn}_m/<axis>`` and ``errors/velocity_{eci,rtn}_mps/<axis>``, each
-  with the series ``error, +3σ, -3σ`` (with truth), or ``sigma/...`` with ``+3σ, -3σ``
-  (without), ``consistency/nees`` (6-dof NEES with its 95 % single-run chi-square band),
-  ``residuals/<kind>`` (whitened residual components), ``timing/latency_ms``.
+  with the series ``<axis> error, <axis> +3σ, <axis> -3σ`` (with truth; each axis its own
+  colour, :data:`AXIS_COLORS`), or ``sigma/...`` with ``<axis> +3σ, <axis> -3σ`` (without),
+  ``consistency/nees`` (6-dof NEES with its 95 % single-run chi-square band),
+  ``residuals/<kind>`` (whitened residual components), ``timing/latency_ms``, and with an
+  attitude covariance ``attitude/{error,sigma}_arcsec/<body axis>``.
+
+The stored blueprint (:func:`default_blueprint`) opens with every time plot on the whole
+pass and the 3-D camera framing the whole orbit (:func:`orbit_eye`).
 
 Everything is sent with ``rr.send_columns`` (one call per entity), so a 14,400-epoch pass
 logs in a fraction of a second (``scripts/bench_rerun.py``).
@@ -789,4 +800,7 @@ def _about_text(solution, has_truth, k, mag) -> str:
         "m and m/s; RTN = radial / along-track / orbit-normal of the "
         f"{'truth' if has_truth else 'estimated'} state.",
         "- residuals: whitened (expected standard normal).",
+        "- attitude (when estimated or known): body axes x/y/z = red/green/blue along the "
+        "trajectory; the star camera view shows the body-frame rays (yellow: measured; "
+        "magenta dots: catalogue direction rotated by the estimated attitude).",
     ])
