@@ -310,6 +310,29 @@ def _limit_transient(ax, band, err=None):
         ax.set_ylim(-lim, lim)
 
 
+def _band_and_error(ax, t_h, band, err, label, k_sigma):
+    """The ±kσ envelope ``band`` (None: none) filled and outlined in red, and the error line
+    (None: none) in blue, labelled "<label> error" and "±kσ (<label> covariance)"."""
+    if band is not None:
+        ax.fill_between(t_h, -band, band, color="tab:red", alpha=0.15, lw=0,
+                        label=f"±{k_sigma:g}σ ({label} covariance)")
+        ax.plot(t_h, band, color="tab:red", lw=0.8)
+        ax.plot(t_h, -band, color="tab:red", lw=0.8)
+    if err is not None:
+        ax.plot(t_h, err, color="tab:blue", lw=0.9, label=f"{label} error")
+    ax.axhline(0.0, color="0.5", lw=0.5)
+    ax.grid(True, alpha=0.3)
+
+
+def _legend_and_title(fig, ax, title):
+    """One legend below the panels (the entries of ``ax``) and the title above them."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9)
+    fig.suptitle(title)
+    return fig
+
+
 def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, label="smoothed",
                       gaps=None, title=None):
     """RTN position (m) and velocity (m/s) errors vs time (h) with the ±kσ envelope of the
@@ -331,28 +354,19 @@ def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, label
             ax = axs[row, c]
             _shade_gaps(ax, gaps)
             b = k_sigma * sig[:, off + c]
-            ax.fill_between(t_h, -b, b, color="tab:red", alpha=0.15, lw=0,
-                            label=f"±{k_sigma:g}σ ({label} covariance)")
-            ax.plot(t_h, b, color="tab:red", lw=0.8)
-            ax.plot(t_h, -b, color="tab:red", lw=0.8)
-            if err is not None:
-                ax.plot(t_h, err[:, off + c], color="tab:blue", lw=0.9, label=f"{label} error")
-            if err is not None and label in CAUSAL_LABELS:
-                _limit_transient(ax, b, err[:, off + c])
-            ax.axhline(0.0, color="0.5", lw=0.5)
+            e = None if err is None else err[:, off + c]
+            _band_and_error(ax, t_h, b, e, label, k_sigma)
+            if e is not None and label in CAUSAL_LABELS:
+                _limit_transient(ax, b, e)
             ax.set_ylabel(f"{RTN_NAMES[c].split()[0]} {block} {what} [{unit}]")
             ax.set_title(f"{block} {RTN_NAMES[c]}", fontsize=10)
-            ax.grid(True, alpha=0.3)
             if row == 1:
                 ax.set_xlabel("time since epoch0 [h]")
-    handles, labels = axs[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9)
     if title is None:
         title = (f"{label.capitalize()} state error (estimate − truth) in RTN with ±{k_sigma:g}σ"
                  if err is not None else
                  f"{label.capitalize()} state uncertainty ±{k_sigma:g}σ in RTN (no truth given)")
-    fig.suptitle(title)
-    return fig
+    return _legend_and_title(fig, axs[0, 0], title)
 
 
 def plot_residuals_time(residual_t_s: dict, residuals: dict, residual_component=None, *,
@@ -489,28 +503,16 @@ def plot_attitude_errors(t_s, R_eci_from_body, P_rad2=None, truth_R=None, *, k_s
     what = "error" if err is not None else f"±{k_sigma:g}σ"
     for c, ax in enumerate(axs):
         _shade_gaps(ax, gaps)
-        b = k_sigma * sig[:, c] / scale
-        if P_rad2 is not None:
-            ax.fill_between(t_h, -b, b, color="tab:red", alpha=0.15, lw=0,
-                            label=f"±{k_sigma:g}σ ({label} covariance)")
-            ax.plot(t_h, b, color="tab:red", lw=0.8)
-            ax.plot(t_h, -b, color="tab:red", lw=0.8)
-        if err is not None:
-            ax.plot(t_h, err[:, c] / scale, color="tab:blue", lw=0.8, label=f"{label} error")
-        ax.axhline(0.0, color="0.5", lw=0.5)
+        _band_and_error(ax, t_h, None if P_rad2 is None else k_sigma * sig[:, c] / scale,
+                        None if err is None else err[:, c] / scale, label, k_sigma)
         ax.set_title(f"rotation about body {BODY_AXES[c]}", fontsize=10)
         ax.set_ylabel(f"attitude {what} about body {BODY_AXES[c]} [{unit}]")
         ax.set_xlabel("time since epoch0 [h]")
-        ax.grid(True, alpha=0.3)
-    handles, labels = axs[0].get_legend_handles_labels()
-    if handles:
-        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9)
     if title is None:
-        title = (f"{label.capitalize()} attitude error Log(R_trueᵀ R_est) about the body axes, with ±{k_sigma:g}σ"
-                 if err is not None else
+        title = (f"{label.capitalize()} attitude error Log(R_trueᵀ R_est) about the body axes, "
+                 f"with ±{k_sigma:g}σ" if err is not None else
                  f"{label.capitalize()} attitude uncertainty ±{k_sigma:g}σ, body frame (no true attitude)")
-    fig.suptitle(title)
-    return fig
+    return _legend_and_title(fig, axs[0], title)
 
 
 def plot_orbit_3d(x_eci, truth_x_eci=None, *, title="Orbit in ECI"):

@@ -334,6 +334,13 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
     )
 
 
+def _time_index(rr, epoch0, times):
+    """The ``t_s`` (duration, s from ``epoch0``) and ``utc`` (timestamp) time columns."""
+    times = np.asarray(times, float)
+    return [rr.TimeColumn("t_s", duration=times),
+            rr.TimeColumn("utc", timestamp=_as_datetime_ns(epoch0, times))]
+
+
 def _as_datetime_ns(epoch0, t_s):
     e0 = np.datetime64(epoch0, "ns")
     return e0 + np.round(np.asarray(t_s) * 1e9).astype("timedelta64[ns]")
@@ -478,9 +485,7 @@ def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid
     entities: list[str] = []
 
     def idx(times):
-        times = np.asarray(times, float)
-        return [rr.TimeColumn("t_s", duration=times),
-                rr.TimeColumn("utc", timestamp=_as_datetime_ns(solution.epoch0, times))]
+        return _time_index(rr, solution.epoch0, times)
 
     def send(entity, times, columns):
         rec.send_columns(entity, indexes=idx(times), columns=columns)
@@ -702,9 +707,7 @@ def _log_attitude(rec, rr, epoch0, t_s, x, att, body_rows, k, truth_R) -> list[s
     entities = []
 
     def idx(times):
-        times = np.asarray(times, float)
-        return [rr.TimeColumn("t_s", duration=times),
-                rr.TimeColumn("utc", timestamp=_as_datetime_ns(epoch0, times))]
+        return _time_index(rr, epoch0, times)
 
     r_km = x[:, :3] * _KM
     fin = np.all(np.isfinite(r_km), axis=1)
