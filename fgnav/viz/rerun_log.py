@@ -44,7 +44,7 @@ import numpy as np
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
-from fgnav.models.registry import eci_ray_kinds
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, eci_ray_kinds
 from fgnav.orbit import rtn_frame
 from fgnav.time import format_utc
 
@@ -295,7 +295,7 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
         series_view(f"{root}/velocity_rtn_mps", f"velocity {unit} R/T/N [m/s]"),
     ]
     if has_attitude:
-        series.append(series_view("attitude", f"attitude {unit} about body x/y/z [arcsec]"))
+        series.append(series_view(ATTITUDE_ROOT, f"attitude {unit} about body x/y/z [arcsec]"))
     tabs = []
     if residual_kinds:
         tabs.append(series_view("residuals", "whitened residuals [-]"))
@@ -413,7 +413,7 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
     truth_attitude_R : optional (N, 3, 3) true ``R_eci_from_body`` at ``solution.t_s``
         (:func:`read_truth_attitude`): the attitude error is plotted against its ±kσ.
 
-    The attitude (``solution.variables["attitude"]`` when estimated, else the log's
+    The attitude (``solution.variables`` of the attitude variable when estimated, else the log's
     ``attitude`` rows when it is known) draws the body axes along the trajectory; the log's
     body-frame rows (``star_direction_body``, ``earth_direction_body``, ...) are drawn as
     rays in the ``camera`` view (the body frame; with an estimated attitude also each star's
@@ -648,13 +648,13 @@ def _attitude_of(solution, measurements):
     else None."""
     from scipy.spatial.transform import Rotation
 
-    v = (solution.variables or {}).get("attitude")
+    v = (solution.variables or {}).get(ATTITUDE_VARIABLE.name)
     if v is not None:
         w, Pa = v
         return (np.asarray(solution.t_s, float), Rotation.from_rotvec(np.asarray(w, float)).as_matrix(),
                 np.asarray(Pa, float))
     if measurements is not None and hasattr(measurements, "select"):
-        sel = measurements.select("attitude")
+        sel = measurements.select(ATTITUDE.kind)
         if len(sel):
             shift = float((np.datetime64(measurements.epoch0, "ns") - np.datetime64(solution.epoch0, "ns"))
                           / np.timedelta64(1, "ns")) * 1e-9
@@ -695,6 +695,10 @@ def _boresight(body_rows) -> np.ndarray | None:
                 return m / np.linalg.norm(m)
     return None
 
+
+#: Entity root of the attitude error / sigma time series (arcsec about the body axes): the
+#: attitude variable's name.
+ATTITUDE_ROOT = ATTITUDE_VARIABLE.name
 
 #: Colours of the body axes x, y, z (red, green, blue, as the ECI axes).
 _BODY_AXIS_COLORS = np.array([[230, 60, 60], [60, 200, 60], [80, 120, 255]])
@@ -744,10 +748,10 @@ def _log_attitude(rec, rr, epoch0, t_s, x, att, body_rows, k, truth_R) -> list[s
                 for i, axn in enumerate(ECI_AXES):
                     col, light = AXIS_COLORS[i], _lighter(AXIS_COLORS[i])
                     if err is not None:
-                        ent, vals = f"attitude/error_arcsec/{axn}", np.stack([err[:, i], sig[:, i], -sig[:, i]], 1)
+                        ent, vals = f"{ATTITUDE_ROOT}/error_arcsec/{axn}", np.stack([err[:, i], sig[:, i], -sig[:, i]], 1)
                         names, colors = [f"{axn} error", f"{axn} +{k:g}σ", f"{axn} -{k:g}σ"], [col, light, light]
                     else:
-                        ent, vals = f"attitude/sigma_arcsec/{axn}", np.stack([sig[:, i], -sig[:, i]], 1)
+                        ent, vals = f"{ATTITUDE_ROOT}/sigma_arcsec/{axn}", np.stack([sig[:, i], -sig[:, i]], 1)
                         names, colors = [f"{axn} +{k:g}σ", f"{axn} -{k:g}σ"], [col, col]
                     rec.log(ent, rr.SeriesLines(names=names, colors=colors, widths=[1.5] * len(names)),
                             static=True)
