@@ -180,11 +180,11 @@ def plot_errors(result: Result, *, k_sigma: float = 3.0):
     """A matplotlib Figure of the RTN position/velocity errors against the truth with the
     ±k_sigma band (without truth: the sigmas alone), for notebooks; ``fig.savefig(path)``
     writes it."""
-    from fgnav.viz.report import plot_state_errors
+    from fgnav.viz.report import estimate_label, plot_state_errors
 
     sol = result.solution
     return plot_state_errors(sol.t_s, sol.x_eci, sol.P_eci, result.x_true, k_sigma=k_sigma,
-                             online_x_eci=getattr(sol, "online_x_eci", None))
+                             label=estimate_label(sol.method))
 
 
 def _estimate_names(names) -> tuple[str, ...]:

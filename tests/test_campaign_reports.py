@@ -151,3 +151,34 @@ def test_table5_study_figures_are_the_libraries(tmp_path):
     assert ref.angle_errors_deg == tuple(TABLE5_ANGLE_ERRORS_DEG)
     assert {int(k): v for k, v in ref.seed_km.items()} == {k: tuple(v) for k, v in TABLE5_SEED.items()}
     assert np.all(np.isfinite([x for v in ref.seed_km.values() for x in v]))
+
+
+def test_nees_plot_in_hours_runs_per_method_and_batch_visible(tmp_path):
+    """The ANEES plot of 4 seeds x 3 methods says so (not "12 runs"), runs along time in
+    hours from the saved curves, and draws batch and iSAM2 (equal curves) so both show."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from fgnav.campaign import reports
+
+    study = _study(tmp_path, "gto-nees", (("count = 100", "count = 4"),))
+    out = tmp_path / "n"
+    (out / "curves").mkdir(parents=True)
+    t_s = np.arange(0.0, 7200.0 + 1, 60.0)
+    curve = 6.0 + np.sin(t_s / 900.0)
+    for run in study_runs(study):
+        np.savez(out / "curves" / f"{run.run_id}.npz", t_s=t_s, nees=curve, nis=curve, nis_dof=2)
+    rows = _report(study, out, lambda run: {"nees_final": 6.0, "nis_per_dof": 1.0, "position_rms_m": 1.0})
+    assert {r["runs"] for r in rows} == {"4"}
+    assert (out / "plot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    runs = [{"method": m, "seed": s, "run_id": f"{m}-{s}"} for m in ("batch", "isam2", "ekf") for s in range(4)]
+    curves = {m: (curve, 3.9, 8.6, 4) for m in ("batch", "isam2", "ekf")}
+    fig = reports._plot_anees("gto-nees", runs, curves, {m: t_s for m in curves}, "95%")
+    ax = fig.axes[0]
+    assert ax.get_title() == "gto-nees: 4 runs x 3 methods (batch, ekf, isam2)"
+    assert ax.get_xlabel() == "time since the first epoch (h)"
+    lines = {ln.get_label(): ln for ln in ax.lines}
+    np.testing.assert_allclose(lines["batch ANEES (4 runs)"].get_xdata(), t_s / 3600.0)
+    b, i = lines["batch ANEES (4 runs)"], lines["isam2 ANEES (4 runs)"]
+    assert (b.get_linestyle(), b.get_marker()) != (i.get_linestyle(), i.get_marker())
+    assert b.get_linewidth() > i.get_linewidth() and b.get_zorder() < i.get_zorder()

@@ -269,3 +269,113 @@ def test_rays_from_measurement_log(tmp_path):
     # origin = estimated position (km); tip within the estimate error of the Earth centre
     np.testing.assert_allclose(o, sol.x_eci[::3, :3][: len(o)] / 1e3, rtol=1e-6)
     assert np.max(np.linalg.norm(o + v, axis=1)) < 2.0   # km (estimate errors ~ 0.2 km)
+
+
+def blueprint_views(path):
+    """display name -> {component column: value} of each view of the stored blueprint."""
+    reader = rr.chunk.RrdReader(str(path))
+    by_id: dict[str, dict] = {}
+    for c in reader.stream(store=reader.blueprints()[0]).to_chunks():
+        parts = c.entity_path.strip("/").split("/")
+        if parts[0] != "view":
+            continue
+        rb = c.to_record_batch()
+        d = by_id.setdefault(parts[1], {})
+        for n in rb.schema.names:
+            if ":" in n:
+                d[n] = rb.column(n).to_pylist()[0]
+    return {v["ViewBlueprint:display_name"][0]: v for v in by_id.values()
+            if "ViewBlueprint:display_name" in v}
+
+
+def series_names_colors(chunks):
+    """(names, colors) of the static SeriesLines / SeriesPoints of an entity."""
+    rb = [c for c in chunks if c.is_static][0].to_record_batch()
+    names = rb.column([n for n in rb.schema.names if n.endswith(":names")][0]).to_pylist()[0]
+    colors = rb.column([n for n in rb.schema.names if n.endswith(":colors")][0]).to_pylist()[0]
+    return names, colors
+
+
+def test_blueprint_whole_pass_named_axes_and_framed_orbit(tmp_path):
+    """The stored blueprint: every time plot's x range is the whole pass (not a window at the
+    cursor), the 3-D eye looks at the Earth from outside the orbit; the R, T, N series carry
+    their axis in their names and each axis its own colour."""
+    sol, truth = make_solution(n=200)
+    out = rerun_log.log_solution(tmp_path / "b.rrd", sol, truth_x_eci=truth)
+    views = blueprint_views(out["path"])
+    t_end_ns = int(round(sol.t_s[-1] * 1e9))
+    plots = [v for v in views.values() if "TimeAxis:view_range" in v]
+    assert {"position error R/T/N [m]", "velocity error R/T/N [m/s]", "NEES (6 dof)"} <= set(views)
+    assert len(plots) >= 4
+    for v in plots:
+        assert v["TimeAxis:view_range"][0] == {"start": 0, "end": t_end_ns}
+    eye = views["orbit (ECI, km)"]
+    pos = np.array(eye["EyeControls3D:position"][0])
+    rmax_km = np.max(np.linalg.norm(sol.x_eci[:, :3], axis=1)) / 1e3
+    assert np.linalg.norm(pos) > 2.0 * rmax_km                       # the whole orbit in view
+    np.testing.assert_allclose(eye["EyeControls3D:look_target"][0], 0.0)
+    assert "star camera: rays in the body frame" not in views        # no body-frame rows
+    _, ents = read_back(out["path"])
+    colors = {}
+    for ax in ("R", "T", "N"):
+        names, cols = series_names_colors(ents[f"/errors/position_rtn_m/{ax}"])
+        assert names == [f"{ax} error", f"{ax} +3σ", f"{ax} -3σ"]
+        colors[ax] = cols[0]
+    assert len(set(colors.values())) == 3
+    names, _ = series_names_colors(ents["/errors/position_norm_m"])
+    assert names == ["smoothed", "online"]                            # iSAM2: final + online
+    sol_ekf, _ = make_solution(n=50, method="ekf")
+    out = rerun_log.log_solution(tmp_path / "e.rrd", sol_ekf, truth_x_eci=truth[:50])
+    _, ents = read_back(out["path"])
+    assert series_names_colors(ents["/errors/position_norm_m"])[0] == ["filtered"]
+
+
+def test_attitude_axes_star_rays_and_sigma(tmp_path):
+    """An estimated attitude draws the body axes along the trajectory (columns of
+    R_eci_from_body), the star rows become rays in the body-frame camera view (with the
+    catalogue direction rotated into the body frame by the estimate), and the attitude error
+    series equals Log(R_true^T R_est) in arcsec against 3 sigma of the covariance."""
+    from scipy.spatial.transform import Rotation
+
+    log_csv = pytest.importorskip("fgnav.io.log_csv")
+    n = 40
+    sol, truth = make_solution(n=n, method="batch")
+    rng = np.random.default_rng(3)
+    R_true = Rotation.from_rotvec(rng.normal(0.0, 1.0, (n, 3))).as_matrix()
+    sig_rad = np.radians(np.array([5.0, 6.0, 40.0]) / 3600.0)
+    d = rng.normal(0.0, 1.0, (n, 3)) * sig_rad
+    R_est = R_true @ Rotation.from_rotvec(d).as_matrix()             # right perturbation
+    sol.variables = {"attitude": (Rotation.from_matrix(R_est).as_rotvec(),
+                                  np.tile(np.diag(sig_rad**2), (n, 1, 1)))}
+    # two stars per epoch: body direction = R_true^T s
+    s_eci = Rotation.from_rotvec(rng.normal(0, 1, (2 * n, 3))).apply([0.0, 0.0, 1.0])
+    t_rows = np.repeat(sol.t_s, 2)
+    u_body = np.einsum("nji,nj->ni", np.repeat(R_true, 2, axis=0), s_eci)
+    log = log_csv.log_from_arrays(sol.epoch0, t_rows, ["star_direction_body"] * (2 * n), u_body,
+                                  np.full(2 * n, 2.5e-5), extra={"star_x": s_eci[:, 0],
+                                                                 "star_y": s_eci[:, 1], "star_z": s_eci[:, 2]})
+    out = rerun_log.log_solution(tmp_path / "a.rrd", sol, truth_x_eci=truth, measurements=log,
+                                 truth_attitude_R=R_true)
+    _, ents = read_back(out["path"])
+    t_ns = np.round(sol.t_s * 1e9).astype(np.int64)
+    for e in ("/world/estimate/body_axes", "/camera/star_direction_body/measured",
+              "/camera/star_direction_body/catalogue_in_body", "/attitude/error_arcsec/x"):
+        np.testing.assert_array_equal(time_points(ents[e]), t_ns, err_msg=e)
+    assert all(c.is_static for c in ents["/world/estimate/body_axes_trail"])
+    rb = ents["/world/estimate/body_axes"][0].to_record_batch()
+    vec = np.array(rb.column([c for c in rb.schema.names if c.endswith("vectors")][0]).to_pylist()[0])
+    L = np.linalg.norm(vec[0])
+    np.testing.assert_allclose(vec / L, R_est[0].T, atol=1e-6)        # rows = body x, y, z in ECI
+    rb = ents["/camera/star_direction_body/measured"][0].to_record_batch()
+    v = np.array(rb.column([c for c in rb.schema.names if c.endswith("vectors")][0]).to_pylist()[0])
+    np.testing.assert_allclose(v, u_body[:2], atol=1e-6)
+    rb = ents["/camera/star_direction_body/catalogue_in_body"][0].to_record_batch()
+    p = np.array(rb.column([c for c in rb.schema.names if c.endswith("positions")][0]).to_pylist()[0])
+    np.testing.assert_allclose(p, np.einsum("ji,nj->ni", R_est[0], s_eci[:2]), atol=1e-6)
+    for i, ax in enumerate("xyz"):
+        _, val = scalars(ents[f"/attitude/error_arcsec/{ax}"])
+        np.testing.assert_allclose(val[:, 0], np.degrees(d[:, i]) * 3600.0, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(val[:, 1], 3 * np.degrees(sig_rad[i]) * 3600.0, rtol=1e-5)
+    views = blueprint_views(out["path"])
+    assert "star camera: rays in the body frame" in views
+    assert "attitude error about body x/y/z [arcsec]" in views

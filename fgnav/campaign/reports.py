@@ -354,22 +354,25 @@ def report_nees(study, rows, out):
     from fgnav.analysis.consistency import anees, nees_curve
 
     ref: NeesReference = study.reference
-    table, curves = [], {}
+    table, curves, curve_t_s = [], {}, {}
     for method, g in sorted(_group(rows, ("method",)).items()):
         method = method[0]
         a_final = anees([r["nees_final"] for r in g], STATE_DOF, ref.alpha)
         r = {"method": method, "runs": len(g), "anees_final": a_final.anees,
              "band_lo": a_final.lo, "band_hi": a_final.hi, "inside_final": a_final.inside,
              "anees_over_dof": a_final.ratio}
-        arrs = []
+        arrs, times = [], []
         for rr in g:
             f = out / "curves" / f"{safe_name(rr['run_id'])}.npz"
             if f.exists():
                 with np.load(f) as z:
                     arrs.append(z["nees"])
+                    times.append(z["t_s"] if "t_s" in z.files else None)
         if arrs and len({len(a) for a in arrs}) == 1:
             curve, lo, hi, frac = nees_curve(np.array(arrs), STATE_DOF, ref.alpha)
-            curves[method] = (curve, lo, hi)
+            curves[method] = (curve, lo, hi, len(arrs))
+            if times[0] is not None and len(times[0]) == len(curve):
+                curve_t_s[method] = np.asarray(times[0], float)
             mid = anees(np.array(arrs)[:, len(curve) // 2], STATE_DOF, ref.alpha)
             r.update(anees_mid=mid.anees, inside_mid=mid.inside, epochs_inside_band=frac,
                      anees_time_mean=float(curve.mean()))
@@ -383,19 +386,48 @@ def report_nees(study, rows, out):
                    "epochs of one run are correlated). EKF rows are the filtered (causal) estimates. seed_value is "
                    "empty: the source studies give no consistency test.")
     files = _write_table(out, table, "NEES / ANEES consistency", notes)
+    files.append(_save_plot(_plot_anees(study.name, rows, curves, curve_t_s, pct), out / "plot.png"))
+    return files
+
+
+#: How each method's ANEES curve is drawn so that none hides another where they coincide
+#: (a batch smoother and iSAM2 after its last epoch give the same ANEES): line style, marker,
+#: line width, drawing order (higher on top).
+_METHOD_STYLE = {"batch": ("-", None, 2.6, 1), "isam2": ("--", "o", 1.3, 2),
+                 "fixed-lag": (":", "s", 1.3, 3), "ekf": ("-", None, 1.0, 4)}
+
+
+def _plot_anees(name, rows, curves, curve_t_s, pct):
+    """ANEES per epoch and method against time (h) when the curves carry their times (epoch
+    index otherwise), with the band of ``pct``; the title states runs = seeds x methods."""
+    import numpy as np
+
     fig, ax = _figure(1)
     lo = hi = None
-    for method, (curve, lo, hi) in curves.items():
-        ax.semilogy(np.arange(len(curve)), curve, label=f"{method} ANEES")
+    in_hours = bool(curves) and all(m in curve_t_s for m in curves)
+    for method, (curve, lo, hi, n_runs) in curves.items():
+        ls, marker, lw, z = _METHOD_STYLE.get(method, ("-", None, 1.2, 5))
+        x = curve_t_s[method] / 3600.0 if in_hours else np.arange(len(curve))
+        ax.semilogy(x, curve, ls=ls, marker=marker, markevery=max(1, len(curve) // 25), ms=4,
+                    lw=lw, zorder=z, label=f"{method} ANEES ({n_runs} runs)")
     if curves:
         ax.axhspan(lo, hi, color="g", alpha=0.2, label=f"{pct} band")
     ax.axhline(float(STATE_DOF), color="k", lw=0.8)
-    ax.set(xlabel="epoch index", ylabel=f"ANEES (dof {STATE_DOF})", title=f"{study.name}: {len(rows)} runs")
+    methods = sorted({str(r.get("method")) for r in rows})
+    seeds = len({r.get("seed", r.get("run_id")) for r in rows})
+    runs = (f"{seeds} runs x {len(methods)} methods ({', '.join(methods)})"
+            if len(rows) == seeds * len(methods) else f"{len(rows)} runs ({', '.join(methods)})")
+    ax.set(xlabel="time since the first epoch (h)" if in_hours else "epoch index",
+           ylabel=f"ANEES (dof {STATE_DOF})", title=f"{name}: {runs}")
+    from matplotlib.ticker import LogLocator, ScalarFormatter
+
+    ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(ScalarFormatter())
+    ax.yaxis.set_minor_formatter("")
     ax.grid(True, which="both", alpha=0.3)
     if curves:  # no curves saved (save_curves = false): nothing to label
         ax.legend(fontsize=8)
-    files.append(_save_plot(fig, out / "plot.png"))
-    return files
+    return fig
 
 
 # ---- the registry ---------------------------------------------------------------------

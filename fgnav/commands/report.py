@@ -11,9 +11,14 @@ def register(subparsers) -> None:
         help="write plots (PNG) and report.md/report.html for a result directory",
         description=(
             "Read RESULT_DIR (from `fgnav smooth LOG --out DIR`: trajectory.oem, summary.json, "
-            "residuals.csv, optional online.oem, latency.csv) and write errors_rtn.png "
-            "(or sigma_rtn.png without truth; m and m/s vs hours, RTN, ±3σ), residuals_hist.png, "
-            "orbit_3d.png (km), latency.png, report.md and report.html."
+            "residuals.csv, optional online.oem, latency.csv, attitude.aem, "
+            "attitude_covariance.csv) and write errors_rtn.png (or sigma_rtn.png without truth; "
+            "m and m/s vs hours, RTN, ±3σ of the same estimate, labelled smoothed / filtered by "
+            "method), online_errors_rtn.png (iSAM2, fixed-lag: the online error against the "
+            "online ±3σ), residuals_time.png (gaps shaded), residuals_hist.png, "
+            "attitude_errors.png (or attitude_sigma.png without truth_attitude.csv beside the "
+            "truth OEM), orbit_3d.png (km), latency.png, report.md and report.html. Plots of an "
+            "earlier report that this one does not write are removed."
         ),
     )
     p.add_argument("result_dir", metavar="RESULT_DIR", help="result directory of `fgnav smooth`")

@@ -263,9 +263,13 @@ def run(args) -> int:
             if "gap" in note:
                 print(f"fgnav: note: {note}", file=sys.stderr)
     if args.rerun:
-        from fgnav.viz.rerun_log import log_solution
+        from fgnav.models.registry import ATTITUDE_VARIABLE
+        from fgnav.viz.rerun_log import log_solution, read_truth_attitude
+        truth_R = (read_truth_attitude(args.truth, res.solution.epoch0, res.solution.t_s)
+                   if args.truth and ATTITUDE_VARIABLE.name in res.solution.variables else None)
         log_solution(args.rerun, res.solution, truth_x_eci=res.x_true,
-                     measurements=read_measurements(args.log), residual_t_s=residual_times(res, p))
+                     measurements=read_measurements(args.log), residual_t_s=residual_times(res, p),
+                     truth_attitude_R=truth_R)
     integrity = res.summary["integrity"]
     if not args.quiet:
         keys = ["method", "epochs", "iterations", "wall_s", "crb_position_rms_m", "position_rms_m",

@@ -37,8 +37,9 @@ MANIFEST = ".fgnav-outputs.json"
 STAGING_PREFIX = ".fgnav-staging-"
 SMOOTH_OUTPUTS = ("trajectory.oem", "online.oem", "residuals.csv", "latency.csv", "variables.csv",
                   "attitude.aem", "attitude_covariance.csv", "summary.json")
-REPORT_OUTPUTS = ("errors_rtn.png", "sigma_rtn.png", "residuals_hist.png", "orbit_3d.png",
-                  "latency.png", "report.md", "report.html")
+REPORT_OUTPUTS = ("errors_rtn.png", "sigma_rtn.png", "online_errors_rtn.png", "online_sigma_rtn.png",
+                  "residuals_time.png", "residuals_hist.png", "attitude_errors.png",
+                  "attitude_sigma.png", "orbit_3d.png", "latency.png", "report.md", "report.html")
 _STAGING_RE = re.compile(re.escape(STAGING_PREFIX) + r"(\d+)-")
 
 

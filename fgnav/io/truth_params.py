@@ -3,7 +3,12 @@
 ``fgnav simulate`` writes :data:`TRUTH_REFRACTION_BIAS_CSV` when the pass has refraction
 rows and the scenario's refraction sensor has an atmosphere-model bias (the sensor keys
 ``model_bias_m``, ``model_bias_drift_m_per_h``, ``model_bias_random_walk_m_per_sqrt_h``;
-:func:`fgnav.simulate.refraction_sim.refraction_bias_path_m`).
+:func:`fgnav.simulate.refraction_sim.refraction_bias_path_m`), and
+:data:`TRUTH_ATTITUDE_CSV` when the pass has body-frame rows (the true ``R_eci_from_body``
+of the attitude plan as a rotation vector ``att_x, att_y, att_z`` in rad, the components of
+the ``attitude`` graph variable). ``fgnav smooth --truth`` reads ``truth_<variable>.csv``
+beside the truth OEM (:func:`fgnav.pipeline.read_truth_variables`); ``fgnav report`` the
+attitude one for its attitude error plot.
 
 Format
 ------
@@ -27,10 +32,18 @@ from fgnav.io.atomic import atomic_writer
 from fgnav.io.text import csv_records, finite_number, read_utf8_text
 from fgnav.time import add_seconds, format_utc, parse_utc
 
-__all__ = ["TRUTH_REFRACTION_BIAS_CSV", "write_truth_params_csv", "read_truth_params_csv"]
+__all__ = ["TRUTH_REFRACTION_BIAS_CSV", "TRUTH_ATTITUDE_CSV", "TRUTH_ATTITUDE_COLUMNS",
+           "write_truth_params_csv", "read_truth_params_csv"]
 
 TRUTH_REFRACTION_BIAS_CSV = "truth_refraction_bias.csv"
 """File name of the true atmosphere-model bias, columns ``epoch,refraction_bias_m``."""
+
+TRUTH_ATTITUDE_CSV = "truth_attitude.csv"
+"""File name of the true attitude, columns ``epoch,att_x,att_y,att_z``: the rotation vector
+(rad) of ``R_eci_from_body``."""
+
+TRUTH_ATTITUDE_COLUMNS = ("att_x", "att_y", "att_z")
+"""The columns of :data:`TRUTH_ATTITUDE_CSV` (the ``attitude`` variable's components)."""
 
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _EPOCH_EXPECTED = "an ISO-8601 UTC epoch 'YYYY-MM-DDTHH:MM:SS[.f]Z'"

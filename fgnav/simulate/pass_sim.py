@@ -163,7 +163,8 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
     """Write a simulated pass as ``fgnav simulate`` does: ``measurements.csv`` (log format
     v1), ``truth.oem`` (the truth states, CCSDS OEM) and, for a refraction sensor with an
     atmosphere-model bias, ``truth_refraction_bias.csv`` and, for a separately mounted star
-    camera, ``truth_camera_alignment.csv``, into the existing directory
+    camera, ``truth_camera_alignment.csv`` and, for body-frame rows, ``truth_attitude.csv``
+    (the attitude plan), into the existing directory
     ``out_dir``. Returns the paths written; an unwritable directory is a :class:`UserError`."""
     from pathlib import Path
 
@@ -196,6 +197,17 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
                 written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
                 comments=(f"scenario {scn.name}, seed {sim.seed}: the star camera's mounting "
                           "R_body_from_starcam as a rotation vector, rad (constant)",))
+        if any(str(k).endswith("_body") for k in set(sim.log.kind)):
+            from factors.geometry import so3_log
+            from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
+                                               write_truth_params_csv)
+
+            written.append(out / TRUTH_ATTITUDE_CSV)
+            w = so3_log(sim.truth_attitude())
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s, dict(zip(TRUTH_ATTITUDE_COLUMNS, w.T)),
+                comments=(f"scenario {scn.name}, seed {sim.seed}: the attitude plan's "
+                          "R_eci_from_body (body-frame rows refer to it) as a rotation vector, rad",))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     return written

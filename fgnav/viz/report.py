@@ -3,16 +3,32 @@
 
 A result directory (written by ``fgnav smooth LOG --out DIR``) holds ``trajectory.oem``,
 ``summary.json``, ``residuals.csv`` (``t_s,kind,component,whitened``), optionally
-``online.oem`` and ``latency.csv`` (``t_s,latency_s``). The truth OEM is found through
-``summary.json``'s ``truth_path`` (or given explicitly).
+``online.oem`` (with each epoch's online covariance) and ``latency.csv``
+(``t_s,latency_s``), and with an estimated attitude ``attitude.aem`` and
+``attitude_covariance.csv``. The truth OEM is found through ``summary.json``'s
+``truth_path`` (or given explicitly); the true attitude, where there is one, is the file
+``truth_attitude.csv`` beside it (:data:`fgnav.io.truth_params.TRUTH_ATTITUDE_CSV`).
 
-Plots (time in hours since ``epoch0``, errors in m and m/s):
+Plots (time in hours since ``epoch0``, errors in m and m/s). What ``trajectory.oem`` holds
+depends on the method, and the plots say so (:func:`estimate_label`): the *smoothed*
+solution of batch and iSAM2 (after the last epoch), the *fixed-lag smoothed* one, or the
+EKF's *filtered* states.
 
 * ``errors_rtn.png`` — position and velocity error (estimate − truth) in RTN with the ±kσ
-  envelope of the estimated covariance; without truth ``sigma_rtn.png``, the ±kσ envelope;
-* ``residuals_hist.png`` — whitened-residual histogram per kind against N(0, 1);
+  envelope of that estimate's own covariance; without truth ``sigma_rtn.png``, the ±kσ
+  envelope;
+* ``online_errors_rtn.png`` (``online_sigma_rtn.png`` without truth) — for iSAM2 and the
+  fixed-lag smoother, each epoch's *online* estimate (as it was when that epoch arrived)
+  against the online covariance of the same moment, not against the smoothed one;
+* ``residuals_time.png`` — whitened residuals against time per kind, the long gaps of the
+  log shaded;
+* ``residuals_hist.png`` — whitened-residual histogram per kind against N(0, 1); kinds with
+  fewer than :data:`MIN_HISTOGRAM_SAMPLES` values (the priors) are drawn value by value;
+* ``attitude_errors.png`` (``attitude_sigma.png`` without a true attitude) — the attitude
+  error ``Log(R_true^T R_est)`` about the body axes with the ±kσ of
+  ``attitude_covariance.csv``;
 * ``orbit_3d.png`` — estimated (and true) orbit in ECI, km, with the Earth;
-* ``latency.png`` — per-epoch update latency of incremental methods (if present).
+* ``latency.png`` — per-epoch update latency of incremental methods and the EKF.
 """
 
 from __future__ import annotations
@@ -31,10 +47,20 @@ from fgnav.io.oem import read_oem
 from fgnav.io.outputs import commit_outputs
 from fgnav.io.summary import read_summary
 from fgnav.time import format_utc
-from fgnav.viz.rerun_log import error_and_sigma
+from fgnav.viz.rerun_log import (ESTIMATE_LABELS, attitude_error_body, error_and_sigma,  # noqa: F401
+                                 estimate_label, read_truth_attitude)
 
 RTN_NAMES = ("R (radial)", "T (along-track)", "N (cross-track)")
+BODY_AXES = ("x", "y", "z")
 _H = 1.0 / 3600.0
+_ARCSEC = np.pi / (180.0 * 3600.0)
+
+#: Below this many whitened values a kind gets a strip of its values, not a histogram.
+MIN_HISTOGRAM_SAMPLES = 30
+
+#: Long gaps: steps longer than this many times the median step (as ``fgnav smooth`` plans
+#: them, :func:`fgnav.measurements.long_gaps`), when ``summary.json`` does not list them.
+GAP_FACTOR = 10.0
 
 #: Preferred order of the metrics table; other scalar keys follow alphabetically.
 METRIC_ORDER = ("method", "epochs", "duration_s", "iterations", "chi2", "wall_s",
@@ -57,14 +83,27 @@ class ResultData:
     latency_t_s: np.ndarray | None = None
     latency_s: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    online_P_eci: np.ndarray | None = None                    # (N, 6, 6) online covariance
+    residual_t_s: dict[str, np.ndarray] = field(default_factory=dict)  # kind -> (M,) s
+    residual_component: dict[str, np.ndarray] = field(default_factory=dict)  # kind -> (M,)
+    gaps: list[tuple[float, float]] | None = None             # (t_start_s, length_s) each
+    attitude_t_s: np.ndarray | None = None                    # (K,) s from epoch0
+    attitude_R: np.ndarray | None = None                      # (K, 3, 3) R_eci_from_body
+    attitude_P: np.ndarray | None = None                      # (K, 3, 3) rad^2, body frame
+    truth_attitude_R: np.ndarray | None = None                # (K, 3, 3) at attitude_t_s
+
+    @property
+    def method(self) -> str:
+        return str(self.summary.get("method", "?"))
 
 
 # --------------------------------------------------------------------------------------
 # Reading
 # --------------------------------------------------------------------------------------
-def read_residuals_csv(path) -> dict[str, np.ndarray]:
-    """``residuals.csv`` (``t_s,kind,component,whitened``) -> ``kind -> whitened (M,)``."""
-    out: dict[str, list[float]] = {}
+def read_residuals_table(path) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``residuals.csv`` (``t_s,kind,component,whitened``) -> ``kind -> (t_s (M,),
+    component (M,), whitened (M,))`` in file order."""
+    out: dict[str, list[tuple[float, int, float]]] = {}
     with open(path, encoding="utf-8", newline="") as f:
         rows = csv.reader(f)
         header = next(rows, None)
@@ -76,12 +115,21 @@ def read_residuals_csv(path) -> dict[str, np.ndarray]:
                 continue
             if len(row) != 4:
                 raise InputFormatError(path, lineno, None, "4 fields", f"{len(row)} fields")
-            try:
-                w = float(row[3])
-            except ValueError:
-                raise InputFormatError(path, lineno, "whitened", "a number", row[3]) from None
-            out.setdefault(row[1].strip(), []).append(w)
-    return {k: np.asarray(v, float) for k, v in out.items()}
+            vals = []
+            for col, i, conv in (("t_s", 0, float), ("component", 2, int), ("whitened", 3, float)):
+                try:
+                    vals.append(conv(row[i]))
+                except ValueError:
+                    what = "an integer" if conv is int else "a number"
+                    raise InputFormatError(path, lineno, col, what, row[i]) from None
+            out.setdefault(row[1].strip(), []).append(tuple(vals))
+    return {k: (np.array([r[0] for r in v], float), np.array([r[1] for r in v], int),
+                np.array([r[2] for r in v], float)) for k, v in out.items()}
+
+
+def read_residuals_csv(path) -> dict[str, np.ndarray]:
+    """``residuals.csv`` (``t_s,kind,component,whitened``) -> ``kind -> whitened (M,)``."""
+    return {k: w for k, (_, _, w) in read_residuals_table(path).items()}
 
 
 def read_latency_csv(path) -> tuple[np.ndarray, np.ndarray]:
@@ -125,6 +173,22 @@ def states_at(t_query_s, t_s, x_eci) -> np.ndarray:
     return out
 
 
+def residual_gaps(residual_t_s: dict, gap_factor: float = GAP_FACTOR) -> list[tuple[float, float]]:
+    """Long gaps ``(t_start_s, length_s)`` of the epochs with residuals: steps longer than
+    ``gap_factor`` times their median step (for results whose summary lists none)."""
+    ts = [np.asarray(t, float) for t in residual_t_s.values() if len(t)]
+    if not ts:
+        return []
+    t = np.unique(np.concatenate(ts))
+    if len(t) < 3:
+        return []
+    dt = np.diff(t)
+    step = float(np.median(dt))
+    if step <= 0:
+        return []
+    return [(float(t[i]), float(dt[i])) for i in np.flatnonzero(dt > gap_factor * step)]
+
+
 def _find_truth(result_dir: Path, truth_path) -> Path | None:
     p = Path(truth_path)
     for cand in (p, result_dir / p, result_dir / p.name):
@@ -149,25 +213,63 @@ def load_result(result_dir, truth_path=None) -> ResultData:
                       P_eci=None if est.P_eci is None else np.asarray(est.P_eci, float))
 
     tp = truth_path if truth_path is not None else summary.get("truth_path")
+    found = None
     if tp:
         found = _find_truth(d, tp)
         if found is None:
             data.notes.append(f"truth file {tp} not found: plotted without truth")
         else:
             tru = read_oem(found)
-            shift = float((np.datetime64(tru.epoch0, "ns") - data.epoch0) / np.timedelta64(1, "ns")) * 1e-9
-            data.truth_x_eci = states_at(t_s, np.asarray(tru.t_s, float) + shift, tru.x_eci)
+            data.truth_x_eci = states_at(t_s, np.asarray(tru.t_s, float) + _shift_s(tru.epoch0, data.epoch0),
+                                         tru.x_eci)
             if np.any(np.isnan(data.truth_x_eci)):
                 data.notes.append("truth does not cover every estimated epoch (gaps left blank)")
     if (d / "online.oem").is_file():
         onl = read_oem(d / "online.oem")
-        shift = float((np.datetime64(onl.epoch0, "ns") - data.epoch0) / np.timedelta64(1, "ns")) * 1e-9
+        shift = _shift_s(onl.epoch0, data.epoch0)
         data.online_x_eci = states_at(t_s, np.asarray(onl.t_s, float) + shift, onl.x_eci)
+        if onl.P_eci is not None and len(onl.t_s) == len(t_s) and \
+                np.allclose(np.asarray(onl.t_s, float) + shift, t_s, atol=1e-6):
+            data.online_P_eci = np.asarray(onl.P_eci, float)
     if (d / "residuals.csv").is_file():
-        data.residuals = read_residuals_csv(d / "residuals.csv")
+        table = read_residuals_table(d / "residuals.csv")
+        data.residuals = {k: w for k, (_, _, w) in table.items()}
+        data.residual_t_s = {k: t for k, (t, _, _) in table.items()}
+        data.residual_component = {k: c for k, (_, c, _) in table.items()}
+    if isinstance(summary.get("gaps"), list):
+        data.gaps = [(float(g["t_start_s"]), float(g["length_s"])) for g in summary["gaps"]
+                     if isinstance(g, dict) and "t_start_s" in g and "length_s" in g]
     if (d / "latency.csv").is_file():
         data.latency_t_s, data.latency_s = read_latency_csv(d / "latency.csv")
+    if (d / "attitude.aem").is_file():
+        _load_attitude(d, data, found)
     return data
+
+
+def _shift_s(epoch0, ref_epoch0) -> float:
+    """Seconds from ``ref_epoch0`` to ``epoch0``."""
+    return float((np.datetime64(epoch0, "ns") - np.datetime64(ref_epoch0, "ns"))
+                 / np.timedelta64(1, "ns")) * 1e-9
+
+
+def _load_attitude(d: Path, data: ResultData, truth_oem: Path | None) -> None:
+    """``attitude.aem``, ``attitude_covariance.csv`` and, beside the truth OEM,
+    ``truth_attitude.csv`` (:func:`fgnav.viz.rerun_log.read_truth_attitude`) into ``data``."""
+    from fgnav.io.aem import read_aem
+    from fgnav.io.attitude_covariance import read_attitude_covariance
+
+    aem = read_aem(d / "attitude.aem")
+    data.attitude_t_s = np.asarray(aem.t_s, float) + _shift_s(aem.epoch0, data.epoch0)
+    data.attitude_R = aem.R_eci_from_body()
+    if (d / "attitude_covariance.csv").is_file():
+        _, tc, Pc = read_attitude_covariance(d / "attitude_covariance.csv")
+        if len(tc) == len(data.attitude_t_s) and np.allclose(tc, data.attitude_t_s, atol=1e-5):
+            data.attitude_P = Pc
+        else:
+            data.notes.append("attitude_covariance.csv does not match the epochs of attitude.aem: "
+                              "attitude plotted without sigma")
+    if truth_oem is not None:
+        data.truth_attitude_R = read_truth_attitude(truth_oem, data.epoch0, data.attitude_t_s)
 
 
 # --------------------------------------------------------------------------------------
@@ -184,60 +286,148 @@ def _rtn_err_sigma(x_eci, P_eci, truth_x_eci):
     return error_and_sigma(x_eci, P, truth_x_eci, frame="rtn")
 
 
-def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, online_x_eci=None,
-                      title=None):
-    """RTN position (m) and velocity (m/s) errors vs time (h) with the ±kσ envelope.
+def _shade_gaps(ax, gaps, *, label=True):
+    """Shade each long gap ``(t_start_s, length_s)`` of the log (time axis in hours)."""
+    for i, (t0, length) in enumerate(gaps or ()):
+        ax.axvspan(t0 * _H, (t0 + length) * _H, color="0.55", alpha=0.18, lw=0,
+                   label="gap in the log (no measurements)" if label and i == 0 else None)
 
-    Without truth, plots the ±kσ envelope alone. Returns the Figure (2 x 3 axes:
-    rows position / velocity, columns R, T, N).
+
+#: Estimates that start from the prior alone (filtered, online): their first minutes'
+#: envelope is the prior's, orders of magnitude wider than the rest.
+CAUSAL_LABELS = ("filtered", "online")
+
+
+def _limit_transient(ax, band, err=None):
+    """Keep the first minutes' large envelope of a causal estimate (a wide prior converging)
+    from flattening the rest: the y range covers the 90th percentile of the envelope and
+    99.5 % of the error; what lies beyond runs off the axes."""
+    vals = [np.nanpercentile(band, 90)] if np.any(np.isfinite(band)) else []
+    if err is not None and np.any(np.isfinite(err)):
+        vals.append(np.nanpercentile(np.abs(err), 99.5))
+    lim = 1.15 * max(vals) if vals else np.nan
+    if np.isfinite(lim) and lim > 0:
+        ax.set_ylim(-lim, lim)
+
+
+def _band_and_error(ax, t_h, band, err, label, k_sigma):
+    """The ±kσ envelope ``band`` (None: none) filled and outlined in red, and the error line
+    (None: none) in blue, labelled "<label> error" and "±kσ (<label> covariance)"."""
+    if band is not None:
+        ax.fill_between(t_h, -band, band, color="tab:red", alpha=0.15, lw=0,
+                        label=f"±{k_sigma:g}σ ({label} covariance)")
+        ax.plot(t_h, band, color="tab:red", lw=0.8)
+        ax.plot(t_h, -band, color="tab:red", lw=0.8)
+    if err is not None:
+        ax.plot(t_h, err, color="tab:blue", lw=0.9, label=f"{label} error")
+    ax.axhline(0.0, color="0.5", lw=0.5)
+    ax.grid(True, alpha=0.3)
+
+
+def _legend_and_title(fig, ax, title):
+    """One legend below the panels (the entries of ``ax``) and the title above them."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_state_errors(t_s, x_eci, P_eci, truth_x_eci=None, *, k_sigma=3.0, label="smoothed",
+                      gaps=None, title=None):
+    """RTN position (m) and velocity (m/s) errors vs time (h) with the ±kσ envelope of the
+    same estimate's covariance.
+
+    ``label`` names the estimate (:func:`estimate_label`: "smoothed", "filtered", "online",
+    ...): the error line is "<label> error" and the envelope "±kσ (<label> covariance)".
+    Without truth, plots the ±kσ envelope alone. ``gaps`` (``(t_start_s, length_s)`` each)
+    are shaded. For a causal estimate (:data:`CAUSAL_LABELS`) with truth the y range leaves
+    out the converging start (see :func:`_limit_transient`). Returns the Figure (2 x 3 axes: rows position / velocity, columns R, T, N).
     """
     t_h = np.asarray(t_s, float) * _H
     err, sig = _rtn_err_sigma(x_eci, P_eci, truth_x_eci)
-    on_err = None
-    if err is not None and online_x_eci is not None:
-        on_err, _ = _rtn_err_sigma(online_x_eci, None, truth_x_eci)
     fig = _figure((13, 6.5))
     axs = fig.subplots(2, 3, sharex=True)
     what = "error" if err is not None else f"±{k_sigma:g}σ"
     for row, (block, unit, off) in enumerate((("position", "m", 0), ("velocity", "m/s", 3))):
         for c in range(3):
             ax = axs[row, c]
+            _shade_gaps(ax, gaps)
             b = k_sigma * sig[:, off + c]
-            ax.fill_between(t_h, -b, b, color="tab:red", alpha=0.15, lw=0,
-                            label=f"±{k_sigma:g}σ (estimated covariance)")
-            ax.plot(t_h, b, color="tab:red", lw=0.8)
-            ax.plot(t_h, -b, color="tab:red", lw=0.8)
-            if on_err is not None:
-                ax.plot(t_h, on_err[:, off + c], color="tab:orange", lw=0.6, alpha=0.7,
-                        label="online (filtered) error")
-            if err is not None:
-                ax.plot(t_h, err[:, off + c], color="tab:blue", lw=0.9, label="smoothed error")
-                if on_err is not None:
-                    # keep the smoothed error readable: limit the axis to it and its envelope
-                    lim = 1.2 * np.nanmax(np.abs(np.concatenate([err[:, off + c], b])))
-                    if np.isfinite(lim) and lim > 0:
-                        ax.set_ylim(-lim, lim)
-            ax.axhline(0.0, color="0.5", lw=0.5)
+            e = None if err is None else err[:, off + c]
+            _band_and_error(ax, t_h, b, e, label, k_sigma)
+            if e is not None and label in CAUSAL_LABELS:
+                _limit_transient(ax, b, e)
             ax.set_ylabel(f"{RTN_NAMES[c].split()[0]} {block} {what} [{unit}]")
             ax.set_title(f"{block} {RTN_NAMES[c]}", fontsize=10)
-            ax.grid(True, alpha=0.3)
             if row == 1:
                 ax.set_xlabel("time since epoch0 [h]")
-    handles, labels = axs[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9)
     if title is None:
-        title = ("State error (estimate − truth) in RTN with ±%gσ" % k_sigma if err is not None
-                 else "State uncertainty ±%gσ in RTN (no truth given)" % k_sigma)
+        title = (f"{label.capitalize()} state error (estimate − truth) in RTN with ±{k_sigma:g}σ"
+                 if err is not None else
+                 f"{label.capitalize()} state uncertainty ±{k_sigma:g}σ in RTN (no truth given)")
+    return _legend_and_title(fig, axs[0, 0], title)
+
+
+def plot_residuals_time(residual_t_s: dict, residuals: dict, residual_component=None, *,
+                        gaps=None, clip=6.0, title="Whitened residuals against time"):
+    """Whitened residuals (σ) vs time (h), one panel per kind observed at two epochs or more
+    (a prior has one), a colour per component, ±3σ lines; values beyond ±``clip`` are drawn
+    at the edge as triangles; ``gaps`` (``(t_start_s, length_s)`` each) are shaded. Returns
+    the Figure."""
+    kinds = [k for k in residuals if k in residual_t_s and np.size(residuals[k])
+             and len(np.unique(residual_t_s[k])) >= 2]
+    nrow = max(1, len(kinds))
+    fig = _figure((12, 1.2 + 2.3 * nrow))
+    axs = np.atleast_1d(fig.subplots(nrow, 1, sharex=True)).ravel()
+    colors = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
+    for ax, kind in zip(axs, kinds):
+        t_h = np.asarray(residual_t_s[kind], float) * _H
+        w = np.asarray(residuals[kind], float)
+        comp = (np.zeros(len(w), int) if residual_component is None or kind not in residual_component
+                else np.asarray(residual_component[kind], int))
+        _shade_gaps(ax, gaps)
+        many = len(w) > 20000
+        for j in np.unique(comp):
+            sel = comp == j
+            wj = np.clip(w[sel], -clip, clip)
+            ax.plot(t_h[sel], wj, ".", ms=1.0 if many else 2.0, color=colors[j % len(colors)],
+                    alpha=0.6, rasterized=many, label=f"component {j}")
+            for sgn, marker in ((1.0, "^"), (-1.0, "v")):
+                out = sgn * w[sel] > clip
+                if np.any(out):
+                    ax.plot(t_h[sel][out], wj[out], marker, ms=4, color="k", ls="none")
+        for y in (-3.0, 3.0):
+            ax.axhline(y, color="tab:red", lw=0.8, ls="--", label="±3σ" if y > 0 else None)
+        ax.axhline(0.0, color="0.5", lw=0.5)
+        ax.set_ylim(-clip * 1.05, clip * 1.05)
+        n_out = int(np.sum(np.abs(w) > clip))
+        ax.set_title(f"{kind}: {len(w):,} values" + (f", {n_out} beyond ±{clip:g}σ drawn at the edge"
+                                                     if n_out else ""), fontsize=10)
+        ax.set_ylabel("whitened residual [σ]")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right", ncol=5, markerscale=4)
+    if not kinds:
+        axs[0].text(0.5, 0.5, "no residuals observed at two epochs or more", ha="center",
+                    va="center", transform=axs[0].transAxes)
+    axs[-1].set_xlabel("time since epoch0 [h]")
+    if gaps:
+        title += f" ({len(gaps)} gap{'s' if len(gaps) > 1 else ''} in the log shaded)"
     fig.suptitle(title)
     return fig
 
 
 def plot_residual_histograms(residuals: dict, *, clip=6.0, title="Whitened residuals vs N(0, 1)"):
     """One histogram per measurement kind of the whitened residuals (all components pooled)
-    with the standard-normal density they should follow. Returns the Figure."""
-    kinds = [k for k, v in residuals.items() if np.size(v)]
-    ncol = min(3, max(1, len(kinds)))
-    nrow = max(1, int(np.ceil(len(kinds) / ncol)))
+    with the standard-normal density they should follow. Kinds with fewer than
+    :data:`MIN_HISTOGRAM_SAMPLES` values (priors: 3) share one last panel that shows each
+    value as a point on its own row, against the ±1/2/3σ lines. Returns the Figure."""
+    present = [k for k, v in residuals.items() if np.size(v)]
+    kinds = [k for k in present if np.size(residuals[k]) >= MIN_HISTOGRAM_SAMPLES]
+    few = [k for k in present if np.size(residuals[k]) < MIN_HISTOGRAM_SAMPLES]
+    npanel = len(kinds) + (1 if few else 0)
+    ncol = min(3, max(1, npanel))
+    nrow = max(1, int(np.ceil(npanel / ncol)))
     fig = _figure((4.6 * ncol, 3.6 * nrow))
     axs = np.atleast_1d(fig.subplots(nrow, ncol)).ravel()
     g = np.linspace(-clip, clip, 400)
@@ -258,12 +448,71 @@ def plot_residual_histograms(residuals: dict, *, clip=6.0, title="Whitened resid
         ax.set_title(t, fontsize=10)
         ax.legend(fontsize=8, loc="upper left")
         ax.grid(True, alpha=0.3)
-    for ax in axs[len(kinds):]:
+    if few:
+        ax = axs[len(kinds)]
+        for i, kind in enumerate(few):
+            w = np.asarray(residuals[kind], float).ravel()
+            w = w[np.isfinite(w)]
+            ax.plot(np.clip(w, -clip, clip), np.full(len(w), i), "o", ms=6, color="tab:blue",
+                    alpha=0.7, label="whitened value" if i == 0 else None)
+        for y in (1, 2, 3):
+            for sgn in (-1, 1):
+                ax.axvline(sgn * y, color="tab:red", lw=0.6, ls=(":", "--", "-")[y - 1], alpha=0.7,
+                           label=f"±{y}σ" if sgn > 0 else None)
+        ax.set_yticks(range(len(few)), [f"{k}\n(n={np.size(residuals[k])})" for k in few], fontsize=8)
+        ax.set_ylim(-0.7, len(few) - 0.3)
+        ax.set_xlim(-clip, clip)
+        ax.set_xlabel("whitened residual [σ]")
+        ax.set_title(f"kinds with < {MIN_HISTOGRAM_SAMPLES} values: each value", fontsize=10)
+        ax.legend(fontsize=7, loc="upper left", ncol=2)
+        ax.grid(True, axis="x", alpha=0.3)
+    for ax in axs[npanel:]:
         ax.set_axis_off()
-    if not kinds:
+    if not present:
         axs[0].text(0.5, 0.5, "no residuals", ha="center", va="center", transform=axs[0].transAxes)
     fig.suptitle(title)
     return fig
+
+
+def attitude_unit(sigma_rad) -> tuple[str, float]:
+    """("arcsec", rad per arcsec) when the median attitude 1σ is below 0.01 deg, else
+    ("deg", rad per deg)."""
+    s = np.asarray(sigma_rad, float)
+    med = float(np.nanmedian(s)) if np.any(np.isfinite(s)) else np.nan
+    if np.isfinite(med) and med < np.radians(0.01):
+        return "arcsec", _ARCSEC
+    return "deg", np.pi / 180.0
+
+
+def plot_attitude_errors(t_s, R_eci_from_body, P_rad2=None, truth_R=None, *, k_sigma=3.0,
+                         label="smoothed", gaps=None, title=None):
+    """Attitude error ``Log(R_true^T R_est)`` (rotation vector in the body frame, the right
+    perturbation of ``attitude_covariance.csv``; Sola, Deray & Atchuthan 2018, "A micro Lie
+    theory for state estimation in robotics") about body x, y, z vs time (h), with the ±kσ
+    of ``P_rad2``; without truth the ±kσ alone. Unit arcsec or deg (:func:`attitude_unit`).
+    Returns the Figure (1 x 3 axes)."""
+    t_h = np.asarray(t_s, float) * _H
+    n = len(t_h)
+    sig = (np.full((n, 3), np.nan) if P_rad2 is None else
+           np.sqrt(np.clip(np.diagonal(np.asarray(P_rad2, float), axis1=1, axis2=2), 0.0, None)))
+    err = None if truth_R is None else attitude_error_body(R_eci_from_body, truth_R)
+    unit, scale = attitude_unit(sig if P_rad2 is not None else (np.abs(err) if err is not None
+                                                                 else sig))
+    fig = _figure((13, 3.9))
+    axs = fig.subplots(1, 3, sharex=True)
+    what = "error" if err is not None else f"±{k_sigma:g}σ"
+    for c, ax in enumerate(axs):
+        _shade_gaps(ax, gaps)
+        _band_and_error(ax, t_h, None if P_rad2 is None else k_sigma * sig[:, c] / scale,
+                        None if err is None else err[:, c] / scale, label, k_sigma)
+        ax.set_title(f"rotation about body {BODY_AXES[c]}", fontsize=10)
+        ax.set_ylabel(f"attitude {what} about body {BODY_AXES[c]} [{unit}]")
+        ax.set_xlabel("time since epoch0 [h]")
+    if title is None:
+        title = (f"{label.capitalize()} attitude error Log(R_trueᵀ R_est) about the body axes, "
+                 f"with ±{k_sigma:g}σ" if err is not None else
+                 f"{label.capitalize()} attitude uncertainty ±{k_sigma:g}σ, body frame (no true attitude)")
+    return _legend_and_title(fig, axs[0], title)
 
 
 def plot_orbit_3d(x_eci, truth_x_eci=None, *, title="Orbit in ECI"):
@@ -293,20 +542,39 @@ def plot_orbit_3d(x_eci, truth_x_eci=None, *, title="Orbit in ECI"):
     return fig
 
 
+def format_duration_s(seconds: float) -> str:
+    """A latency with 3 significant digits in µs, ms or s (never "0.00 ms")."""
+    v = float(seconds)
+    if not np.isfinite(v):
+        return "n/a"
+    for limit, scale, unit in ((1e-3, 1e6, "µs"), (1.0, 1e3, "ms")):
+        if abs(v) < limit:
+            return f"{v * scale:.3g} {unit}"
+    return f"{v:.3g} s"
+
+
 def plot_latency(t_s, latency_s, *, title="Per-epoch update latency"):
-    """Update latency (ms) vs time (h), with its median and 99th percentile."""
+    """Update latency vs time (h) in ms, or in µs when the median is below 1 ms (an EKF
+    update), on a log scale when it spans more than a factor 30, with its median and 99th
+    percentile written to 3 significant digits in a fitting unit."""
     fig = _figure((9, 3.5))
     ax = fig.subplots()
-    ms = np.asarray(latency_s, float) * 1e3
-    ax.plot(np.asarray(t_s, float) * _H, ms, ".", ms=2, color="tab:purple", label="latency")
-    if len(ms):
-        for q, ls in ((50, "--"), (99, ":")):
-            ax.axhline(np.percentile(ms, q), color="k", ls=ls, lw=0.8,
-                       label=f"{'median' if q == 50 else '99th percentile'} {np.percentile(ms, q):.2f} ms")
+    lat = np.asarray(latency_s, float)
+    med = float(np.median(lat)) if len(lat) else 1.0
+    unit, scale = ("µs", 1e6) if med < 1e-3 else ("ms", 1e3)
+    v = lat * scale
+    ax.plot(np.asarray(t_s, float) * _H, v, ".", ms=2, color="tab:purple", label="latency")
+    if len(v):
+        for q, ls, name in ((50, "--", "median"), (99, ":", "99th percentile")):
+            x = float(np.percentile(lat, q))
+            ax.axhline(x * scale, color="k", ls=ls, lw=0.8, label=f"{name} {format_duration_s(x)}")
+        pos = v[v > 0]
+        if len(pos) and pos.max() > 30 * np.percentile(pos, 1):
+            ax.set_yscale("log")
     ax.set_xlabel("time since epoch0 [h]")
-    ax.set_ylabel("update latency [ms]")
+    ax.set_ylabel(f"update latency [{unit}]")
     ax.set_title(title)
-    ax.grid(True, alpha=0.3)
+    ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     return fig
 
@@ -356,12 +624,30 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     has_truth = data.truth_x_eci is not None
+    label = estimate_label(data.method)
+    gaps = data.gaps if data.gaps is not None else residual_gaps(data.residual_t_s)
     figs = {}
     figs["errors_rtn" if has_truth else "sigma_rtn"] = plot_state_errors(
-        data.t_s, data.x_eci, data.P_eci, data.truth_x_eci, k_sigma=k_sigma,
-        online_x_eci=data.online_x_eci)
+        data.t_s, data.x_eci, data.P_eci, data.truth_x_eci, k_sigma=k_sigma, label=label,
+        gaps=gaps)
+    online = data.online_x_eci is not None and data.method != "ekf"
+    if online:
+        if data.online_P_eci is None:
+            data.notes.append("online.oem has no covariance at every epoch: the online error is "
+                              "drawn without its sigma")
+        figs["online_errors_rtn" if has_truth else "online_sigma_rtn"] = plot_state_errors(
+            data.t_s, data.online_x_eci, data.online_P_eci, data.truth_x_eci, k_sigma=k_sigma,
+            label="online", gaps=gaps)
     if data.residuals:
+        if data.residual_t_s:
+            figs["residuals_time"] = plot_residuals_time(
+                data.residual_t_s, data.residuals, data.residual_component, gaps=gaps)
         figs["residuals_hist"] = plot_residual_histograms(data.residuals)
+    att_truth = data.truth_attitude_R is not None
+    if data.attitude_R is not None and (att_truth or data.attitude_P is not None):
+        figs["attitude_errors" if att_truth else "attitude_sigma"] = plot_attitude_errors(
+            data.attitude_t_s, data.attitude_R, data.attitude_P, data.truth_attitude_R,
+            k_sigma=k_sigma, label=label, gaps=gaps)
     figs["orbit_3d"] = plot_orbit_3d(data.x_eci, data.truth_x_eci)
     if data.latency_s is not None and len(data.latency_s):
         figs["latency"] = plot_latency(data.latency_t_s, data.latency_s)
@@ -370,15 +656,22 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
         images[name] = out / f"{name}.png"
         _save(fig, images[name])
 
-    method = data.summary.get("method", "?")
+    method = data.method
     title = title or f"fgnav report — {method}"
 
     e0 = format_utc(data.epoch0)[:-4] + "Z"  # ms; leap seconds print as 23:59:60
     span_h = (data.t_s[-1] - data.t_s[0]) * _H if len(data.t_s) else 0.0
+    L = label.capitalize()
     captions = {
-        "errors_rtn": f"Position and velocity error (estimate − truth) in RTN with ±{k_sigma:g}σ",
-        "sigma_rtn": f"Position and velocity ±{k_sigma:g}σ in RTN (no truth available)",
+        "errors_rtn": f"{L} position and velocity error (estimate − truth) in RTN with ±{k_sigma:g}σ",
+        "sigma_rtn": f"{L} position and velocity ±{k_sigma:g}σ in RTN (no truth available)",
+        "online_errors_rtn": f"Online position and velocity error (each epoch as estimated when it "
+                             f"arrived) in RTN with the online ±{k_sigma:g}σ",
+        "online_sigma_rtn": f"Online position and velocity ±{k_sigma:g}σ in RTN (no truth available)",
+        "residuals_time": "Whitened residuals against time (long gaps shaded)",
         "residuals_hist": "Whitened residuals per measurement kind against N(0, 1)",
+        "attitude_errors": f"{L} attitude error about the body axes with ±{k_sigma:g}σ",
+        "attitude_sigma": f"{L} attitude ±{k_sigma:g}σ about the body axes (no true attitude)",
         "orbit_3d": "Orbit in ECI (km)",
         "latency": "Per-epoch update latency",
     }
@@ -425,7 +718,9 @@ def report_result_dir(result_dir, out_dir=None, *, truth_path=None, k_sigma=3.0)
     return res
 
 
-__all__ = ["ResultData", "load_result", "read_residuals_csv", "read_latency_csv", "states_at",
-           "plot_state_errors", "plot_residual_histograms", "plot_orbit_3d", "plot_latency",
+__all__ = ["ResultData", "load_result", "read_residuals_csv", "read_residuals_table",
+           "read_latency_csv", "states_at", "estimate_label", "residual_gaps",
+           "plot_state_errors", "plot_residuals_time", "plot_residual_histograms",
+           "plot_attitude_errors", "plot_orbit_3d", "plot_latency", "format_duration_s",
            "metrics_rows", "write_report", "report_result_dir"]
 

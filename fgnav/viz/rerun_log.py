@@ -8,11 +8,22 @@
   magnification, in the entity path, e.g. ``world/estimate/covariance_3sigma_x100``) both as
   a trail every ``ellipsoid_every`` epochs and at the cursor, and the measured directions
   (Earth direction, stars) as rays from the spacecraft;
+  With an attitude (estimated, or the log's ``attitude`` rows): the body axes at the cursor
+  (``world/estimate/body_axes``, x/y/z red/green/blue) and along the trajectory
+  (``.../body_axes_trail``);
+* ``camera/...`` (the body frame, unit length): the body axes and the log's body-frame rows
+  as rays (``camera/star_direction_body/measured``), with an estimated attitude also each
+  star's catalogue direction rotated into the body frame (``.../catalogue_in_body``);
 * time series on the ``t_s`` timeline (seconds from ``epoch0``; also the ``utc`` timeline):
   ``errors/position_{eci,rtn}_m/<axis>`` and ``errors/velocity_{eci,rtn}_mps/<axis>``, each
-  with the series ``error, +3σ, -3σ`` (with truth), or ``sigma/...`` with ``+3σ, -3σ``
-  (without), ``consistency/nees`` (6-dof NEES with its 95 % single-run chi-square band),
-  ``residuals/<kind>`` (whitened residual components), ``timing/latency_ms``.
+  with the series ``<axis> error, <axis> +3σ, <axis> -3σ`` (with truth; each axis its own
+  colour, :data:`AXIS_COLORS`), or ``sigma/...`` with ``<axis> +3σ, <axis> -3σ`` (without),
+  ``consistency/nees`` (6-dof NEES with its 95 % single-run chi-square band),
+  ``residuals/<kind>`` (whitened residual components), ``timing/latency_ms``, and with an
+  attitude covariance ``attitude/{error,sigma}_arcsec/<body axis>``.
+
+The stored blueprint (:func:`default_blueprint`) opens with every time plot on the whole
+pass and the 3-D camera framing the whole orbit (:func:`orbit_eye`).
 
 Everything is sent with ``rr.send_columns`` (one call per entity), so a 14,400-epoch pass
 logs in a fraction of a second (``scripts/bench_rerun.py``).
@@ -33,20 +44,29 @@ import numpy as np
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
-from fgnav.models.registry import eci_ray_kinds
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, eci_ray_kinds
 from fgnav.orbit import rtn_frame
 from fgnav.time import format_utc
 
 #: WGS-84 flattening, for the drawn Earth only (the physics uses ``J2``).
 _F_WGS84 = 1.0 / 298.257223563
 _KM = 1.0e-3
+_ARCSEC = np.pi / (180.0 * 3600.0)
 
 #: RTN axis names (radial, along-track/transverse, orbit normal) and ECI axis names.
 RTN_AXES = ("R", "T", "N")
 ECI_AXES = ("x", "y", "z")
 
-_BAND_COLORS = [[31, 119, 180], [214, 39, 40], [214, 39, 40]]
-_SIGMA_COLORS = [[214, 39, 40], [214, 39, 40]]
+#: What ``trajectory.oem`` / ``Solution.x_eci`` holds for each method (an EKF's states are
+#: filtered, not smoothed): the word plots put before "error" and "covariance".
+ESTIMATE_LABELS = {"batch": "smoothed", "isam2": "smoothed", "fixed-lag": "fixed-lag smoothed",
+                   "ekf": "filtered"}
+
+
+def estimate_label(method) -> str:
+    """"smoothed" / "fixed-lag smoothed" / "filtered" for the final states of ``method``
+    ("estimated" for a method not listed)."""
+    return ESTIMATE_LABELS.get(str(method), "estimated")
 
 
 # --------------------------------------------------------------------------------------
@@ -88,6 +108,18 @@ def error_and_sigma(x_eci, P_eci, truth_x_eci=None, frame="rtn"):
     # diag(T P T^T)_i = sum_jk T_ij P_jk T_ik
     var = np.einsum("nij,njk,nik->ni", T, P_eci, T)
     return err, np.sqrt(np.clip(var, 0.0, None))
+
+
+def attitude_error_body(R_est, R_true) -> np.ndarray:
+    """Attitude error ``Log(R_true^T R_est)`` (N, 3) rad: the rotation vector in the body
+    frame, the right perturbation the attitude covariance is of (Sola, Deray & Atchuthan
+    2018, "A micro Lie theory for state estimation in robotics", eq. 26); not a difference
+    of rotation vectors, which is wrong near a half turn."""
+    from scipy.spatial.transform import Rotation
+
+    R_est = np.asarray(R_est, float).reshape(-1, 3, 3)
+    R_true = np.asarray(R_true, float).reshape(-1, 3, 3)
+    return Rotation.from_matrix(np.swapaxes(R_true, 1, 2) @ R_est).as_rotvec()
 
 
 def nees(x_eci, P_eci, truth_x_eci) -> np.ndarray:
@@ -197,35 +229,116 @@ def open_viewer(rrd_path) -> tuple[bool, str]:
 # --------------------------------------------------------------------------------------
 # Recording
 # --------------------------------------------------------------------------------------
-def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False):
-    """Default layout: 3-D view (left), position/velocity RTN errors (or sigmas) and
-    residuals / NEES / latency time series (right)."""
+#: Colours of the R, T, N (and x, y, z) series: each axis its own hue, the error line full
+#: and its ±kσ bounds a lighter shade of it (Tableau 10: blue, orange, green).
+AXIS_COLORS = ([31, 119, 180], [255, 127, 14], [44, 160, 44])
+
+
+def _lighter(rgb, f=0.55):
+    return [int(round(c + (255 - c) * f)) for c in rgb]
+
+
+def orbit_eye(r_m: np.ndarray, v_m: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """A 3-D camera that frames the whole orbit: ``(eye position, up)`` in km, looking at the
+    Earth's centre from 2.4 times the largest radius, 35 deg above the orbit plane (the mean
+    orbit normal), so the Earth and the full trajectory are in view whatever the orbit."""
+    r = np.asarray(r_m, float)
+    ok = np.all(np.isfinite(r), axis=1)
+    r = r[ok]
+    rmax_km = float(np.max(np.linalg.norm(r, axis=1))) * _KM if len(r) else R_EARTH_M * _KM
+    n = np.array([0.0, 0.0, 1.0])
+    if v_m is not None and len(r):
+        h = np.cross(r, np.asarray(v_m, float)[ok])
+        hs = h.sum(axis=0)
+        if np.linalg.norm(hs) > 0:
+            n = hs / np.linalg.norm(hs)
+    # in-plane direction: from the Earth to the middle of the arc flown
+    c = r.mean(axis=0) if len(r) else np.array([1.0, 0.0, 0.0])
+    c = c - (c @ n) * n
+    if np.linalg.norm(c) < 1e-9 * max(1.0, rmax_km):
+        c = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    c = c / np.linalg.norm(c)
+    el = np.radians(35.0)
+    eye = 2.4 * max(rmax_km, R_EARTH_M * _KM) * (np.cos(el) * c + np.sin(el) * n)
+    return eye, n
+
+
+def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, t_range_s=None,
+                      eye_km=None, eye_up=None, has_attitude=False, has_camera=False,
+                      boresight_body=None):
+    """Default layout: the 3-D orbit view framed on the whole orbit (``eye_km``, ``eye_up``,
+    :func:`orbit_eye`) and, with body-frame rows, the star camera's view (body frame, seen
+    from behind the camera along ``boresight_body``) below it; on the right the
+    position/velocity RTN errors (or sigmas), the attitude error (or sigma) when there is an
+    attitude covariance, and tabs of residuals, NEES and latency. Every time plot shows the
+    whole pass ``t_range_s`` (s on the ``t_s`` timeline), not a window around the time
+    cursor. The blueprint and selection panels start collapsed, leaving the room to the
+    views."""
     import rerun.blueprint as rrb
+
+    def series_view(origin, name):
+        kw = {}
+        if t_range_s is not None:
+            t0, t1 = (float(t) for t in t_range_s)
+            kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(
+                start=rrb.TimeRangeBoundary.absolute(seconds=t0),
+                end=rrb.TimeRangeBoundary.absolute(seconds=t1 if t1 > t0 else t0 + 1.0)))
+        return rrb.TimeSeriesView(
+            origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=True),
+            time_ranges=rrb.VisibleTimeRange("t_s", start=rrb.TimeRangeBoundary.infinite(),
+                                             end=rrb.TimeRangeBoundary.infinite()), **kw)
 
     root = "errors" if has_truth else "sigma"
     unit = "error" if has_truth else "3σ"
     series = [
-        rrb.TimeSeriesView(origin=f"{root}/position_rtn_m", name=f"position {unit} RTN [m]"),
-        rrb.TimeSeriesView(origin=f"{root}/velocity_rtn_mps", name=f"velocity {unit} RTN [m/s]"),
+        series_view(f"{root}/position_rtn_m", f"position {unit} R/T/N [m]"),
+        series_view(f"{root}/velocity_rtn_mps", f"velocity {unit} R/T/N [m/s]"),
     ]
+    if has_attitude:
+        series.append(series_view(ATTITUDE_ROOT, f"attitude {unit} about body x/y/z [arcsec]"))
     tabs = []
     if residual_kinds:
-        tabs.append(rrb.TimeSeriesView(origin="residuals", name="whitened residuals [-]"))
+        tabs.append(series_view("residuals", "whitened residuals [-]"))
     if has_truth:
-        tabs.append(rrb.TimeSeriesView(origin="consistency", name="NEES (6 dof)"))
+        tabs.append(series_view("consistency", "NEES (6 dof)"))
     if has_latency:
-        tabs.append(rrb.TimeSeriesView(origin="timing", name="update latency [ms]"))
+        tabs.append(series_view("timing", "update latency [ms]"))
     tabs.append(rrb.TextDocumentView(origin="about", name="about"))
     series.append(rrb.Tabs(*tabs))
+    eye = {}
+    if eye_km is not None:
+        eye["eye_controls"] = rrb.EyeControls3D(
+            kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in eye_km],
+            look_target=[0.0, 0.0, 0.0],
+            eye_up=[float(v) for v in (eye_up if eye_up is not None else (0.0, 0.0, 1.0))])
+    world = rrb.Spatial3DView(origin="world", name="orbit (ECI, km)", **eye)
+    if has_camera:
+        b = np.array([0.0, 0.0, 1.0]) if boresight_body is None else np.asarray(boresight_body, float)
+        b = b / np.linalg.norm(b)
+        side = np.cross(b, [1.0, 0.0, 0.0] if abs(b[0]) < 0.9 else [0.0, 1.0, 0.0])
+        side /= np.linalg.norm(side)
+        left = rrb.Vertical(world, rrb.Spatial3DView(
+            origin="camera", name="star camera: rays in the body frame",
+            eye_controls=rrb.EyeControls3D(
+                kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in -0.5 * b + 0.7 * side],
+                look_target=[float(v) for v in 0.6 * b], eye_up=[float(v) for v in b])),
+            row_shares=[3, 2])
+    else:
+        left = world
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="orbit (ECI, km)"),
-            rrb.Vertical(*series),
-            column_shares=[3, 2],
-        ),
-        rrb.TimePanel(timeline="t_s"),
+        rrb.Horizontal(left, rrb.Vertical(*series), column_shares=[3, 2]),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(timeline="t_s", state="collapsed"),
         collapse_panels=False,
     )
+
+
+def _time_index(rr, epoch0, times):
+    """The ``t_s`` (duration, s from ``epoch0``) and ``utc`` (timestamp) time columns."""
+    times = np.asarray(times, float)
+    return [rr.TimeColumn("t_s", duration=times),
+            rr.TimeColumn("utc", timestamp=_as_datetime_ns(epoch0, times))]
 
 
 def _as_datetime_ns(epoch0, t_s):
@@ -276,7 +389,7 @@ def _direction_measurements(measurements, epoch0=None) -> dict[str, tuple[np.nda
 
 def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spawn=False,
                  sigma_scale=3.0, ellipsoid_every=None, magnification=None,
-                 residual_t_s=None, application_id="fgnav") -> dict:
+                 residual_t_s=None, application_id="fgnav", truth_attitude_R=None) -> dict:
     """Write a Rerun recording of ``solution`` to ``rrd_path`` (``.rrd``).
 
     Parameters
@@ -297,6 +410,14 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
     residual_t_s : optional ``kind -> (M,)`` times of ``solution.residuals[kind]`` rows
         (default ``solution.extras["residual_t_s"]``, else ``solution.t_s`` when the
         counts match, else a ``residual_index`` sequence timeline).
+    truth_attitude_R : optional (N, 3, 3) true ``R_eci_from_body`` at ``solution.t_s``
+        (:func:`read_truth_attitude`): the attitude error is plotted against its ±kσ.
+
+    The attitude (``solution.variables`` of the attitude variable when estimated, else the log's
+    ``attitude`` rows when it is known) draws the body axes along the trajectory; the log's
+    body-frame rows (``star_direction_body``, ``earth_direction_body``, ...) are drawn as
+    rays in the ``camera`` view (the body frame; with an estimated attitude also each star's
+    catalogue direction rotated into the body frame, where the measured ray should fall).
 
     Returns a dict: ``path``, ``entities`` (list of entity paths logged), ``magnification``,
     ``epochs``.
@@ -319,8 +440,15 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
 
     has_latency = solution.latency_s is not None and len(solution.latency_s) == n
     rkinds = [kk for kk, v in (solution.residuals or {}).items() if np.size(v)]
+    att = _attitude_of(solution, measurements)
+    body_rows = _body_measurements(measurements, solution.epoch0)
+    fin = np.all(np.isfinite(x), axis=1)
+    eye, up = orbit_eye(x[fin, :3], x[fin, 3:])
     blueprint = default_blueprint(has_truth=truth is not None, residual_kinds=rkinds,
-                                  has_latency=has_latency)
+                                  has_latency=has_latency,
+                                  t_range_s=(t_s[0], t_s[-1]) if n else None, eye_km=eye, eye_up=up,
+                                  has_attitude=att is not None and att[2] is not None,
+                                  has_camera=bool(body_rows), boresight_body=_boresight(body_rows))
 
     # Written to a temporary file in the same directory and renamed when complete, so an
     # interrupted run never leaves a half-written recording under the final name.
@@ -330,6 +458,8 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
     try:
         entities = _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks,
                             ellipsoid_every, magnification, residual_t_s, rkinds, has_latency)
+        entities[0].extend(_log_attitude(rec, rr, solution.epoch0, t_s, x, att, body_rows, k,
+                                         truth_attitude_R))
         rec.flush()
         rec.disconnect()
         os.replace(tmp, path)
@@ -355,9 +485,7 @@ def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid
     entities: list[str] = []
 
     def idx(times):
-        times = np.asarray(times, float)
-        return [rr.TimeColumn("t_s", duration=times),
-                rr.TimeColumn("utc", timestamp=_as_datetime_ns(solution.epoch0, times))]
+        return _time_index(rr, solution.epoch0, times)
 
     def send(entity, times, columns):
         rec.send_columns(entity, indexes=idx(times), columns=columns)
@@ -439,19 +567,22 @@ def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid
         for block, unit, off in (("position", "m", 0), ("velocity", "mps", 3)):
             for i, ax in enumerate(axes):
                 b = k * sig[:, off + i]
+                col, light = AXIS_COLORS[i], _lighter(AXIS_COLORS[i])
                 if err is not None:
                     series(f"errors/{block}_{frame}_{unit}/{ax}",
                            np.stack([err[:, off + i], b, -b], axis=1),
-                           ["error", f"+{k:g}σ", f"-{k:g}σ"], _BAND_COLORS, [2.0, 1.0, 1.0])
+                           [f"{ax} error", f"{ax} +{k:g}σ", f"{ax} -{k:g}σ"], [col, light, light],
+                           [2.0, 1.0, 1.0])
                 else:
                     series(f"sigma/{block}_{frame}_{unit}/{ax}", np.stack([b, -b], axis=1),
-                           [f"+{k:g}σ", f"-{k:g}σ"], _SIGMA_COLORS)
+                           [f"{ax} +{k:g}σ", f"{ax} -{k:g}σ"], [col, col])
     if truth is not None:
         e_norm = np.linalg.norm(x[:, :3] - truth[:, :3], axis=1)
-        vals, names = [e_norm], ["smoothed"]
-        if solution.online_x_eci is not None and np.shape(solution.online_x_eci) == (n, 6):
+        vals, names = [e_norm], [estimate_label(solution.method)]
+        if (solution.online_x_eci is not None and solution.method != "ekf"
+                and np.shape(solution.online_x_eci) == (n, 6)):
             vals.append(np.linalg.norm(np.asarray(solution.online_x_eci)[:, :3] - truth[:, :3], axis=1))
-            names.append("online (filtered)")
+            names.append("online")
         series("errors/position_norm_m", np.stack(vals, axis=1), names,
                [[31, 119, 180], [255, 127, 14]][: len(names)])
         lo, hi = chi2_dist.ppf([0.025, 0.975], 6)
@@ -486,6 +617,181 @@ def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid
     return entities, mag
 
 
+def read_truth_attitude(truth_oem_path, epoch0, t_s) -> np.ndarray | None:
+    """The true ``R_eci_from_body`` (N, 3, 3) at ``t_s`` (s from ``epoch0``) from
+    ``truth_attitude.csv`` beside the truth OEM (:data:`fgnav.io.truth_params.TRUTH_ATTITUDE_CSV`,
+    spherical linear interpolation between its epochs); None when there is no such file or
+    it does not cover ``t_s``."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV, read_truth_params_csv
+    from fgnav.time import seconds_since
+
+    path = Path(truth_oem_path).parent / TRUTH_ATTITUDE_CSV
+    if not path.is_file():
+        return None
+    epochs, cols = read_truth_params_csv(path)
+    missing = [c for c in TRUTH_ATTITUDE_COLUMNS if c not in cols]
+    if missing:
+        raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
+    tt = np.asarray(seconds_since(epochs, np.datetime64(epoch0, "ns")), dtype=float)
+    t = np.asarray(t_s, float)
+    if len(tt) < 2 or t.min() < tt[0] - 1e-6 or t.max() > tt[-1] + 1e-6:
+        return None
+    rot = Rotation.from_rotvec(np.column_stack([cols[c] for c in TRUTH_ATTITUDE_COLUMNS]))
+    return Slerp(tt, rot)(np.clip(t, tt[0], tt[-1])).as_matrix()
+
+
+def _attitude_of(solution, measurements):
+    """``(t_s (K,), R_eci_from_body (K, 3, 3), P (K, 3, 3) rad^2 or None)`` of the estimated
+    attitude, else of the log's ``attitude`` rows (a known attitude; no covariance drawn),
+    else None."""
+    from scipy.spatial.transform import Rotation
+
+    v = (solution.variables or {}).get(ATTITUDE_VARIABLE.name)
+    if v is not None:
+        w, Pa = v
+        return (np.asarray(solution.t_s, float), Rotation.from_rotvec(np.asarray(w, float)).as_matrix(),
+                np.asarray(Pa, float))
+    if measurements is not None and hasattr(measurements, "select"):
+        sel = measurements.select(ATTITUDE.kind)
+        if len(sel):
+            shift = float((np.datetime64(measurements.epoch0, "ns") - np.datetime64(solution.epoch0, "ns"))
+                          / np.timedelta64(1, "ns")) * 1e-9
+            t = np.asarray(measurements.t_s, float)[sel] + shift
+            return t, Rotation.from_rotvec(np.asarray(measurements.xyz, float)[sel]).as_matrix(), None
+    return None
+
+
+def _body_measurements(measurements, epoch0) -> dict:
+    """The log's body-frame direction rows: kind -> ``(t_s (M,), u_body (M, 3), s_eci (M, 3)
+    or None)`` (``s_eci``: a star's catalogue direction, ``star_x/y/z``)."""
+    out = {}
+    if measurements is None or not hasattr(measurements, "select"):
+        return out
+    shift = float((np.datetime64(measurements.epoch0, "ns") - np.datetime64(epoch0, "ns"))
+                  / np.timedelta64(1, "ns")) * 1e-9
+    for kind in sorted({str(k) for k in measurements.kind if str(k).endswith("_direction_body")}):
+        sel = measurements.select(kind)
+        u = np.asarray(measurements.xyz, float)[sel]
+        s_eci = None
+        if all(c in (measurements.extra or {}) for c in ("star_x", "star_y", "star_z")):
+            s_eci = np.column_stack([np.asarray(measurements.extra[c], float)[sel]
+                                     for c in ("star_x", "star_y", "star_z")])
+            if not np.all(np.isfinite(s_eci)):
+                s_eci = None
+        out[kind] = (np.asarray(measurements.t_s, float)[sel] + shift, u, s_eci)
+    return out
+
+
+def _boresight(body_rows) -> np.ndarray | None:
+    """Mean measured star direction in the body frame (the star camera's boresight), else
+    the mean of the other body-frame rays; None without body-frame rows."""
+    for want_star in (True, False):
+        us = [u for kind, (_, u, _) in body_rows.items() if kind.startswith("star") == want_star]
+        if us:
+            m = np.nanmean(np.concatenate(us), axis=0)
+            if np.all(np.isfinite(m)) and np.linalg.norm(m) > 0:
+                return m / np.linalg.norm(m)
+    return None
+
+
+#: Entity root of the attitude error / sigma time series (arcsec about the body axes): the
+#: attitude variable's name.
+ATTITUDE_ROOT = ATTITUDE_VARIABLE.name
+
+#: Colours of the body axes x, y, z (red, green, blue, as the ECI axes).
+_BODY_AXIS_COLORS = np.array([[230, 60, 60], [60, 200, 60], [80, 120, 255]])
+
+
+def _log_attitude(rec, rr, epoch0, t_s, x, att, body_rows, k, truth_R) -> list[str]:
+    """The body axes along the trajectory (a trail, and at the cursor), the attitude error /
+    ±kσ series (arcsec) and the body-frame rays of the ``camera`` view; returns the entity
+    paths logged."""
+    entities = []
+
+    def idx(times):
+        return _time_index(rr, epoch0, times)
+
+    r_km = x[:, :3] * _KM
+    fin = np.all(np.isfinite(r_km), axis=1)
+    if not np.any(fin):
+        return entities
+    size_km = float(np.max(np.linalg.norm(r_km[fin], axis=1)))
+    R_of = None
+    if att is not None:
+        ta, Ra, Pa = att
+        inside = (ta >= t_s[fin][0] - 1e-6) & (ta <= t_s[fin][-1] + 1e-6)
+        ta, Ra = ta[inside], Ra[inside]
+        Pa = None if Pa is None else Pa[inside]
+        if len(ta):
+            origin = np.stack([np.interp(ta, t_s[fin], r_km[fin, i]) for i in range(3)], axis=1)
+            L = 0.08 * size_km
+            vec = np.swapaxes(Ra, 1, 2).reshape(-1, 3) * L        # rows: body x, y, z in ECI
+            cols = np.tile(_BODY_AXIS_COLORS, (len(ta), 1))
+            ent = "world/estimate/body_axes"
+            rec.send_columns(ent, indexes=idx(ta), columns=rr.Arrows3D.columns(
+                origins=np.repeat(origin, 3, axis=0), vectors=vec, colors=cols).partition(np.full(len(ta), 3)))
+            entities.append(ent)
+            sel = np.arange(0, len(ta), max(1, len(ta) // 40))
+            ent = "world/estimate/body_axes_trail"
+            rec.log(ent, rr.Arrows3D(origins=np.repeat(origin[sel], 3, axis=0),
+                                     vectors=np.swapaxes(Ra[sel], 1, 2).reshape(-1, 3) * 0.6 * L,
+                                     colors=np.tile(_BODY_AXIS_COLORS, (len(sel), 1)),
+                                     radii=[rr.Radius.ui_points(1.0)]), static=True)
+            entities.append(ent)
+            if Pa is not None:
+                sig = np.sqrt(np.clip(np.diagonal(Pa, axis1=1, axis2=2), 0.0, None)) * k / _ARCSEC
+                err = None
+                if truth_R is not None and len(truth_R) == len(t_s) and len(ta) == len(t_s):
+                    err = attitude_error_body(Ra, truth_R) / _ARCSEC
+                for i, axn in enumerate(ECI_AXES):
+                    col, light = AXIS_COLORS[i], _lighter(AXIS_COLORS[i])
+                    if err is not None:
+                        ent, vals = f"{ATTITUDE_ROOT}/error_arcsec/{axn}", np.stack([err[:, i], sig[:, i], -sig[:, i]], 1)
+                        names, colors = [f"{axn} error", f"{axn} +{k:g}σ", f"{axn} -{k:g}σ"], [col, light, light]
+                    else:
+                        ent, vals = f"{ATTITUDE_ROOT}/sigma_arcsec/{axn}", np.stack([sig[:, i], -sig[:, i]], 1)
+                        names, colors = [f"{axn} +{k:g}σ", f"{axn} -{k:g}σ"], [col, col]
+                    rec.log(ent, rr.SeriesLines(names=names, colors=colors, widths=[1.5] * len(names)),
+                            static=True)
+                    rec.send_columns(ent, indexes=idx(ta), columns=rr.Scalars.columns(scalars=vals))
+                    entities.append(ent)
+            if len(ta) >= 2:
+                from scipy.spatial.transform import Rotation, Slerp
+                R_of = Slerp(ta, Rotation.from_matrix(Ra))
+    if body_rows:
+        rec.log("camera", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log("camera/body_axes", rr.Arrows3D(
+            origins=np.zeros((3, 3)), vectors=np.eye(3) * 0.5, colors=_BODY_AXIS_COLORS,
+            labels=["x_body", "y_body", "z_body"]), static=True)
+        entities += ["camera", "camera/body_axes"]
+    for kind, (tm, u, s_eci) in body_rows.items():
+        order = np.argsort(tm, kind="stable")
+        tm, u = tm[order], u[order]
+        u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        tu, counts = np.unique(tm, return_counts=True)
+        is_star = kind.startswith("star")
+        color = [255, 230, 90] if is_star else [80, 200, 255]
+        ent = f"camera/{_safe(kind)}/measured"
+        rec.send_columns(ent, indexes=idx(tu), columns=rr.Arrows3D.columns(
+            origins=np.zeros_like(u), vectors=u, colors=np.repeat([color], len(u), axis=0)).partition(counts))
+        entities.append(ent)
+        if s_eci is not None and R_of is not None:
+            s_eci = s_eci[order]
+            ok = (tm >= R_of.times[0]) & (tm <= R_of.times[-1])
+            if np.any(ok):
+                Rm = R_of(tm[ok]).as_matrix()
+                pred = np.einsum("nji,nj->ni", Rm, s_eci[ok])          # R^T s: body frame
+                tu2, c2 = np.unique(tm[ok], return_counts=True)
+                ent = f"camera/{_safe(kind)}/catalogue_in_body"
+                rec.send_columns(ent, indexes=idx(tu2), columns=rr.Points3D.columns(
+                    positions=pred, colors=np.repeat([[255, 90, 200]], len(pred), axis=0),
+                    radii=np.full(len(pred), -3.0)).partition(c2))
+                entities.append(ent)
+    return entities
+
+
 def _safe(name: str) -> str:
     return "".join(c if (c.isalnum() or c in "_-") else "_" for c in str(name))
 
@@ -501,4 +807,7 @@ def _about_text(solution, has_truth, k, mag) -> str:
         "m and m/s; RTN = radial / along-track / orbit-normal of the "
         f"{'truth' if has_truth else 'estimated'} state.",
         "- residuals: whitened (expected standard normal).",
+        "- attitude (when estimated or known): body axes x/y/z = red/green/blue along the "
+        "trajectory; the star camera view shows the body-frame rays (yellow: measured; "
+        "magenta dots: catalogue direction rotated by the estimated attitude).",
     ])
