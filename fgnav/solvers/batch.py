@@ -27,8 +27,6 @@ import numpy as np
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from factors.geometry import so3_exp
-from factors.random_walk import random_walk_residual, rot3_random_walk_residual
 from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
@@ -36,6 +34,7 @@ from fgnav.models.registry import ATTITUDE_VARIABLE, MODELS, ORBIT
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
+from fgnav.solvers.process import variable_step_rows
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.variables import block_variables
@@ -73,8 +72,7 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
 
     Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
     motion factor, ``factors.motion``); each further variable its random walk
-    (``factors.random_walk``): a vector ``w [-I, I]``, ``b = -w (b_{k+1} - b_k)``, a rotation
-    ``w [H_k, H_{k+1}]``, ``b = -w Log(R_k^T R_{k+1})``, with ``w = 1/sqrt(psd dt)``.
+    (:func:`fgnav.solvers.process.variable_step_rows`).
     """
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
@@ -89,16 +87,9 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     A0[:, :6, :6] = -np.einsum("kij,kjl->kil", W, Phi)
     A1[:, :6, :6] = W
     b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
-    for v in lay.extra:
-        sl = lay.slices[v.name]
-        if v.manifold == "rot3":
-            e, H0, H1 = rot3_random_walk_residual(so3_exp(Xs[:-1, sl]), so3_exp(Xs[1:, sl]))
-        else:
-            e, H0, H1 = random_walk_residual(Xs[:-1, sl], Xs[1:, sl])
-        w = 1.0 / v.step_sigma(dt)
-        A0[:, sl, sl] = w[:, None, None] * H0
-        A1[:, sl, sl] = w[:, None, None] * H1
-        b[:, sl] = -w[:, None] * e
+    if lay.extra:
+        V0, V1, bv = variable_step_rows(lay, Xs[:-1], Xs[1:], dt)
+        A0[:, 6:], A1[:, 6:], b[:, 6:] = V0[:, 6:], V1[:, 6:], bv[:, 6:]
     return A0, A1, b
 
 
