@@ -153,3 +153,53 @@ def test_batch_and_isam2_routes_agree_between_epochs():
         np.testing.assert_allclose(A0, s_A0[r], rtol=1e-9, atol=1e-9 * np.abs(s_A0[r]).max())
         np.testing.assert_allclose(A1, s_A1[r], rtol=1e-9, atol=1e-9 * np.abs(s_A1[r]).max())
         np.testing.assert_allclose(b_i, s_b[r], rtol=1e-9, atol=1e-9)
+
+
+def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
+    """The attitude's constant-rate motion (``--attitude-motion constant-rate``): the batch
+    route's process rows (``fgnav.solvers.batch.process_blocks``) and the iSAM2 factors of
+    the step (``fgnav.solvers.incremental._process_factors``) give the same whitened blocks
+    on the attitude and its rate, at a block off the truth."""
+    from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE
+    from fgnav.solvers.batch import process_blocks
+    from fgnav.solvers.incremental import _insert_block, _process_factors
+    from fgnav.solvers.options import SmootherOptions
+
+    log, t, x = F.clean("refraction-leo", duration_h=0.1, **CASES["attitude"][1])
+    p = with_estimates(build_pass(log), ("attitude", "attitude-rate"))
+    lay = p.layout
+    assert lay.has(ATTITUDE_RATE.name)
+    rng = np.random.default_rng(8)
+    X_eval = initial_block(p, x[np.searchsorted(t, p.t_s)])[0]
+    X_eval[:, lay.slices[ATTITUDE_VARIABLE.name]] += rng.normal(0, 0.01, (p.n_epochs, 3))
+    X_eval[:, lay.slices[ATTITUDE_RATE.name]] = rng.normal(0, 0.01, (p.n_epochs, 3))
+    opts = SmootherOptions()
+    model = opts.motion_model()
+    A0_b, A1_b, b_b = process_blocks(p, X_eval, opts.q_m2_s3, model, 0.0)
+    sa, sw = lay.slices[ATTITUDE_VARIABLE.name], lay.slices[ATTITUDE_RATE.name]
+    rows = np.r_[sa, sw]
+    for k in (1, p.n_epochs // 2, p.n_epochs - 1):
+        values = gtsam.Values()
+        for kk in (k - 1, k):
+            _insert_block(values, lay, kk, X_eval[kk])
+        dt = p.t_s[k] - p.t_s[k - 1]
+        facs = [f for f in _process_factors(lay, k, dt, opts.q_m2_s3, model, 0.0)
+                if ATTITUDE_RATE.key(k) in f.keys()]
+        assert len(facs) == 1                        # one factor joins attitude and rate
+        lin = facs[0].linearize(values)
+        A_i, b_i = lin.jacobian()
+        A0 = np.zeros((6, lay.n))
+        A1 = np.zeros((6, lay.n))
+        col = 0
+        for key in lin.keys():
+            for kk, A in ((k - 1, A0), (k, A1)):
+                for v in (ATTITUDE_VARIABLE, ATTITUDE_RATE):
+                    if v.key(kk) == key:
+                        A[:, lay.slices[v.name]] = A_i[:, col:col + 3]
+                        col += 3
+        assert col == A_i.shape[1]
+        np.testing.assert_allclose(A0, A0_b[k - 1][rows], rtol=1e-9,
+                                   atol=1e-9 * np.abs(A0_b[k - 1][rows]).max())
+        np.testing.assert_allclose(A1, A1_b[k - 1][rows], rtol=1e-9,
+                                   atol=1e-9 * np.abs(A1_b[k - 1][rows]).max())
+        np.testing.assert_allclose(b_i, b_b[k - 1][rows], rtol=1e-9, atol=1e-9)

@@ -30,7 +30,7 @@ from fgnav.errors import NotObservableError
 from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
-from fgnav.models.registry import ATTITUDE_VARIABLE, MODELS, ORBIT
+from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
@@ -323,13 +323,14 @@ def _orbit_only_pass(p: Pass) -> Pass | None:
     directions rotated into ECI with the attitude rows at their epochs
     (:func:`fgnav.measurements.directions_in_eci`) and the rows that need the attitude left
     out. None (no first guess) where a body-frame row has no attitude row at its epoch or
-    another variable is estimated. The guess is only a starting point: Gauss-Newton then
-    solves the whole graph, so the solution is the same, in 3 iterations instead of 7 (orbit
+    another variable than the attitude (and its rate) is estimated. The guess is only a
+    starting point: Gauss-Newton then solves the whole graph, so the solution is the same, in 3 iterations instead of 7 (orbit
     and attitude, 4 h of gto-transfer at 1 Hz)."""
     lay = layout_of(p)
     if not lay.extra:
         return p
-    if lay.names != (ORBIT.name, ATTITUDE_VARIABLE.name):
+    if lay.names not in ((ORBIT.name, ATTITUDE_VARIABLE.name),
+                         (ORBIT.name, ATTITUDE_VARIABLE.name, ATTITUDE_RATE.name)):
         return None
     q = directions_in_eci(p)
     n_body = sum(len(f) for k, f in p.families.items() if MODELS[k].body_frame_of is not None)

@@ -52,13 +52,16 @@ import time
 import gtsam
 import numpy as np
 
+from factors.attitude_motion import make_constant_rate_factor
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
+from factors.geometry import so3_exp, so3_log
 from factors.motion import make_motion_factor, motion_residual
 from factors.random_walk import (make_random_walk_factor, make_rot3_prior_factor,
                                  make_rot3_random_walk_factor, make_vector_prior_factor)
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import enters, factors_for_rows, initial_block, layout_of, linearize_family
-from fgnav.models.registry import model as model_of
+from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, model as model_of
+from fgnav.models.variables import CONSTANT_PSD_FLOOR
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass, rows_by_epoch
@@ -68,6 +71,7 @@ from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.solvers.process import constant_rate
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
@@ -103,13 +107,21 @@ def _timestamps(lay, k, t):
 
 def _process_factors(lay, k, dt, q, model, t0_j2000_s):
     """The factors from epoch ``k - 1`` to ``k``: the orbit's motion factor and each further
-    variable's random walk (at ``k = 0``: the further variables' priors)."""
+    variable's random walk, or the attitude's constant-rate motion with its rate
+    (:mod:`fgnav.solvers.process`; at ``k = 0``: the further variables' priors)."""
     if k == 0:
         return [make_rot3_prior_factor(v.key(0), np.eye(3), v.prior_sigma) if v.manifold == "rot3"
                 else make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
                 for v in lay.extra]
     out = [make_motion_factor(X(k - 1), X(k), dt, q, model, t0_j2000_s)]
+    coupled = constant_rate(lay)
+    if coupled:   # the attitude turns at its estimated body rate (factors.attitude_motion)
+        out.append(make_constant_rate_factor(
+            ATTITUDE_VARIABLE.key(k - 1), ATTITUDE_RATE.key(k - 1), ATTITUDE_VARIABLE.key(k),
+            ATTITUDE_RATE.key(k), dt, max(ATTITUDE_RATE.psd, CONSTANT_PSD_FLOOR)))
     for v in lay.extra:
+        if coupled and v in (ATTITUDE_VARIABLE, ATTITUDE_RATE):
+            continue
         sigma = float(v.step_sigma(dt))
         out.append(make_rot3_random_walk_factor(v.key(k - 1), v.key(k), sigma)
                    if v.manifold == "rot3" else
@@ -163,6 +175,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     # further variables: first guesses from the rows that measure them (attitude rows)
     V0, measured = initial_block(p, np.broadcast_to(x_first, (N, 6)))
     x_prev = V0[0].copy()
+    turning = constant_rate(lay)
+    if turning:
+        sa, sw = lay.slices[ATTITUDE_VARIABLE.name], lay.slices[ATTITUDE_RATE.name]
     fixed_lag = method == "fixed-lag"
     if fixed_lag:
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
@@ -247,6 +262,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             guess = x_prev.copy()
             if k > 0:
                 guess[:6], Phi_k = propagate(x_prev[:6], dt, model, t0_j2000 + p.t_s[k - 1])
+            if k > 0 and turning:   # the attitude turned at its rate since k - 1
+                guess[sa] = so3_log(so3_exp(x_prev[sa]) @ so3_exp(x_prev[sw] * dt))
             for i, v in enumerate(lay.extra):
                 if measured[k, i]:
                     guess[lay.slices[v.name]] = V0[k, lay.slices[v.name]]
