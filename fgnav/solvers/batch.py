@@ -286,7 +286,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     wall = time.perf_counter() - t_start
     return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs[:, :6],
                     P_eci=P[:, :6, :6], variables=block_variables(lay, Xs, P),
-                    iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
+                    P_block=P if lay.extra else None, iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
                     residuals=lin.residuals,
                     extras={"converged": bool(converged), "q_m2_s3": options.q_m2_s3,
                             "q_stages": q_stages, "chi2_measurements": lin.chi2_meas,

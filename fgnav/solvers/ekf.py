@@ -112,7 +112,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     wall = time.perf_counter() - t_start
     res = residuals
     return Solution(method="ekf", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=xs[:, :6],
-                    P_eci=Ps[:, :6, :6], variables=block_variables(lay, xs, Ps), iterations=N, chi2=float(sum(np.nansum(r * r) for r in res.values())),
+                    P_eci=Ps[:, :6, :6], variables=block_variables(lay, xs, Ps),
+                    P_block=Ps if lay.extra else None, iterations=N, chi2=float(sum(np.nansum(r * r) for r in res.values())),
                     wall_s=wall, residuals=res, online_x_eci=xs[:, :6].copy(),
                     online_P_eci=Ps[:, :6, :6].copy(),
                     latency_s=latency,

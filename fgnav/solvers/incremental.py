@@ -328,6 +328,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
                     P_eci=P_final[:, :6, :6], variables=block_variables(lay, x_final, P_final),
+                    P_block=None if fixed_lag or not lay.extra else P_final,
                     iterations=N, wall_s=wall,
                     chi2=lin.chi2_meas + lin.chi2_motion,
                     residuals=lin.residuals, online_x_eci=online_x,
