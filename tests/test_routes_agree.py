@@ -111,6 +111,23 @@ def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
                                    err_msg=f"{kind} row {j}: whitened right-hand side")
 
 
+def _two_epoch_blocks(lin, lay, k):
+    """A linearized factor on the variables of epochs ``k - 1`` and ``k`` as the batch
+    route's rows: ``(A0, A1)`` (rows, n) in the layout's columns of each epoch, and ``b``."""
+    A_i, b_i = lin.jacobian()
+    A0 = np.zeros((len(b_i), lay.n))
+    A1 = np.zeros((len(b_i), lay.n))
+    col = 0
+    for key in lin.keys():
+        for kk, A in ((k - 1, A0), (k, A1)):
+            for v in lay.variables:
+                if v.key(kk) == key:
+                    A[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
+                    col += v.dim
+    assert col == A_i.shape[1]
+    return A0, A1, b_i
+
+
 def test_batch_and_isam2_routes_agree_between_epochs():
     """Rows that join two epochs (a gyro interval): the batch route's step rows
     (``Rows.steps``, stacked under the motion rows) and the iSAM2 factor on the keys of both
@@ -139,17 +156,7 @@ def test_batch_and_isam2_routes_agree_between_epochs():
             for v in lay.variables:
                 w = X_eval[kk, lay.slices[v.name]]
                 values.insert(v.key(kk), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
-        lin = factor.linearize(values)
-        A_i, b_i = lin.jacobian()
-        A0 = np.zeros((3, lay.n))
-        A1 = np.zeros((3, lay.n))
-        col = 0
-        for key in lin.keys():
-            for kk, A in ((k - 1, A0), (k, A1)):
-                for v in lay.variables:
-                    if v.key(kk) == key:
-                        A[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
-                        col += v.dim
+        A0, A1, b_i = _two_epoch_blocks(factor.linearize(values), lay, k)
         np.testing.assert_allclose(A0, s_A0[r], rtol=1e-9, atol=1e-9 * np.abs(s_A0[r]).max())
         np.testing.assert_allclose(A1, s_A1[r], rtol=1e-9, atol=1e-9 * np.abs(s_A1[r]).max())
         np.testing.assert_allclose(b_i, s_b[r], rtol=1e-9, atol=1e-9)
@@ -186,18 +193,7 @@ def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
         facs = [f for f in _process_factors(lay, k, dt, opts.q_m2_s3, model, 0.0)
                 if ATTITUDE_RATE.key(k) in f.keys()]
         assert len(facs) == 1                        # one factor joins attitude and rate
-        lin = facs[0].linearize(values)
-        A_i, b_i = lin.jacobian()
-        A0 = np.zeros((6, lay.n))
-        A1 = np.zeros((6, lay.n))
-        col = 0
-        for key in lin.keys():
-            for kk, A in ((k - 1, A0), (k, A1)):
-                for v in (ATTITUDE_VARIABLE, ATTITUDE_RATE):
-                    if v.key(kk) == key:
-                        A[:, lay.slices[v.name]] = A_i[:, col:col + 3]
-                        col += 3
-        assert col == A_i.shape[1]
+        A0, A1, b_i = _two_epoch_blocks(facs[0].linearize(values), lay, k)
         np.testing.assert_allclose(A0, A0_b[k - 1][rows], rtol=1e-9,
                                    atol=1e-9 * np.abs(A0_b[k - 1][rows]).max())
         np.testing.assert_allclose(A1, A1_b[k - 1][rows], rtol=1e-9,
