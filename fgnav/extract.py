@@ -81,7 +81,7 @@ from fgnav.vision.attitude import matrix_from_quat
 from fgnav.vision.camera import PinholeCamera
 from fgnav.vision.catalogue import decimal_year
 from fgnav.vision.horizon import METHODS, estimate_horizon
-from fgnav.vision.limb import EDGE_LOCATOR_VAR_PX2, extract_limb_points, ransac_limb
+from fgnav.vision.limb import extract_limb_points, ransac_limb
 from fgnav.vision.star_id import solve_lost_in_space
 from fgnav.vision.stars import detect_stars
 

@@ -38,7 +38,7 @@ import numpy as np
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import rows_at_first_state
-from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family, orbit_rows
+from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family
 from fgnav.models.registry import model as model_of
 from fgnav.initial_orbit import has_prior
 from fgnav.measurements import prior_covariance

@@ -16,9 +16,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, EARTH_DIRECTION_BODY, MODELS,
-                                   MOON_DIRECTION_BODY, PRIOR_POSITION, PRIOR_VELOCITY,
-                                   STAR_DIRECTION_BODY, SUN_DIRECTION_BODY, VARIABLES, variable)
+from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
+                                   EARTH_DIRECTION_BODY, MODELS, MOON_DIRECTION_BODY,
+                                   PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
+                                   SUN_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import ORBIT, Layout
 
 
@@ -223,6 +224,12 @@ def with_estimates(p: Pass, estimate=()) -> Pass:
     # the registry's order, whatever the order of the options
     variables = [ORBIT] + [v for v in VARIABLES.values() if v in requested and v != ORBIT]
     for v in variables[1:]:
+        if v is ATTITUDE_RATE:   # the attitude's process variable (constant-rate motion)
+            if ATTITUDE_VARIABLE not in variables:
+                raise UserError(f"--attitude-motion constant-rate (--estimate {v.cli_name}): the "
+                                f"body rate turns the estimated attitude; add --estimate "
+                                f"{ATTITUDE_VARIABLE.cli_name}")
+            continue
         users = [k for k in p.families if v in MODELS[k].optional_variables]
         if not users:
             declared = [k for k, m in MODELS.items() if v in m.optional_variables]

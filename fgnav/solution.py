@@ -28,6 +28,10 @@ class Solution:
     variables : graph variables estimated beside the orbit state (``fgnav.models.variables``):
         name -> (values (N, d), marginal covariances (N, d, d)), e.g. ``refraction_bias``.
     extras : free-form diagnostics written into summary.json.
+    P_block : (N, n, n) or None: each epoch's joint marginal covariance of its whole block of
+        variables (the pass's layout: orbit state first, then the further variables), with
+        the cross-covariances the per-variable entries leave out; set by batch, iSAM2
+        (full history) and the numpy EKF (filtered), None where the solver does not have it.
     """
 
     method: str
@@ -44,6 +48,7 @@ class Solution:
     latency_s: np.ndarray | None = None
     extras: dict = field(default_factory=dict)
     variables: dict = field(default_factory=dict)
+    P_block: np.ndarray | None = None
 
 
 def latency_summary(latency_s) -> dict:

@@ -327,3 +327,36 @@ def test_between_model_jacobians_and_factor(sim_pass, kind):
                                        atol=1e-9 * np.abs(A).max(), err_msg=f"{kind} row {j}")
             col += width
         assert col == A_g.shape[1]
+
+
+def test_attitude_rate_process_rows_against_central_differences(sim_pass):
+    """The attitude's body rate (``ATTITUDE_RATE``) is declared by no model: it is the
+    variable of the attitude's constant-rate motion, whose rows the solvers take from
+    ``fgnav.solvers.process.variable_step_rows`` (the attitude's and the rate's rows joined).
+    Central differences in every column of both blocks, at a non-trivial point."""
+    from fgnav.models.registry import ATTITUDE_RATE, VARIABLES
+    from fgnav.solvers.process import variable_step_rows
+
+    assert VARIABLES[ATTITUDE_RATE.name] is ATTITUDE_RATE
+    p, x, att = sim_pass
+    layout = Layout((ORBIT, ATTITUDE_VARIABLE, GYRO_BIAS, ATTITUDE_RATE))
+    X = _block(layout, x, att)
+    rng = np.random.default_rng(4)
+    X[:, layout.slices[ATTITUDE_RATE.name]] = rng.normal(0.0, 0.01, (len(X), 3))
+    dt = np.diff(p.t_s)
+    A0, A1, b = variable_step_rows(layout, X[:-1], X[1:], dt)
+    sa, sw = layout.slices[ATTITUDE_VARIABLE.name], layout.slices[ATTITUDE_RATE.name]
+    assert np.any(A0[:, sa, sw]) and np.all(A1[:, :6] == 0) and np.any(b[:, sa] != 0)
+    X0, X1 = X[:-1], X[1:]
+    for A, which in ((A0, 0), (A1, 1)):
+        for c in list(range(sa.start, sa.stop)) + list(range(sw.start, sw.stop)):
+            step = 1e-6 if c < sa.stop else 1e-7
+            dX = np.zeros_like(X0)
+            dX[:, c] = step
+            bp, bm = (variable_step_rows(
+                layout, layout.retract(X0, d) if which == 0 else X0,
+                layout.retract(X1, d) if which == 1 else X1, dt)[2] for d in (dX, -dX))
+            num = -(bp - bm) / (2 * step)            # b = -W e
+            np.testing.assert_allclose(num, A[..., c], rtol=1e-5,
+                                       atol=1e-6 * np.abs(A[..., c]).max(),
+                                       err_msg=f"block {which}, column {c}")

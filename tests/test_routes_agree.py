@@ -126,6 +126,23 @@ def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
                                    err_msg=f"{kind} row {j}: whitened right-hand side")
 
 
+def _two_epoch_blocks(lin, lay, k):
+    """A linearized factor on the variables of epochs ``k - 1`` and ``k`` as the batch
+    route's rows: ``(A0, A1)`` (rows, n) in the layout's columns of each epoch, and ``b``."""
+    A_i, b_i = lin.jacobian()
+    A0 = np.zeros((len(b_i), lay.n))
+    A1 = np.zeros((len(b_i), lay.n))
+    col = 0
+    for key in lin.keys():
+        for kk, A in ((k - 1, A0), (k, A1)):
+            for v in lay.variables:
+                if v.key(kk) == key:
+                    A[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
+                    col += v.dim
+    assert col == A_i.shape[1]
+    return A0, A1, b_i
+
+
 def test_batch_and_isam2_routes_agree_between_epochs():
     """Rows that join two epochs (a gyro interval): the batch route's step rows
     (``Rows.steps``, stacked under the motion rows) and the iSAM2 factor on the keys of both
@@ -154,17 +171,46 @@ def test_batch_and_isam2_routes_agree_between_epochs():
             for v in lay.variables:
                 w = X_eval[kk, lay.slices[v.name]]
                 values.insert(v.key(kk), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
-        lin = factor.linearize(values)
-        A_i, b_i = lin.jacobian()
-        A0 = np.zeros((3, lay.n))
-        A1 = np.zeros((3, lay.n))
-        col = 0
-        for key in lin.keys():
-            for kk, A in ((k - 1, A0), (k, A1)):
-                for v in lay.variables:
-                    if v.key(kk) == key:
-                        A[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
-                        col += v.dim
+        A0, A1, b_i = _two_epoch_blocks(factor.linearize(values), lay, k)
         np.testing.assert_allclose(A0, s_A0[r], rtol=1e-9, atol=1e-9 * np.abs(s_A0[r]).max())
         np.testing.assert_allclose(A1, s_A1[r], rtol=1e-9, atol=1e-9 * np.abs(s_A1[r]).max())
         np.testing.assert_allclose(b_i, s_b[r], rtol=1e-9, atol=1e-9)
+
+
+def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
+    """The attitude's constant-rate motion (``--attitude-motion constant-rate``): the batch
+    route's process rows (``fgnav.solvers.batch.process_blocks``) and the iSAM2 factors of
+    the step (``fgnav.solvers.incremental._process_factors``) give the same whitened blocks
+    on the attitude and its rate, at a block off the truth."""
+    from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE
+    from fgnav.solvers.batch import process_blocks
+    from fgnav.solvers.incremental import _insert_block, _process_factors
+    from fgnav.solvers.options import SmootherOptions
+
+    log, t, x = F.clean("refraction-leo", duration_h=0.1, **CASES["attitude"][1])
+    p = with_estimates(build_pass(log), ("attitude", "attitude-rate"))
+    lay = p.layout
+    assert lay.has(ATTITUDE_RATE.name)
+    rng = np.random.default_rng(8)
+    X_eval = initial_block(p, x[np.searchsorted(t, p.t_s)])[0]
+    X_eval[:, lay.slices[ATTITUDE_VARIABLE.name]] += rng.normal(0, 0.01, (p.n_epochs, 3))
+    X_eval[:, lay.slices[ATTITUDE_RATE.name]] = rng.normal(0, 0.01, (p.n_epochs, 3))
+    opts = SmootherOptions()
+    model = opts.motion_model()
+    A0_b, A1_b, b_b = process_blocks(p, X_eval, opts.q_m2_s3, model, 0.0)
+    sa, sw = lay.slices[ATTITUDE_VARIABLE.name], lay.slices[ATTITUDE_RATE.name]
+    rows = np.r_[sa, sw]
+    for k in (1, p.n_epochs // 2, p.n_epochs - 1):
+        values = gtsam.Values()
+        for kk in (k - 1, k):
+            _insert_block(values, lay, kk, X_eval[kk])
+        dt = p.t_s[k] - p.t_s[k - 1]
+        facs = [f for f in _process_factors(lay, k, dt, opts.q_m2_s3, model, 0.0)
+                if ATTITUDE_RATE.key(k) in f.keys()]
+        assert len(facs) == 1                        # one factor joins attitude and rate
+        A0, A1, b_i = _two_epoch_blocks(facs[0].linearize(values), lay, k)
+        np.testing.assert_allclose(A0, A0_b[k - 1][rows], rtol=1e-9,
+                                   atol=1e-9 * np.abs(A0_b[k - 1][rows]).max())
+        np.testing.assert_allclose(A1, A1_b[k - 1][rows], rtol=1e-9,
+                                   atol=1e-9 * np.abs(A1_b[k - 1][rows]).max())
+        np.testing.assert_allclose(b_i, b_b[k - 1][rows], rtol=1e-9, atol=1e-9)

@@ -180,15 +180,24 @@ def register(sub):
                    help="take the star rows' catalogue directions (star_direction_body, "
                         "refraction) as seen, without the stellar-aberration correction "
                         "(~20-27 arcsec); for comparison only")
+    p.add_argument("--attitude-motion", choices=["random-walk", "constant-rate"], default=None,
+                   help="how the estimated attitude moves between epochs (with --attitude "
+                        "estimate): random-walk (default): a random walk on SO(3) of spectral "
+                        "density 1e-4 rad^2/s; constant-rate: it turns at a body rate estimated "
+                        "per epoch (the variable attitude-rate, rad/s, in variables.csv), "
+                        "R(k+1) = R(k) Exp(w(k) dt), the rate a random walk driven by white "
+                        "angular acceleration of 1e-10 rad^2/s^3 (for a pass without gyro rows: "
+                        "the attitude between its measured epochs follows the turn)")
     add_solver_options(p)
     p.set_defaults(func=run)
 
 
 def resolve_attitude_option(args) -> None:
     """``--attitude estimate`` adds ``attitude`` to ``--estimate``; ``--attitude known`` with
-    ``--estimate attitude`` contradicts it (``UserError`` naming both)."""
+    ``--estimate attitude`` contradicts it (``UserError`` naming both). ``--attitude-motion
+    constant-rate`` adds ``attitude-rate`` (the attitude's body rate, its process variable)."""
     from fgnav.errors import UserError
-    from fgnav.models.registry import ATTITUDE_VARIABLE
+    from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE
 
     mode = args.attitude
     name = ATTITUDE_VARIABLE.name
@@ -197,6 +206,11 @@ def resolve_attitude_option(args) -> None:
                         "--attitude estimate); give one of them")
     if mode == "estimate" and name not in args.estimate:
         args.estimate = [*args.estimate, name]
+    if getattr(args, "attitude_motion", None) == "constant-rate":
+        if mode == "known" or name not in args.estimate:
+            raise UserError("--attitude-motion constant-rate: the attitude's motion model needs "
+                            "the attitude estimated; add --attitude estimate")
+        args.estimate = [*args.estimate, ATTITUDE_RATE.name]
 
 
 class ProgressCallback:

@@ -56,7 +56,7 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
            "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
-           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "refraction_ray_eci"]
+           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "ATTITUDE_RATE", "refraction_ray_eci"]
 
 
 def _xyz(log, i):
@@ -572,6 +572,21 @@ BODY_BODY_ANGLE = _angle_model(
     star=False, limb=False, keys=("sigma_deg", "body", "body2"))
 
 
+# ---- attitude motion without a gyro ---------------------------------------------------------
+
+ATTITUDE_RATE = Variable(
+    "attitude_rate", "w", 3, "rad/s", components=("rate_x", "rate_y", "rate_z"),
+    psd=1e-10, prior_sigma=0.1,
+    description="body angular rate (body frame) that turns the attitude, rad/s (constant-rate "
+                "motion: white angular acceleration of psd 1e-10 rad^2/s^3)")
+"""The body rate of the constant-rate attitude motion (``fgnav smooth --attitude-motion
+constant-rate``, ``factors.attitude_motion``): between epochs ``R_k = R_{k-1} Exp(w_{k-1} dt)``
+with the rate a random walk driven by white angular acceleration of spectral density ``psd``
+= 1e-10 rad^2/s^3 (the rate wanders 1e-5 rad/s in a second, 6e-4 rad/s in an hour; the
+attitude 6e-6 rad from a constant-rate turn in a second); it replaces the attitude's random
+walk. Prior 0.1 rad/s (6 deg/s) at the first epoch. No model's rows touch it: it is a
+variable of the attitude's process model (:mod:`fgnav.solvers.process`)."""
+
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
     PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
     ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO,
@@ -580,7 +595,9 @@ MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{
     v.name: v for m in MODELS.values() for v in m.optional_variables}}
-"""Every graph variable a model declares, by name (the orbit state first)."""
+VARIABLES[ATTITUDE_RATE.name] = ATTITUDE_RATE
+"""Every graph variable a model declares, by name (the orbit state first), and the attitude's
+rate (its process model's variable)."""
 
 
 def model(kind: str) -> MeasurementModel:

@@ -27,15 +27,14 @@ import numpy as np
 from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from factors.geometry import so3_exp
-from factors.random_walk import random_walk_residual, rot3_random_walk_residual
 from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
-from fgnav.models.registry import ATTITUDE_VARIABLE, MODELS, ORBIT
+from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
+from fgnav.solvers.process import variable_step_rows
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.variables import block_variables
@@ -73,8 +72,7 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
 
     Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
     motion factor, ``factors.motion``); each further variable its random walk
-    (``factors.random_walk``): a vector ``w [-I, I]``, ``b = -w (b_{k+1} - b_k)``, a rotation
-    ``w [H_k, H_{k+1}]``, ``b = -w Log(R_k^T R_{k+1})``, with ``w = 1/sqrt(psd dt)``.
+    (:func:`fgnav.solvers.process.variable_step_rows`).
     """
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
@@ -95,16 +93,9 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
         A1 = np.zeros_like(A0)
         A1[:, :6, :6] = W
     del W
-    for v in lay.extra:
-        sl = lay.slices[v.name]
-        if v.manifold == "rot3":
-            e, H0, H1 = rot3_random_walk_residual(so3_exp(Xs[:-1, sl]), so3_exp(Xs[1:, sl]))
-        else:
-            e, H0, H1 = random_walk_residual(Xs[:-1, sl], Xs[1:, sl])
-        w = 1.0 / v.step_sigma(dt)
-        A0[:, sl, sl] = w[:, None, None] * H0
-        A1[:, sl, sl] = w[:, None, None] * H1
-        b[:, sl] = -w[:, None] * e
+    if lay.extra:
+        V0, V1, bv = variable_step_rows(lay, Xs[:-1], Xs[1:], dt)
+        A0[:, 6:], A1[:, 6:], b[:, 6:] = V0[:, 6:], V1[:, 6:], bv[:, 6:]
     return A0, A1, b
 
 
@@ -372,7 +363,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     wall = time.perf_counter() - t_start
     return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs[:, :6],
                     P_eci=P[:, :6, :6], variables=block_variables(lay, Xs, P),
-                    iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
+                    P_block=P if lay.extra else None, iterations=iterations, chi2=lin.chi2_meas + lin.chi2_motion, wall_s=wall,
                     residuals=lin.residuals,
                     extras={"converged": bool(converged), "q_m2_s3": options.q_m2_s3,
                             "q_stages": q_stages, "chi2_measurements": lin.chi2_meas,
@@ -409,13 +400,14 @@ def _orbit_only_pass(p: Pass) -> Pass | None:
     directions rotated into ECI with the attitude rows at their epochs
     (:func:`fgnav.measurements.directions_in_eci`) and the rows that need the attitude left
     out. None (no first guess) where a body-frame row has no attitude row at its epoch or
-    another variable is estimated. The guess is only a starting point: Gauss-Newton then
-    solves the whole graph, so the solution is the same, in 3 iterations instead of 7 (orbit
+    another variable than the attitude (and its rate) is estimated. The guess is only a
+    starting point: Gauss-Newton then solves the whole graph, so the solution is the same, in 3 iterations instead of 7 (orbit
     and attitude, 4 h of gto-transfer at 1 Hz)."""
     lay = layout_of(p)
     if not lay.extra:
         return p
-    if lay.names != (ORBIT.name, ATTITUDE_VARIABLE.name):
+    if lay.names not in ((ORBIT.name, ATTITUDE_VARIABLE.name),
+                         (ORBIT.name, ATTITUDE_VARIABLE.name, ATTITUDE_RATE.name)):
         return None
     q = directions_in_eci(p)
     n_body = sum(len(f) for k, f in p.families.items() if MODELS[k].body_frame_of is not None)

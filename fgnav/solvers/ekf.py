@@ -4,9 +4,14 @@ Prediction with the motion model's propagation and STM and the white-acceleratio
 process noise, ``P <- Phi P Phi^T + Q(dt)``; update with the same whitened measurement rows
 the smoothers use (the measurement models, ``fgnav.graph.linearize_family``): with whitened
 rows ``A dx ~ b`` the measurement noise is the identity, ``K = P A^T (A P A^T + I)^-1``,
-Joseph-form covariance. Graph variables beyond the orbit state (a bias) augment the state:
-their mean is held across a step and their variance grows by ``psd dt`` (a random walk;
-Maybeck 1979, vol. 1, sec. 4.10), their prior is the initial covariance.
+Joseph-form covariance. Graph variables beyond the orbit state (a bias, an attitude) augment
+the state, their prior is the initial covariance; a rotation's error is its right
+perturbation ``R = R_hat Exp(delta)`` (the multiplicative EKF: Markley 2003, "Attitude error
+representations for Kalman filtering", JGCD 26(2)). Between epochs they follow their process
+model (a random walk, Maybeck 1979, vol. 1, sec. 4.10: mean held, variance ``+ psd dt``) and
+the rows between two epochs (a rate-gyro interval), see :func:`propagate_variables`: the
+gyro propagates the attitude ``R_k = R_{k-1} Exp((omega - b) dt)``, its noise the process
+noise, its bias part of the state.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from fgnav.robust import passes_gate
 from fgnav.solution import Solution
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import SmootherOptions
+from fgnav.solvers.process import variable_step_rows
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
@@ -37,10 +43,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     per_epoch = rows_by_epoch(p)
     lay = layout_of(p)
     n = lay.n
-    between = [kind for kind in p.families if enters(p, kind) and model_of(kind).between]
-    if between:
-        raise UserError(f"{p.source}: the EKF does not use {', '.join(between)} rows yet (rows "
-                        f"between two epochs); solve with --method batch, isam2 or fixed-lag")
+    between = {kind for kind in p.families if enters(p, kind) and model_of(kind).between}
+    if between and not lay.extra:
+        raise UserError(f"{p.source}: {', '.join(sorted(between))} rows join two epochs through "
+                        f"further variables, and none is estimated")
     x0 = first_state(p, model, t0_j2000)
     x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
     P = np.zeros((n, n))
@@ -51,6 +57,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     Ps = np.empty((N, n, n))
     latency = np.empty(N)
     eye_n = np.eye(n)
+    x_prev = x
     residuals: dict[str, np.ndarray] = {}  # innovations, whitened, in family row order
     rejected: dict[str, int] = {}
     weights: dict[str, np.ndarray] = {}  # kind -> (M,) 0 where the gate rejected the row
@@ -60,15 +67,19 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             dt = p.t_s[k] - p.t_s[k - 1]
             x = x.copy()
             x[:6], Phi6 = propagate(x[:6], dt, model, t0_j2000 + p.t_s[k - 1])
-            Phi = eye_n.copy()
-            Phi[:6, :6] = Phi6
-            P = Phi @ P @ Phi.T
-            P[:6, :6] += process_noise(dt, options.q_m2_s3)
-            for v in lay.extra:
-                P[lay.slices[v.name], lay.slices[v.name]] += np.eye(v.dim) * v.step_sigma(dt) ** 2
+            Q6 = process_noise(dt, options.q_m2_s3)
+            if lay.extra:
+                rows_k = [(kind, rows) for kind, rows in per_epoch[k] if kind in between]
+                x, P, r_between = propagate_variables(p, lay, x_prev, x, P, Phi6, Q6, dt, rows_k)
+                for kind, j, r in r_between:
+                    if kind not in residuals:
+                        residuals[kind] = np.full((len(p.families[kind]), r.shape[1]), np.nan)
+                    residuals[kind][j] = r
+            else:
+                P = Phi6 @ P @ Phi6.T + Q6
         for kind, rows in per_epoch[k]:
-            if not enters(p, kind):
-                continue
+            if not enters(p, kind) or kind in between:
+                continue   # (rows between two epochs: in the propagation above)
             mdl = model_of(kind)
             if mdl.prior and k == 0:
                 continue  # the initial state already is this prior
@@ -94,13 +105,15 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 P = IKA @ P @ IKA.T + K @ K.T
         xs[k] = x
         Ps[k] = P
+        x_prev = x
         latency[k] = time.perf_counter() - t_k0
         if progress is not None:
             progress(k)
     wall = time.perf_counter() - t_start
     res = residuals
     return Solution(method="ekf", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=xs[:, :6],
-                    P_eci=Ps[:, :6, :6], variables=block_variables(lay, xs, Ps), iterations=N, chi2=float(sum(np.nansum(r * r) for r in res.values())),
+                    P_eci=Ps[:, :6, :6], variables=block_variables(lay, xs, Ps),
+                    P_block=Ps if lay.extra else None, iterations=N, chi2=float(sum(np.nansum(r * r) for r in res.values())),
                     wall_s=wall, residuals=res, online_x_eci=xs[:, :6].copy(),
                     online_P_eci=Ps[:, :6, :6].copy(),
                     latency_s=latency,
@@ -109,3 +122,83 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                                 "row_weights": weights}
                                if options.gate_probability is not None else {}),
                             "latency_p50_s": float(np.median(latency))})
+
+
+def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iterations=4):
+    """One step of the augmented filter from epoch ``k - 1`` to ``k``.
+
+    ``x0`` (n,) and ``P0`` (n, n): the filtered block and covariance at ``k - 1``; ``x1``
+    (n,): the block at ``k`` with the orbit already propagated (``Phi6``, ``Q6``: its STM and
+    process noise); ``rows_k``: (kind, rows) of the between-epoch families whose rows end
+    at ``k`` (a gyro interval). Returns ``(x1, P1, residuals)``, ``residuals`` a list of
+    ``(kind, rows, whitened residual (M, m))`` at the propagated block.
+
+    The further variables' process rows (:func:`fgnav.solvers.process.variable_step_rows`,
+    the same as the smoothers') and the between rows, whitened as ``A0 d0 + A1 d1 - b ~
+    N(0, I)`` in the tangent errors ``d0`` (epoch ``k - 1``) and ``d1`` (the further
+    variables at ``k``), are first solved for the variables' mean at ``k`` (Gauss-Newton,
+    ``d0 = 0``: a gyro row gives ``R_k = R_{k-1} Exp((omega - b) dt)``), then triangularized
+    with ``d1`` first (QR of ``[A1 | A0 | b]``, the square-root information filter's time
+    update: Bierman 1977, "Factorization Methods for Discrete Sequential Estimation",
+    ch. VI; Dellaert & Kaess 2017, "Factor Graphs for Robot Perception", sec. 3.3):
+    ``R1 d1 + S d0 = d + n`` is the transition, ``d1 = F d0 + u`` with ``F = -R1^-1 S`` and
+    the process noise ``R1^-1 R1^-T`` (for a gyro row: the Jacobians of
+    ``factors.gyro.gyro_residual``, ``F = Exp(-phi)`` on the attitude, ``-Jr(phi) dt`` on the
+    bias, the noise ``(sigma_omega dt)^2`` per axis); the rows left below, on ``d0`` alone
+    (where a gyro and the random walk disagree), update epoch ``k - 1`` first. Without
+    between rows this is the random walk: mean held, covariance ``+ psd dt``. The result is
+    the graph's own information, so the filter's last epoch is the smoother's up to the
+    linearization points.
+    """
+    n = lay.n
+    x1 = np.array(x1, dtype=float)
+    t2 = np.array([0.0, dt])
+    fams = [(kind, rows, p.families[kind].subset(np.asarray(rows), 1)) for kind, rows in rows_k]
+
+    def stacked(x0, x1):
+        X2 = np.stack([x0, x1])
+        V0, V1, bv = variable_step_rows(lay, X2[:1], X2[1:], t2[1:])
+        A0s, A1s, bs, res = [V0[0, 6:]], [V1[0, 6:]], [bv[0, 6:]], []
+        for kind, rows, fam in fams:
+            A0, A1, b, _ = model_of(kind).linearize_between(fam, X2, lay, t2)
+            A1 = A1.reshape(-1, n)
+            if np.any(A1[:, :6]):
+                raise UserError(f"{p.source}: the EKF cannot use {kind} rows: they relate the "
+                                f"orbit states of two epochs")
+            A0s.append(A0.reshape(-1, n))
+            A1s.append(A1)
+            bs.append(b.reshape(-1))
+            res.append((kind, rows, -b))
+        return np.concatenate(A0s), np.concatenate(A1s)[:, 6:], np.concatenate(bs), res
+
+    for _ in range(iterations if fams else 0):     # the variables' mean at k (d0 = 0)
+        _, A1, b, _ = stacked(x0, x1)
+        d1 = np.linalg.lstsq(A1, b, rcond=None)[0]
+        x1 = lay.retract(x1, np.concatenate([np.zeros(6), d1]))
+        if np.max(np.abs(d1)) < 1e-15:
+            break
+    A0, A1, b, res = stacked(x0, x1)
+    m = n - 6
+    R = np.linalg.qr(np.column_stack([A1, A0, b]), mode="r")
+    R1, S, d = R[:m, :m], R[:m, m:m + n], R[:m, -1]
+    Ac, dc = R[m:, m:m + n], R[m:, -1]
+    if len(dc) and np.any(Ac):                         # rows on epoch k - 1 alone
+        Sc = Ac @ P0 @ Ac.T + np.eye(len(dc))
+        K = np.linalg.solve(Sc, Ac @ P0).T
+        d0 = K @ dc
+        IKA = np.eye(n) - K @ Ac
+        P0 = IKA @ P0 @ IKA.T + K @ K.T
+    else:
+        d0 = np.zeros(n)
+    F = np.zeros((n, n))
+    F[:6, :6] = Phi6
+    R1inv = np.linalg.inv(R1)
+    F[6:] = -R1inv @ S
+    Q = np.zeros((n, n))
+    Q[:6, :6] = Q6
+    Q[6:, 6:] = R1inv @ R1inv.T
+    dx1 = F @ d0
+    dx1[6:] += R1inv @ d
+    x1 = lay.retract(x1, dx1)
+    P1 = F @ P0 @ F.T + Q
+    return x1, 0.5 * (P1 + P1.T), res

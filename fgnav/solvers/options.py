@@ -58,6 +58,7 @@ class SmootherOptions:
 class IncrementalOptions:
     relinearize_position_m: float = 1000.0
     relinearize_velocity_mps: float = 1.0
+    relinearize_rotation_rad: float = 0.01  # a further Rot3 variable (the attitude)
     partial_relinearization_check: bool = True  # check only the states the update touched
     relinearize_skip: int = 1
     lag_s: float = 300.0
