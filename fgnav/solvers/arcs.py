@@ -86,17 +86,19 @@ def predict_across(p: Pass, k: int, x: np.ndarray, P: np.ndarray, options) -> di
     lam = np.sqrt(np.maximum(np.linalg.eigvalsh(0.5 * (P1[:3, :3] + P1[:3, :3].T)), 0.0))
     r = float(np.linalg.norm(x1[:3]))
     kappa = float(lam[-1] ** 2 / (2.0 * r * max(lam[0], 1e-9)))
-    rho = sigma_point_nees_ratio(x, P, x1, P1, dt, options, t0)
+    # (not needed, and ~1 s of propagation for 20 days, where the curvature already decides)
+    rho = sigma_point_nees_ratio(x, P, x1, P1, dt, options, t0) if kappa <= KAPPA_MAX else None
     return {"t_start_s": float(p.t_s[k]), "t_end_s": float(p.t_s[k + 1]), "length_s": dt,
             "predicted_sigma_max_m": float(lam[-1]), "predicted_sigma_min_m": float(lam[0]),
             "radius_m": r, "kappa": kappa, "rho": rho,
-            "bridged": kappa <= KAPPA_MAX and rho <= RHO_MAX, "x_pred": x1, "P_pred": P1}
+            "bridged": rho is not None and rho <= RHO_MAX, "x_pred": x1, "P_pred": P1}
 
 
 def sigma_point_nees_ratio(x, P, x1, P1, dt_s, options, t0_j2000_s) -> float:
     """``rho``: the expected NEES per dimension, under the linear prediction ``(x1, P1)``,
     of the unscented prediction of ``(x, P)`` over ``dt_s`` (see the module docstring);
-    ``inf`` where either covariance is not positive definite."""
+    ``inf`` where either covariance is not positive definite. Only computed where the
+    curvature ratio allows bridging (``rho`` is None in the gap notes elsewhere)."""
     n = len(x)
     try:
         L = np.linalg.cholesky(0.5 * (P + P.T))
@@ -149,13 +151,18 @@ def plan_gaps(p: Pass, options, gap_factor: float = 10.0, *, start: tuple | None
     if breaks:
         split = [g for g in notes if not g["bridged"]]
         where = ", ".join(f"{format_duration(g['length_s'])} from t = {g['t_start_s']:.0f} s "
-                          f"(kappa {g['kappa']:.3g}, rho {g['rho']:.3g})" for g in split[:3])
+                          f"({_figures(g)})" for g in split[:3])
         out.warnings = out.warnings + [
             f"{len(breaks)} gap(s) too long to bridge: {where}{' ...' if len(split) > 3 else ''}; "
             f"the prediction across leaves the linear regime (kappa > {KAPPA_MAX:g} or its sigma "
             f"points' NEES per dimension rho > {RHO_MAX:g}), so the log "
             f"is solved as {len(breaks) + 1} separate arcs, each from its own data"]
     return out
+
+
+def _figures(g: dict) -> str:
+    """The bridging figures of a gap note for a warning: kappa, and rho where computed."""
+    return f"kappa {g['kappa']:.3g}" + ("" if g["rho"] is None else f", rho {g['rho']:.3g}")
 
 
 def solve_arcs(p: Pass, solve_one, method: str) -> Solution:
@@ -235,6 +242,6 @@ def arcs_bound(p: Pass, x_ref: np.ndarray, model):
 def gap_summary(p: Pass) -> list[dict]:
     """summary.json entries for the long gaps (times in s from the pass epoch, km)."""
     return [{"t_start_s": g["t_start_s"], "length_s": g["length_s"], "bridged": bool(g["bridged"]),
-             "kappa": round(g["kappa"], 4), "rho": round(g["rho"], 4),
+             "kappa": round(g["kappa"], 4), "rho": None if g["rho"] is None else round(g["rho"], 4),
              "predicted_sigma_max_km": round(g["predicted_sigma_max_m"] / 1e3, 3)}
             for g in p.gap_notes]
