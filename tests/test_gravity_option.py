@@ -71,6 +71,31 @@ def test_point_mass_pass_smoothed_with_point_mass_is_within_sigma(keplerian_pass
     assert z_j2.max() > 4.0, z_j2
 
 
+def test_data_cannot_refute_the_wrong_field(keplerian_pass):
+    # Why the integrity verdict stays ok on the case above: the data carry no evidence
+    # against J2. The likelihood-ratio (chi-square difference) between the two fits of the
+    # same measurements and prior is the most powerful test of "J2 or point mass" (Neyman-
+    # Pearson; Teunissen 1990), and it is below even the one-degree-of-freedom 1 - 1e-6
+    # quantile (23.9): the J2 orbit that fits these directions differs from the truth by an
+    # offset the 2 h of directions alias into the initial state (measured, seeds 0-3:
+    # chi2(J2) - chi2(point mass) = 1.7, 0.0, -3.5, 3.4; also 4.2 over 8 h). Every residual
+    # statistic of the verdict (family chi-square, runs, motion rows, manoeuvre GLR) is a
+    # function of these residuals, so none can call it without false alarms on clean passes.
+    from scipy.stats import chi2 as chi2_dist
+
+    from fgnav.integrity import assess
+
+    sim, p = keplerian_pass
+    total = {}
+    for gravity in ("point-mass", "j2"):
+        opts = SmootherOptions(gravity=gravity)
+        sol = solve(p, "batch", opts)
+        total[gravity] = sum(float(np.nansum(np.asarray(r) ** 2)) for r in sol.residuals.values())
+        # both fits are consistent with their own noise model: nothing to see
+        assert assess(sol, p, opts.motion_model())["status"] == "ok"
+    assert abs(total["j2"] - total["point-mass"]) < chi2_dist.isf(1e-6, 1), total
+
+
 def test_cli_gravity_round_trip(tmp_path):
     out = tmp_path / "pass"
     assert main(["simulate", "gto-transfer", "--out", str(out), "--gravity", "point-mass",
