@@ -70,7 +70,7 @@ from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import log_from_arrays, read_log
 from fgnav.io.text import read_utf8_text
-from fgnav.io.log_csv import STAR_COLUMNS
+from fgnav.io.log_csv import ATT_COV_COLUMNS, STAR_COLUMNS
 from fgnav.models.registry import (ATTITUDE, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LIMB_RADIUS,
                                    PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
                                    prior_kinds)
@@ -470,14 +470,15 @@ def log_from_products(products: list[EpochProducts], rows: str = "eci", priors=N
     pri = priors
     epoch0 = min(p.epoch for p in products)
     nan = np.nan
-    kinds, ts, xyz, sig, star = [], [], [], [], []
+    kinds, ts, xyz, sig, star, att_cov = [], [], [], [], [], []
 
-    def add(kind, t64, v, s, s_eci=(nan, nan, nan)):
+    def add(kind, t64, v, s, s_eci=(nan, nan, nan), cov=(nan,) * len(ATT_COV_COLUMNS)):
         kinds.append(kind)
         ts.append(float(seconds_since(t64, epoch0)))
         xyz.append(np.asarray(v, float))
         sig.append(float(s))
         star.append(s_eci)
+        att_cov.append(cov)
 
     if pri is not None:
         plog, idx = pri
@@ -493,8 +494,9 @@ def log_from_products(products: list[EpochProducts], rows: str = "eci", priors=N
             w = np.linalg.eigvalsh(tangent_basis(ep.u_body) @ ep.C_u_body_rad2 @ tangent_basis(ep.u_body).T)
             add(EARTH_DIRECTION_BODY.kind, ep.epoch, ep.u_body, math.sqrt(w[-1]))
         if rows == "body" and ep.u_body is not None and ep.R_eci_from_body is not None:
+            P = 0.5 * (ep.P_att_rad2 + ep.P_att_rad2.T)  # its full covariance (att_c11..33)
             add(ATTITUDE.kind, ep.epoch, so3_log(ep.R_eci_from_body),
-                math.sqrt(np.max(np.diag(ep.P_att_rad2))))
+                math.sqrt(np.max(np.diag(P))), cov=tuple(P[np.triu_indices(3)]))
         if rows == "raw-stars" and ep.stars is not None:
             for u, s_eci, sg in zip(ep.stars.u_body, ep.stars.s_eci, ep.stars.sigma_rad):
                 add(STAR_DIRECTION_BODY.kind, ep.epoch, u, sg, tuple(s_eci))
@@ -506,6 +508,9 @@ def log_from_products(products: list[EpochProducts], rows: str = "eci", priors=N
     if rows == "raw-stars":
         st = np.array(star, float).reshape(-1, 3)
         extra = {c: st[:, k] for k, c in enumerate(STAR_COLUMNS)}
+    if rows == "body":
+        ac = np.array(att_cov, float).reshape(-1, len(ATT_COV_COLUMNS))
+        extra = {c: ac[:, k] for k, c in enumerate(ATT_COV_COLUMNS)}
     log = log_from_arrays(epoch0, np.array(ts), np.array(kinds, dtype=object), np.array(xyz),
                           np.array(sig), extra, path=path)
     return log

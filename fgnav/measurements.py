@@ -150,10 +150,36 @@ def _rotated_to_eci(body: Family, att: Family | None) -> tuple[Family, np.ndarra
     ja = np.array([att_at[int(kk)] for kk in body.k[rows]], dtype=int)
     R = att.values["R_eci_from_body"][ja] if len(rows) else np.zeros((0, 3, 3))
     u_eci = np.einsum("mij,mj->mi", R, body.values["u_body"][rows])
-    sig = np.hypot(body.sigma[rows], att.sigma[ja]) if len(rows) else np.zeros(0)
+    sig = np.hypot(body.sigma[rows], _attitude_sigma_on(att, ja, body.values["u_body"][rows])) \
+        if len(rows) else np.zeros(0)
     new = Family(k=body.k[rows], values={"u_eci": u_eci, "from_body": np.ones(len(rows), bool)},
                  sigma=sig, line=body.line[rows])
     return new, body.line[~has]
+
+
+def _attitude_sigma_on(att: Family, ja: np.ndarray, u_body: np.ndarray) -> np.ndarray:
+    """1-sigma (rad, per tangent axis) that the attitude rows ``ja`` add to the body-frame
+    directions ``u_body`` (M, 3) rotated into ECI: the row's ``sigma``, or, for a row with a
+    full covariance ``P`` (body frame, right perturbation), the square root of the largest
+    eigenvalue of ``[u]x P [u]x^T`` (``R exp([d]x) u = R (u - [u]x d)``: the attitude error
+    about ``u`` itself does not move the direction), so that the row's isotropic sigma covers
+    its tangent-plane covariance (the small-angle attitude error model: Markley and
+    Crassidis, "Fundamentals of Spacecraft Attitude Determination and Control", 2014)."""
+    sig = np.asarray(att.sigma, dtype=float)[ja]
+    C = att.values.get("cov_rad2")
+    if C is None:
+        return sig
+    C = np.asarray(C, dtype=float)[ja]
+    full = np.flatnonzero(np.all(np.isfinite(C), axis=(1, 2)))
+    if len(full):
+        u = np.asarray(u_body, dtype=float)[full]
+        K = np.zeros((len(full), 3, 3))
+        K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+        K -= np.transpose(K, (0, 2, 1))
+        sig = sig.copy()
+        w = np.linalg.eigvalsh(K @ C[full] @ np.transpose(K, (0, 2, 1)))[:, -1]
+        sig[full] = np.sqrt(np.maximum(w, 0.0))
+    return sig
 
 
 def _merged(old: Family | None, new: Family) -> Family:

@@ -10,7 +10,17 @@ import pytest
 import fgnav.io.log_csv as lc
 from fgnav.errors import InputFormatError
 
-HEADER = "epoch,kind,x,y,z,sigma,gamma,sigma_model_m,star_x,star_y,star_z"
+HEADER = ("epoch,kind,x,y,z,sigma,gamma,sigma_model_m,star_x,star_y,star_z,"
+          "att_c11,att_c12,att_c13,att_c22,att_c23,att_c33")
+_ATT_COV = ",,,,,,"  # the six attitude-covariance fields, empty
+
+
+def _padded(rows):
+    """Rows written for the first eleven columns, with the six covariance fields appended
+    empty (a row with another field count is kept as it is: a field-count error)."""
+    return [r + _ATT_COV if r.count(",") == 10 else r for r in rows]
+
+
 GOOD = [
     "2025-03-01T00:00:00Z,prior_position,7000000,10,-20.5,100,,,,,",
     "2025-03-01T00:00:00Z,prior_velocity,1,7500,2,0.1,,,,,",
@@ -24,6 +34,10 @@ GOOD = [
     "2025-03-01T00:00:05Z,attitude,0.1,0.2,0.3,1e-5,,,,,",
     "2025-03-01T00:00:02Z,earth_direction,0,0,1,1e-4,,,,,",                      # out of order
     "2025-03-01T00:00:02Z,earth_direction,0,0,1,1e-4,,,,,",                      # duplicate
+]
+GOOD = _padded(GOOD) + [  # attitude rows with their full covariance (rad^2)
+    "2025-03-01T00:00:05Z,attitude,0.1,0.2,0.4,1e-4,,,,,,1e-10,2e-11,0,1e-10,-1e-11,1e-8",
+    "2025-03-01T00:00:06Z,attitude,0.1,0.2,0.5,1e-4,,,,,,4e-10,0,0,4e-10,0,4e-10",
 ]
 BAD = [
     "2025-03-01T00:00:06Z,earth_direction,1,0,0,0,,,,,",
@@ -48,6 +62,12 @@ BAD = [
     "  2025-03-01T00:00:07Z,earth_direction,1,0,0,1e-4,,,,,",
     "2025-03-01T00:00:07Z,earth_direction,1,0\r,0,1e-4,,,,,",
     "2025-03-01T00:00:07Z,earth_\u00e9direction,1,0,0,1e-4,,,,,",
+]
+BAD = _padded(BAD) + [
+    "2025-03-01T00:00:06Z,attitude,0.1,0.2,0.3,1e-4,,,,,,1e-10,0,0,1e-10,0,",    # partial
+    "2025-03-01T00:00:06Z,attitude,0.1,0.2,0.3,1e-4,,,,,,1e-10,2e-10,0,1e-10,0,1e-10",  # not PD
+    "2025-03-01T00:00:06Z,attitude,0.1,0.2,0.3,1e-4,,,,,,1e-10,0,0,1e-10,0,100",  # > pi^2
+    "2025-03-01T00:00:06Z,earth_direction,1,0,0,1e-4,,,,,,1e-10,0,0,1e-10,0,1e-10",  # unused
 ]
 
 

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from fgnav.graph import factors_for_rows, initial_block, linearize_all, linearize_family
+from fgnav.io.log_csv import ATT_COV_COLUMNS, log_from_arrays
 from fgnav.measurements import build_pass, with_estimates
 from fgnav.models.registry import MODELS
 from fgnav.scenarios import SensorSpec, load_scenario
@@ -39,6 +40,13 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
     "attitude": ("refraction-leo",
                  {"sensors": (_REFRACTION, SensorSpec("earth_direction_body", sigma_deg=0.02))},
                  ("attitude", "earth_direction_body", "refraction"), ("attitude",)),
+    # the same with each attitude row's full 3x3 covariance (att_c11..att_c33: a roll
+    # sigma 10x the cross-boresight ones about a random axis): whitened by W, W^T W = C^-1
+    "attitude-full-cov": ("refraction-leo",
+                          {"sensors": (_REFRACTION, SensorSpec("earth_direction_body",
+                                                               sigma_deg=0.02)),
+                           "attitude_cov": True},
+                          ("attitude", "earth_direction_body"), ("attitude",)),
     # raw stars of a zenith star camera + Earth directions in the body frame (--raw-stars)
     # the sextant: attitude-free angles, star - Earth limb, star - Moon centre, Earth - Moon
     "sextant": ("sextant-leo", {}, ("limb_star_angle", "body_star_angle", "body_body_angle"), ()),
@@ -50,6 +58,19 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
                           ("star_direction_body", "earth_direction_body"),
                           ("attitude", "camera-alignment")),
 }
+
+
+def with_attitude_covariance(log, seed=3):
+    """``log`` with a full covariance on every ``attitude`` row: per row a random rotation
+    ``Q`` and ``C = Q diag(s^2, s^2, (10 s)^2) Q^T`` with ``s`` the row's sigma."""
+    rng = np.random.default_rng(seed)
+    extra = {c: np.array(v, dtype=float) for c, v in log.extra.items()}
+    for i in log.select("attitude"):
+        Q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        C = Q @ np.diag(np.array([1.0, 1.0, 100.0]) * log.sigma[i] ** 2) @ Q.T
+        for c, (a, b) in zip(ATT_COV_COLUMNS, zip(*np.triu_indices(3))):
+            extra[c][i] = C[a, b]
+    return log_from_arrays(log.epoch0, log.t_s, log.kind, log.xyz, log.sigma, extra)
 
 
 def _raw_stars(scenario, **opts):
@@ -81,10 +102,13 @@ def _cases():
 def test_batch_and_isam2_routes_give_the_same_whitened_rows(case, kind):
     scenario, opts, _, estimate = CASES[case]
     opts = dict(opts)
+    attitude_cov = opts.pop("attitude_cov", False)
     if opts.pop("raw_stars", False):
         log, t, x = _raw_stars(scenario, duration_h=0.5, **opts)
     else:
         log, t, x = F.clean(scenario, duration_h=0.5, **opts)
+    if attitude_cov:
+        log = with_attitude_covariance(log)
     if len(log.select("sun_direction_body")) and "attitude" not in estimate:
         # body-frame rows: to ECI by TRIAD attitude (the attitude not estimated)
         log = preprocess_log(log)[0]

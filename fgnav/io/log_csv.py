@@ -7,12 +7,14 @@ character is ``#`` are comments; blank lines are ignored. The first other line i
 header::
 
     epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z][,body][,body2]
+        [,att_c11,att_c12,att_c13,att_c22,att_c23,att_c33]
 
 The six base columns are required, in this order; the optional extra columns ``gamma`` and
 ``sigma_model_m`` (used by ``refraction`` rows), ``star_x``, ``star_y``, ``star_z`` (used
-by ``star_direction_body`` and the star-angle rows) and ``body``, ``body2`` (a near body's
-name, one of ``sun``, ``earth``, ``moon``: the angle rows) may follow, in any order, each at
-most once. Every row has exactly as many comma-separated fields as the header; whitespace around
+by ``star_direction_body`` and the star-angle rows), ``body``, ``body2`` (a near body's
+name, one of ``sun``, ``earth``, ``moon``: the angle rows) and ``att_c11``, ``att_c12``,
+``att_c13``, ``att_c22``, ``att_c23``, ``att_c33`` (an ``attitude`` row's covariance) may
+follow, in any order, each at most once. Every row has exactly as many comma-separated fields as the header; whitespace around
 a field is ignored; an empty field is "no value" (read as NaN). ``epoch`` is ISO-8601 UTC
 ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; years
 1678..2261, the range of ``datetime64[ns]``; second ``60`` at the end of a day with a leap
@@ -35,7 +37,12 @@ kind                      x, y, z (and extra columns)                      sigma
   (fgnav extension)       frame; needs an attitude (an ``attitude`` row    axis, rad
                           at the same epoch, or an attitude key)
 ``attitude``              rotation vector (axis * angle, rad) of           per axis, rad
-  (fgnav extension)       R_eci_from_body
+  (fgnav extension)       R_eci_from_body; ``att_c11`` .. ``att_c33``
+                          (optional, all six or none) = the upper
+                          triangle of its 3x3 covariance, rad^2, body
+                          frame, right perturbation (R_meas exp([d]x));
+                          when given it replaces sigma (which stays
+                          required) in every use of the row
 ``altitude``              x = altimeter height above the reference         m
   (fgnav extension)       sphere h, m; y = reference radius, m (> 0,
                           and x + y > 0); z empty
@@ -83,8 +90,8 @@ also bounds radii and heights); a ``prior_velocity`` within 1e6 m/s.
 Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the file, the
 1-based line, the column and what was expected, unless stated otherwise)
 
-- header: missing, misnamed or extra columns (only ``gamma``, ``sigma_model_m``,
-  ``star_x``, ``star_y``, ``star_z`` may follow the base six), a repeated column;
+- header: missing, misnamed or extra columns (only the extra columns above may follow the
+  base six), a repeated column;
 - empty file, or a header and no rows: "no measurements";
 - row-level (``reason`` key used in ``MeasurementLog.dropped``):
   ``field_count`` wrong number of fields; ``truncated`` the last line has too few fields
@@ -92,7 +99,9 @@ Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the f
   epoch not ISO-8601 UTC with ``Z``; ``unknown_kind``; ``bad_number`` unparsable number;
   ``not_finite`` NaN or inf; ``missing_value`` a required field empty;
   ``unexpected_value`` a field the kind does not use is filled; ``bad_sigma`` sigma <= 0
-  or outside the kind's ``SIGMA_RANGE``;
+  or outside the kind's ``SIGMA_RANGE``; ``bad_covariance`` an ``attitude`` covariance
+  (``att_c11`` .. ``att_c33``) that is not positive definite or has an eigenvalue outside
+  the squared ``SIGMA_RANGE``;
   ``unknown_body`` a ``body``/``body2`` that is not one of sun, earth, moon, the Sun as a
   limb body, or the same body twice in a ``body_body_angle``;
   ``not_unit`` a direction (x,y,z, or a star's catalogue vector star_x,star_y,star_z)
@@ -131,10 +140,16 @@ __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
     "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
+    "ATT_COV_COLUMNS", "attitude_covariances",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
-EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z", "body", "body2")
+ATT_COV_COLUMNS = ("att_c11", "att_c12", "att_c13", "att_c22", "att_c23", "att_c33")
+"""The extra columns of an ``attitude`` row's full 3x3 covariance (upper triangle, rad^2,
+body frame, right perturbation ``R_eci_from_body = R_meas exp([d]x)``); empty: the
+isotropic ``sigma``."""
+EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z", "body",
+                 "body2") + ATT_COV_COLUMNS
 STAR_COLUMNS = ("star_x", "star_y", "star_z")
 """The extra columns of a star's catalogue unit vector (``star_direction_body`` rows)."""
 BODY_COLUMNS = ("body", "body2")
@@ -230,6 +245,43 @@ def _check_two_bodies(v):
                         BODIES[int(v["body2"])])
 
 
+def _check_attitude_covariance(v):
+    """An ``attitude`` row's covariance columns: all six empty, or all six filled and the
+    symmetric matrix they give positive definite with every 1-sigma (square root of an
+    eigenvalue) within the kind's sigma range."""
+    c = [v[col] for col in ATT_COV_COLUMNS]
+    filled = [not math.isnan(a) for a in c]
+    if not any(filled):
+        return
+    if not all(filled):
+        col = ATT_COV_COLUMNS[filled.index(False)]
+        raise _RowError("missing_value", col, "all six of " + ",".join(ATT_COV_COLUMNS)
+                        + " filled, or none (attitude: the covariance's upper triangle, rad^2)",
+                        "empty field")
+    w = np.linalg.eigvalsh(_sym3(*c))
+    lo, hi = _KIND_SPEC["attitude"].sigma_min, _KIND_SPEC["attitude"].sigma_max
+    if not (w[0] > 0.0 and lo * lo <= w[0] and w[-1] <= hi * hi):
+        raise _RowError("bad_covariance", ",".join(ATT_COV_COLUMNS),
+                        f"a symmetric positive definite covariance, rad^2, with eigenvalues "
+                        f"within {lo * lo:g}..{hi * hi:g} (1-sigma {lo:g}..{hi:g} rad)",
+                        f"eigenvalues {', '.join(f'{a:.6g}' for a in w)}")
+
+
+def _sym3(c11, c12, c13, c22, c23, c33) -> np.ndarray:
+    return np.array([[c11, c12, c13], [c12, c22, c23], [c13, c23, c33]], dtype=float)
+
+
+def attitude_covariances(log, rows) -> np.ndarray:
+    """The 3x3 covariances (M, 3, 3), rad^2, of the ``attitude`` rows ``rows`` of ``log``:
+    from the ``att_c11..att_c33`` columns, NaN-filled where a row gives none (its isotropic
+    ``sigma`` applies)."""
+    rows = np.asarray(rows, dtype=int)
+    extra = log.extra or {}
+    c = [np.asarray(extra[col], dtype=float)[rows] if col in extra
+         else np.full(len(rows), np.nan) for col in ATT_COV_COLUMNS]
+    return np.moveaxis(_sym3(*c), -1, 0) if len(rows) else np.zeros((0, 3, 3))
+
+
 def body_codes(names) -> np.ndarray:
     """In-memory codes (float array, NaN for None/empty/NaN) of body names (sun, earth,
     moon, any case) or codes; a ValueError names an unknown body."""
@@ -293,7 +345,10 @@ _KIND_SPEC: dict[str, _Kind] = {
                          check=_check_limb_radius),
     "earth_direction_body": _Kind(_XYZ, "unit vector to Earth centre, body", *_ANGLE,
                                   unit_vector=True),
-    "attitude": _Kind(_XYZ, "rotation vector of R_eci_from_body, rad", 1e-9, math.pi, "rad"),
+    "attitude": _Kind(_XYZ + ("",) * 5 + ("o",) * len(ATT_COV_COLUMNS),
+                      "rotation vector of R_eci_from_body, rad; att_c11..att_c33 = its "
+                      "covariance (upper triangle, rad^2, body frame; optional)",
+                      1e-9, math.pi, "rad", row_check=_check_attitude_covariance),
     "altitude": _Kind(_XY, "x = height above sphere, m; y = sphere radius, m", 1e-3, 1e7, "m",
                       check=_check_altitude),
     "sun_direction_body": _Kind(_XYZ, "unit vector to the Sun, body", *_ANGLE, unit_vector=True),
@@ -335,7 +390,7 @@ _NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
 _EPOCH_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$")
 _EPOCH_EXPECTED = "an ISO-8601 UTC epoch YYYY-MM-DDTHH:MM:SS[.fffffffff]Z"
 _HEADER_TEXT = ("epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]"
-                "[,body][,body2]")
+                "[,body][,body2][,att_c11,...,att_c33]")
 _NS_PER_DAY = 86400 * 10**9
 
 
@@ -346,7 +401,7 @@ class MeasurementLog:
     ``t_s`` are seconds from ``epoch0`` (``datetime64[ns]``, UTC); ``kind`` a str array;
     ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
     ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ``star_y``,
-    ``star_z``, ``body``, ``body2``: codes, :data:`BODIES`) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
+    ``star_z``, ``body``, ``body2``: codes, :data:`BODIES`; ``att_c11`` .. ``att_c33``) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
     ``warnings`` human-readable notes; ``dropped`` rows dropped per reason.
     """
 
@@ -891,6 +946,12 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
             for r in np.flatnonzero(good[rows]):
                 try:
                     spec.check(*(float(Vk[r, j]) for j in (0, 1, 2, sm)))
+                except _RowError:
+                    good[rows[r]] = False
+        if spec.row_check is not None:  # checks that need the extra columns, row by row
+            for r in np.flatnonzero(good[rows]):
+                try:
+                    spec.row_check(dict(zip(_VALUE_COLUMNS, map(float, Vk[r]))))
                 except _RowError:
                     good[rows[r]] = False
         sig = Vk[:, 3]

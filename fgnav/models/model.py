@@ -29,7 +29,11 @@ gives:
   interval ``t_k - t_(k-1)`` of each row.
 
 Whitening follows GTSAM's convention (``factors.adapters.whiten``): rows ``A = H/sigma``,
-``b = -e/sigma`` minimize ``|A dx - b|^2``.
+``b = -e/sigma`` minimize ``|A dx - b|^2``. A model whose rows may carry a full covariance
+(``covariance(fam) -> (M, m, m)`` or None, NaN for a row that has none and keeps its
+isotropic sigma) whitens those rows with the square-root information ``W`` (``W^T W = C^-1``,
+:func:`sqrt_information`): ``A = W H``, ``b = -W e``; its GTSAM factors take the same ``W``
+(``noiseModel.Gaussian.SqrtInformation``), so both routes whiten alike.
 """
 
 from __future__ import annotations
@@ -43,7 +47,15 @@ import numpy as np
 from factors.adapters import whiten
 from fgnav.models.variables import Layout, Variable
 
-__all__ = ["MeasurementModel"]
+__all__ = ["MeasurementModel", "sqrt_information"]
+
+
+def sqrt_information(C) -> np.ndarray:
+    """Square-root information ``W`` (..., m, m) of covariances ``C`` (..., m, m):
+    ``W = L^-1`` with ``C = L L^T`` (Cholesky), so ``W^T W = C^-1`` and ``W e`` is the
+    whitened error (the Mahalanobis norm ``|W e|^2 = e^T C^-1 e``)."""
+    L = np.linalg.cholesky(np.asarray(C, dtype=float))
+    return np.linalg.inv(L)
 
 
 @functools.lru_cache(maxsize=256)
@@ -80,6 +92,7 @@ class MeasurementModel:
     initial: Callable | None = None
     between: bool = False
     weak_orbit_dependence: bool = False
+    covariance: Callable | None = None
 
     @property
     def solved(self) -> bool:
@@ -147,20 +160,43 @@ class MeasurementModel:
         """Whitened rows of every measurement: ``A (M, m, n)``, ``b (M, m)``, and ``e``."""
         e, H = self.evaluate(fam, X, layout)
         A, b = whiten(e, H, self.noise_sigma(fam, X[fam.k, :6]))
+        full = self._full_rows(fam)
+        if full is not None:   # rows with a full covariance: A = W H, b = -W e
+            rows, W = full
+            A[rows] = W @ H[rows]
+            b[rows] = -np.einsum("mij,mj->mi", W, e[rows])
         return A, b, e
+
+    def _full_rows(self, fam, rows=None):
+        """``(row indices, W (R, m, m))`` of the rows (among ``rows``, all by default) that
+        carry a full covariance, or None when none does."""
+        if self.covariance is None:
+            return None
+        C = self.covariance(fam)
+        if C is None:
+            return None
+        C = np.asarray(C, dtype=float)
+        if rows is not None:
+            C = C[rows]
+        full = np.flatnonzero(np.all(np.isfinite(C), axis=(1, 2)))
+        if not len(full):
+            return None
+        return full, sqrt_information(C[full])
 
     def keys(self, layout: Layout, k: int) -> dict[str, int]:
         """GTSAM keys of the variables this model touches at epoch ``k``."""
         return {v.name: v.key(k) for v in _touched(self, layout)}
 
-    def _noise(self, sigma: float, robust):
-        """The noise of one row's factor: its 1-sigma, wrapped by the robust kernel for a
-        measurement (never for a prior)."""
-        if robust is None or not self.robust:
+    def _noise(self, sigma: float, robust, W=None):
+        """The noise of one row's factor: its 1-sigma (or, given, its square-root information
+        ``W`` (m, m)), wrapped by the robust kernel for a measurement (never for a prior)."""
+        if W is None and (robust is None or not self.robust):
             return sigma
         import gtsam  # the EKF baseline imports this module without GTSAM
 
-        return robust.gtsam_noise(gtsam.noiseModel.Isotropic.Sigma(self.dim, float(sigma)))
+        base = (gtsam.noiseModel.Isotropic.Sigma(self.dim, float(sigma)) if W is None else
+                gtsam.noiseModel.Gaussian.SqrtInformation(np.asarray(W, dtype=float), False))
+        return base if robust is None or not self.robust else robust.gtsam_noise(base)
 
     def factors(self, fam, rows, k: int, layout: Layout, robust=None, x_guess=None,
                 t_s=None) -> list:
@@ -185,5 +221,10 @@ class MeasurementModel:
             x = None if x_guess is None else np.broadcast_to(
                 np.asarray(x_guess, dtype=float)[:6], (len(rows), 6))
             sigmas = self.noise_sigma(fam.subset(rows, 0), x)
-        return [self.factor(fam, j, keys, self._noise(sig, robust))
-                for j, sig in zip(rows.tolist(), sigmas.tolist())]
+        Ws = [None] * len(rows)
+        full = self._full_rows(fam, rows)
+        if full is not None:
+            for r, W in zip(*full):
+                Ws[r] = W
+        return [self.factor(fam, j, keys, self._noise(sig, robust, W))
+                for j, sig, W in zip(rows.tolist(), sigmas.tolist(), Ws)]

@@ -38,7 +38,7 @@ from factors.refraction import (make_refraction_bias_factor, make_refraction_fac
 from factors.constants import ARCSEC
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
-from fgnav.io.log_csv import BODIES, STAR_COLUMNS
+from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
 from fgnav.simulate.celestial_angles import body_position_eci_m, simulate_angle_rows
@@ -256,9 +256,10 @@ def _attitude_residual(fam, v):
 ATTITUDE = MeasurementModel(
     kind="attitude", dim=3, unit="rad",
     summary="rotation vector of R_eci_from_body (a solved attitude)",
-    values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i))},
+    values=lambda log, i: {"R_eci_from_body": so3_exp(_xyz(log, i)),
+                           "cov_rad2": attitude_covariances(log, i)},
     residual=_attitude_residual, variables=(), optional_variables=(ATTITUDE_VARIABLE,),
-    requires=ATTITUDE_VARIABLE.name,
+    requires=ATTITUDE_VARIABLE.name, covariance=lambda fam: fam.values.get("cov_rad2"),
     initial=lambda fam: {ATTITUDE_VARIABLE.name: so3_log(fam.values["R_eci_from_body"])},
     factor=lambda fam, j, keys, noise: make_attitude_prior_factor(
         keys[ATTITUDE_VARIABLE.name], fam.values["R_eci_from_body"][j], noise))
