@@ -35,8 +35,9 @@ Per epoch:
    square root of the largest eigenvalue of its 2x2 tangent-plane covariance (conservative).
    ``limb_radius`` ``(rho, R_limb)`` with ``sigma_rho`` (attitude-free). With
    ``rows="body"``: ``earth_direction_body`` (largest eigenvalue of ``C_u``) and
-   ``attitude`` rows (rotation vector of ``R_eci_from_body``, sigma = the largest per-axis
-   sigma of ``P_att``) instead of the ECI direction.
+   ``attitude`` rows (rotation vector of ``R_eci_from_body``; ``P_att`` in full in the
+   columns ``att_c11`` .. ``att_c33``, sigma = its largest per-axis sigma for readers that
+   take one) instead of the ECI direction.
    With ``rows="raw-stars"`` (tight coupling): every identified star of the star frame
    becomes a ``star_direction_body`` row (x, y, z = its measured direction, body frame;
    star_x, star_y, star_z = its catalogue unit vector; sigma = the centroid 1-sigma scaled

@@ -9,8 +9,9 @@ extraction of the frames (:func:`fgnav.extract.extract_frames`), written as thre
 the same front-end output (:meth:`fgnav.extract.ExtractionResult.log_as`):
 
 * ``eci``   -- earth_direction rows with the star attitude's error folded in + limb_radius;
-* ``loose`` -- earth_direction_body + one solved ``attitude`` row per star frame (the
-  attitude known to the smoother, its variance added);
+* ``loose`` -- earth_direction_body + one solved ``attitude`` row per star frame with its
+  full 3x3 covariance (the attitude known to the smoother, its variance across each
+  direction added);
 * ``tight`` -- every identified star a ``star_direction_body`` row + earth_direction_body,
   the attitude a graph variable (``--attitude estimate``);
 
