@@ -39,6 +39,15 @@ def cumulative_stm(Phi_steps):
     return out
 
 
+@njit(cache=True)
+def accumulate_stm(Phik):
+    """:func:`cumulative_stm` in place: ``Phik`` (N,6,6) holds the step STMs at 1..N-1 and
+    leaves with Phi(t_k, t_0) at every k (the same products, bit for bit)."""
+    Phik[0] = np.eye(6)
+    for k in range(1, Phik.shape[0]):
+        Phik[k] = Phik[k] @ Phik[k - 1]
+
+
 @dataclass
 class CrbResult:
     P_eci: np.ndarray | None      # (N,6,6) bound on the state at every epoch (keep_covariance)
@@ -71,9 +80,11 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
     """
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
-        _, Phi = propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1])
-        Phik = cumulative_stm(Phi)
-        del Phi
+        # the step STMs written into Phik[1:] and accumulated in place: one (N,6,6) array
+        Phik = np.empty((p.n_epochs, 6, 6))
+        propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1],
+                       stm_out=Phik[1:])
+        accumulate_stm(Phik)
     else:
         Phik = np.eye(6)[None]
     rows = linearize_all(p, X_ref, None, rejected)
