@@ -336,11 +336,13 @@ def propagate(x0, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, wit
     return x1, (Phi if with_stm else None)
 
 
-def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, with_stm=True):
+def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, with_stm=True,
+                   stm_out=None):
     """Propagate N states at once: X (N,6), dt_s (N,) s, t0_j2000_s (N,) or scalar.
 
     Returns ``(X1 (N,6), Phi (N,6,6))`` (``Phi`` None if ``with_stm=False``); the epochs run in
-    parallel (numba ``prange``). Same numbers as N calls of ``propagate``.
+    parallel (numba ``prange``). Same numbers as N calls of ``propagate``. ``stm_out``: a
+    C-contiguous (N,6,6) float64 array to write ``Phi`` into (e.g. a slice of a larger one).
     """
     X = np.ascontiguousarray(X, dtype=float)
     if X.ndim != 2 or X.shape[1] != 6:
@@ -350,7 +352,11 @@ def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0,
     t0 = np.ascontiguousarray(np.broadcast_to(np.asarray(t0_j2000_s, dtype=float), (N,)))
     X1 = np.empty((N, 6))
     # without the STM, Phi is never written: a (N,1,1) placeholder keeps the kernel's types
-    Phi = np.empty((N, 6, 6)) if with_stm else np.empty((N, 1, 1))
+    if stm_out is not None and (stm_out.shape != (N, 6, 6) or stm_out.dtype != np.float64
+                                or not stm_out.flags.c_contiguous):
+        raise ValueError(f"stm_out must be a C-contiguous float64 array ({N}, 6, 6)")
+    Phi = (np.empty((N, 6, 6)) if stm_out is None else stm_out) if with_stm else \
+        np.empty((N, 1, 1))
     mu, j2, re, third, hmax, mus, mum = model.args()
     _propagate_many_nb(X, dt, mu, j2, re, third, hmax, mus, mum, t0, bool(with_stm), X1, Phi)
     return X1, (Phi if with_stm else None)

@@ -37,7 +37,7 @@ import numpy as np
 
 from factors.dynamics import accel_third_body, process_noise, propagate_many
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-from fgnav.analysis.crb import rows_at_first_state
+from fgnav.analysis.crb import CHUNK, rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family
 from fgnav.models.registry import model as model_of
 from fgnav.initial_orbit import has_prior
@@ -416,29 +416,46 @@ def manoeuvre_glr(m: _Mapped) -> dict | None:
     if N < 8 or len(m.b) < 12:
         return None
     hk = np.zeros((N, 6))
-    Jk = np.zeros((N, 6, 6))
     np.add.at(hk, m.k, m.H * m.b[:, None])
-    np.add.at(Jk, m.k, m.H[:, :, None] * m.H[:, None, :])
     h_tau = np.cumsum(hk[::-1], axis=0)[::-1]
-    J_tau = np.cumsum(Jk[::-1], axis=0)[::-1]
     try:
         Jinv = np.linalg.inv(m.J)
-        C = np.linalg.solve(m.Phik, np.broadcast_to(np.eye(6)[:, 3:], (N, 6, 3))) / m.s[None, :, None]
     except np.linalg.LinAlgError:
         return None
     h = h_tau[0]
-    u = np.einsum("kij,ki->kj", C, h_tau - J_tau @ (Jinv @ h))
-    Mt = J_tau - J_tau @ Jinv @ J_tau
-    M = np.einsum("kij,kil,klm->kjm", C, Mt, C)
     threshold = chi2_isf(RUN_FALSE_ALARM / max(N - 2, 1), 3)
-    # u^T M^+ u by eigen-decomposition (M is singular where no row follows the epoch), over
-    # the directions where an impulse within MAX_MANOEUVRE_FRACTION of the orbital speed
-    # could reach the threshold: w dv^2 is the chi-square an impulse dv buys along them
-    w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
     dv_max = MAX_MANOEUVRE_FRACTION * m.speed_mps
-    keep = (w > 1e-9 * np.maximum(w[:, -1:], 1e-300)) & (w * dv_max[:, None] ** 2 > threshold)
-    proj = np.einsum("kij,ki->kj", V, u)
-    stat = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
+    # The (N, 6, 6) sums J_tau in chunks of epochs from the last one back, carrying the sum
+    # of the later epochs (prepended to each chunk's cumulative sum: the same additions in
+    # the same order as one cumulative sum over the pass).
+    order = np.argsort(m.k, kind="stable")     # rows of an epoch keep their order
+    k_sorted = m.k[order]
+    stat = np.zeros(N)
+    carry = np.zeros((1, 6, 6))
+    for a in range(((N - 1) // CHUNK) * CHUNK, -1, -CHUNK):
+        b = min(a + CHUNK, N)
+        lo, hi = np.searchsorted(k_sorted, [a, b])
+        Hc = m.H[order[lo:hi]]
+        Jk = np.zeros((b - a, 6, 6))
+        np.add.at(Jk, k_sorted[lo:hi] - a, Hc[:, :, None] * Hc[:, None, :])
+        J_tau = np.cumsum(np.concatenate([carry, Jk[::-1]]), axis=0)[1:][::-1]
+        carry = J_tau[:1].copy()
+        try:
+            C = np.linalg.solve(m.Phik[a:b], np.broadcast_to(np.eye(6)[:, 3:], (b - a, 6, 3))) \
+                / m.s[None, :, None]
+        except np.linalg.LinAlgError:
+            return None
+        u = np.einsum("kij,ki->kj", C, h_tau[a:b] - J_tau @ (Jinv @ h))
+        Mt = J_tau - J_tau @ Jinv @ J_tau
+        M = np.einsum("kij,kil,klm->kjm", C, Mt, C)
+        # u^T M^+ u by eigen-decomposition (M is singular where no row follows the epoch),
+        # over the directions where an impulse within MAX_MANOEUVRE_FRACTION of the orbital
+        # speed could reach the threshold: w dv^2 is the chi-square an impulse dv buys
+        w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
+        keep = (w > 1e-9 * np.maximum(w[:, -1:], 1e-300)) & \
+            (w * dv_max[a:b, None] ** 2 > threshold)
+        proj = np.einsum("kij,ki->kj", V, u)
+        stat[a:b] = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
     stat[[0, -1]] = 0.0  # a manoeuvre before the first or after the last row is no test
     k = int(np.argmax(stat))
     return {"glr": float(stat[k]), "threshold": threshold, "epoch_index": k}

@@ -20,7 +20,7 @@ from fgnav.initial_orbit import (
     START_INFLATION, Start, has_prior, initial_orbit, propagate_orbit, start_point, strip_prior,
 )
 from fgnav.integrity import assess, needs_prior_test
-from fgnav.io.atomic import atomic_write_text
+from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
 from fgnav.io.oem import read_oem, write_oem
 from fgnav.io.outputs import (
@@ -463,6 +463,22 @@ def write_attitude_outputs(out: Path, sol: Solution) -> list[str]:
     return ["attitude.aem", "attitude_covariance.csv"]
 
 
+def write_residuals_csv(path: Path, residuals: dict, times: dict, chunk: int = 65536) -> None:
+    """residuals.csv: one line ``t_s,kind,component,whitened`` per finite whitened residual
+    component (``residuals``: kind -> (M, m); ``times``: kind -> (M,) s from the pass epoch),
+    by kind, row and component. Streamed in chunks of rows: a 1,000,000-epoch pass would
+    otherwise hold its ~2,000,000 lines as Python strings at once."""
+    with atomic_writer(path, "w") as f:
+        f.write("t_s,kind,component,whitened\n")
+        for kind, r in residuals.items():
+            line = f"{{:.6f}},{kind},{{}},{{:.6g}}\n".format
+            t = np.asarray(times[kind], dtype=float)
+            for a in range(0, len(r), chunk):
+                rc = np.asarray(r[a:a + chunk], dtype=float)
+                i, j = np.nonzero(np.isfinite(rc))
+                f.write("".join(map(line, t[a + i].tolist(), j.tolist(), rc[i, j].tolist())))
+
+
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
     """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv; with an
     estimated attitude attitude.aem and attitude_covariance.csv).
@@ -490,13 +506,7 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
             write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
                       comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
             names.append("online.oem")
-        lines = ["t_s,kind,component,whitened"]
-        times = residual_times(res, p)
-        for kind, r in sol.residuals.items():
-            t = times[kind]
-            lines.extend(f"{t[i]:.6f},{kind},{j},{r[i, j]:.6g}"
-                         for i in range(len(r)) for j in range(r.shape[1]) if np.isfinite(r[i, j]))
-        atomic_write_text(stage / "residuals.csv", "\n".join(lines) + "\n")
+        write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
         names.append("residuals.csv")
         if sol.latency_s is not None:
             atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(

@@ -24,7 +24,9 @@ from fgnav.graph import PRIOR_KINDS, Rows, linearize_all
 from fgnav.measurements import Pass
 from fgnav.time import j2000_seconds
 
-
+#: epochs (or rows) per chunk where per-epoch 6x6 matrices are formed: a (CHUNK, 6, 6)
+#: float64 array is 19 MB, where the whole of a 1,000,000-epoch pass would be 288 MB each
+CHUNK = 65536
 
 @njit(cache=True)
 def cumulative_stm(Phi_steps):
@@ -37,15 +39,26 @@ def cumulative_stm(Phi_steps):
     return out
 
 
+@njit(cache=True)
+def accumulate_stm(Phik):
+    """:func:`cumulative_stm` in place: ``Phik`` (N,6,6) holds the step STMs at 1..N-1 and
+    leaves with Phi(t_k, t_0) at every k (the same products, bit for bit)."""
+    Phik[0] = np.eye(6)
+    for k in range(1, Phik.shape[0]):
+        Phik[k] = Phik[k] @ Phik[k - 1]
+
+
 @dataclass
 class CrbResult:
-    P_eci: np.ndarray             # (N,6,6) bound on the state at every epoch
+    P_eci: np.ndarray | None      # (N,6,6) bound on the state at every epoch (keep_covariance)
     position_rms_m: float         # sqrt(mean_k trace(P_rr))
     velocity_rms_mps: float
     final_position_m: float
     final_velocity_mps: float
     J0_measurements: np.ndarray   # (6,6) information of the first state from measurements only
     J0_geometry: np.ndarray | None = None  # (6,6) the same with every row scaled to unit norm
+    position_var_m2: np.ndarray | None = None     # (N,) trace of the position block of P
+    velocity_var_m2s2: np.ndarray | None = None   # (N,) trace of the velocity block of P
 
 
 def _scaled_inverse(J: np.ndarray) -> np.ndarray:
@@ -67,8 +80,11 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
     """
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
-        _, Phi = propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1])
-        Phik = cumulative_stm(Phi)
+        # the step STMs written into Phik[1:] and accumulated in place: one (N,6,6) array
+        Phik = np.empty((p.n_epochs, 6, 6))
+        propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1],
+                       stm_out=Phik[1:])
+        accumulate_stm(Phik)
     else:
         Phik = np.eye(6)[None]
     rows = linearize_all(p, X_ref, None, rejected)
@@ -76,11 +92,18 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
         keep = np.isin(rows.row_kind, [f"prior_{v.name}" for v in p.layout.extra], invert=True)
         rows = Rows(rows.k[keep], rows.A[keep, :6], rows.b[keep], rows.residuals,
                     rows.row_kind[keep], rows.weights)
-    return Phik, np.einsum("ri,rij->rj", rows.A, Phik[rows.k]), rows
+    # in chunks of rows: Phik[rows.k] of every row at once is (R, 6, 6)
+    G = np.empty((len(rows.k), 6))
+    for a in range(0, len(rows.k), CHUNK):
+        G[a:a + CHUNK] = np.einsum("ri,rij->rj", rows.A[a:a + CHUNK], Phik[rows.k[a:a + CHUNK]])
+    return Phik, G, rows
 
 
-def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel()) -> CrbResult:
-    """The bound along ``X_ref`` (N,6), see the module docstring."""
+def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel(),
+                     keep_covariance: bool = False) -> CrbResult:
+    """The bound along ``X_ref`` (N,6), see the module docstring. The (N,6,6) bounds are
+    formed in chunks of epochs and kept (``P_eci``) only with ``keep_covariance``; the
+    traces of their position (m^2) and velocity (m^2/s^2) blocks always are."""
     Phik, G, rows = rows_at_first_state(p, X_ref, model)
     J0 = G.T @ G
     Gm = G[~np.isin(rows.row_kind, PRIOR_KINDS)]
@@ -88,14 +111,21 @@ def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionMode
     norm = np.linalg.norm(Gm, axis=1)
     Gu = Gm[norm > 0] / norm[norm > 0, None]
     C0 = _scaled_inverse(J0)
-    P = np.einsum("kij,jl,kml->kim", Phik, C0, Phik)
-    var_r = np.trace(P[:, :3, :3], axis1=1, axis2=2)
-    var_v = np.trace(P[:, 3:, 3:], axis1=1, axis2=2)
+    n = len(Phik)
+    P = np.empty((n, 6, 6)) if keep_covariance else None
+    var_r, var_v = np.empty(n), np.empty(n)
+    for a in range(0, n, CHUNK):
+        Pc = np.einsum("kij,jl,kml->kim", Phik[a:a + CHUNK], C0, Phik[a:a + CHUNK])
+        var_r[a:a + CHUNK] = np.trace(Pc[:, :3, :3], axis1=1, axis2=2)
+        var_v[a:a + CHUNK] = np.trace(Pc[:, 3:, 3:], axis1=1, axis2=2)
+        if P is not None:
+            P[a:a + CHUNK] = Pc
+    del Phik
     return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
                      velocity_rms_mps=float(np.sqrt(var_v.mean())),
                      final_position_m=float(np.sqrt(var_r[-1])),
                      final_velocity_mps=float(np.sqrt(var_v[-1])), J0_measurements=J0_meas,
-                     J0_geometry=Gu.T @ Gu)
+                     J0_geometry=Gu.T @ Gu, position_var_m2=var_r, velocity_var_m2s2=var_v)
 
 
 def check_observability(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionModel(),

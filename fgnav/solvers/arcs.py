@@ -229,14 +229,14 @@ def arcs_bound(p: Pass, x_ref: np.ndarray, model):
     cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
                            x_ref[a:b], model)
           for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]))]
-    P = np.concatenate([c.P_eci for c in cs])
-    var_r = np.trace(P[:, :3, :3], axis1=1, axis2=2)
-    var_v = np.trace(P[:, 3:, 3:], axis1=1, axis2=2)
-    return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
+    var_r = np.concatenate([c.position_var_m2 for c in cs])
+    var_v = np.concatenate([c.velocity_var_m2s2 for c in cs])
+    return CrbResult(P_eci=None, position_rms_m=float(np.sqrt(var_r.mean())),
                      velocity_rms_mps=float(np.sqrt(var_v.mean())),
                      final_position_m=cs[-1].final_position_m,
                      final_velocity_mps=cs[-1].final_velocity_mps,
-                     J0_measurements=cs[0].J0_measurements, J0_geometry=cs[0].J0_geometry)
+                     J0_measurements=cs[0].J0_measurements, J0_geometry=cs[0].J0_geometry,
+                     position_var_m2=var_r, velocity_var_m2s2=var_v)
 
 
 def gap_summary(p: Pass) -> list[dict]:
