@@ -14,7 +14,7 @@ from fgnav.first_run import MESSAGE
 ROOT = Path(__file__).resolve().parents[1]
 
 KERNEL = '''
-from numba import njit
+from factors.jit import njit  # as fgnav's kernels: numba imported at the first call
 
 @njit(cache=True)
 def twice(x):

@@ -16,7 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
+
+from factors.interpret import run
 
 from factors.dynamics import MotionModel, propagate_many
 from fgnav.errors import NotObservableError
@@ -68,7 +70,7 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
         _, Phi = propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1])
-        Phik = cumulative_stm(Phi)
+        Phik = run(cumulative_stm, Phi)
     else:
         Phik = np.eye(6)[None]
     rows = linearize_all(p, X_ref, None, rejected)
