@@ -14,7 +14,8 @@ import functools
 import math
 
 import numpy as np
-from numba import njit
+from factors.interpret import run
+from factors.jit import njit
 
 from factors.adapters import custom_factor, pad_position_jacobian, vector_state
 
@@ -68,7 +69,7 @@ def altitude_residual(r_eci_m, h_meas_m, r_ref_m):
     rr = np.ascontiguousarray(np.broadcast_to(np.asarray(r_ref_m, dtype=float), (M,)))
     e = np.empty((M, 1))
     H_r = np.empty((M, 1, 3))
-    _altitude_many(r, h, rr, e, H_r)
+    run(_altitude_many, r, h, rr, e, H_r)
     return e, H_r
 
 

@@ -41,7 +41,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from factors.interpret import run
+from factors.jit import njit
 
 from factors.adapters import noise_model
 from factors.errors import ModelDomainError
@@ -132,7 +133,7 @@ def _run(r_eci_m, data, B, what):
     r = np.ascontiguousarray(np.asarray(r_eci_m, dtype=float).reshape(-1, 3))
     e = np.empty((len(r), 1))
     H = np.empty((len(r), 1, 3))
-    k = _angle_many(r, np.ascontiguousarray(data), np.ascontiguousarray(B), e, H)
+    k = run(_angle_many, r, np.ascontiguousarray(data), np.ascontiguousarray(B), e, H)
     if k >= 0:
         raise ModelDomainError(f"{what} residual undefined at row {k} (r = {r[k].tolist()} m): "
                                "the two lines of sight are parallel, or the spacecraft is inside "

@@ -57,11 +57,12 @@ import functools
 import math
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
 
 from factors.aberration import apparent_direction
 from factors.adapters import custom_factor, noise_model, rot3_matrix, vector_state
 from factors.geometry import skew, tangent_basis, unit_and_jacobian
+from factors.interpret import run
 
 __all__ = [
     "earth_direction_residual", "body_direction_residual", "star_direction_residual",
@@ -156,7 +157,7 @@ def sphere_log(u_meas, u_pred, B=None):
     Pf = np.ascontiguousarray(np.broadcast_to(u_pred, lead + (3,))).reshape(-1, 3)
     E = np.empty((len(Pf), 2))
     J = np.empty((len(Pf), 2, 3))
-    _sphere_log_rows(Bf, Pf, E, J)
+    run(_sphere_log_rows, Bf, Pf, E, J)
     return E.reshape(lead + (2,)), J.reshape(lead + (2, 3))
 
 

@@ -55,10 +55,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit, prange
+from factors.jit import njit, prange
 
 from factors.constants import J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m_nb, sun_position_eci_m_nb
+from factors.interpret import active, python_body, run
 
 __all__ = [
     "MotionModel", "accel_j2", "accel_j2_gradient", "accel_third_body",
@@ -249,6 +250,45 @@ def _propagate_many_nb(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, t0, 
                      want_stm, X1[k], Phi[k])
 
 
+def _propagate_many_np(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, t0, want_stm, X1, Phi):
+    """``_propagate_many_nb`` with numpy, every epoch at once (short passes, see
+    :mod:`factors.interpret`): the RK4 stages and STM recursion of ``propagate_nb`` step by
+    step, its ``_accel`` applied to arrays (components first); epochs with fewer sub-steps
+    take steps of zero length (exact no-ops) once theirs are done."""
+    N = X.shape[0]
+    n = np.where(dt != 0.0, np.ceil(np.abs(dt) / max_step), 0.0)
+    h_all = np.divide(dt, n, out=np.zeros(N), where=n > 0)
+    x = np.ascontiguousarray(X.T)
+    P = np.ascontiguousarray(np.broadcast_to(np.eye(6)[:, :, None], (6, 6, N))) if want_stm else None
+    accel = python_body(_accel, arrays=True)
+    a = np.empty((3, N))
+    G = np.zeros((3, 3, N))
+    sun = moon = np.zeros((3, N))
+    coef = (0.0, 0.5, 0.5, 1.0)
+    for step in range(int(n.max()) if N else 0):
+        h = np.where(step < n, h_all, 0.0)
+        if third:
+            tm = t0 + (step + 0.5) * h
+            sun = python_body(sun_position_eci_m_nb, arrays=True)(tm)
+            moon = python_body(moon_position_eci_m_nb, arrays=True)(tm)
+        K, dK = [], []
+        for st in range(4):
+            cst = coef[st] * h
+            xs = x if st == 0 else x + cst * K[-1]
+            accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon, a, G, want_stm)
+            K.append(np.concatenate([xs[3:], a]))
+            if want_stm:
+                M = P if st == 0 else P + cst * dK[-1]
+                dK.append(np.concatenate([M[3:], np.einsum("ikn,kjn->ijn", G, M[:3])]))
+        w = h / 6.0
+        x = x + w * (K[0] + 2.0 * K[1] + 2.0 * K[2] + K[3])
+        if want_stm:
+            P = P + w * (dK[0] + 2.0 * dK[1] + 2.0 * dK[2] + dK[3])
+    X1[:] = x.T
+    if want_stm:
+        Phi[:] = P.transpose(2, 0, 1)
+
+
 @njit(cache=True)
 def _gravity_many(R, mu, j2, re, want_grad):
     N = R.shape[0]
@@ -285,14 +325,14 @@ def accel_j2(r, mu=MU_EARTH_M3_S2, j2=J2_EARTH, re=R_EARTH_M):
     The Earth's pole is taken along ECI z (precession/nutation neglected).
     """
     R, single = _as_rows(r, 3)
-    A, _ = _gravity_many(R, float(mu), float(j2), float(re), False)
+    A, _ = run(_gravity_many, R, float(mu), float(j2), float(re), False)
     return A[0] if single else A
 
 
 def accel_j2_gradient(r, mu=MU_EARTH_M3_S2, j2=J2_EARTH, re=R_EARTH_M):
     """Analytic gradient d a / d r (1/s^2) of ``accel_j2``: (3,) -> (3,3), (N,3) -> (N,3,3)."""
     R, single = _as_rows(r, 3)
-    _, G = _gravity_many(R, float(mu), float(j2), float(re), True)
+    _, G = run(_gravity_many, R, float(mu), float(j2), float(re), True)
     return G[0] if single else G
 
 
@@ -302,7 +342,7 @@ def accel_third_body(r, r_body, mu_body):
     mu_b ((r_b - r)/|r_b - r|^3 - r_b/|r_b|^3) (M&G eq. 3.37). (3,) or (N,3)."""
     R, single = _as_rows(r, 3)
     B = np.ascontiguousarray(np.broadcast_to(np.asarray(r_body, dtype=float), R.shape))
-    A, _ = _third_many(R, B, float(mu_body), False)
+    A, _ = run(_third_many, R, B, float(mu_body), False)
     return A[0] if single else A
 
 
@@ -310,7 +350,7 @@ def accel_third_body_gradient(r, r_body, mu_body):
     """Gradient wrt ``r`` of ``accel_third_body``: mu_b (-I/|s|^3 + 3 s s^T/|s|^5), s = r_b - r."""
     R, single = _as_rows(r, 3)
     B = np.ascontiguousarray(np.broadcast_to(np.asarray(r_body, dtype=float), R.shape))
-    _, G = _third_many(R, B, float(mu_body), True)
+    _, G = run(_third_many, R, B, float(mu_body), True)
     return G[0] if single else G
 
 
@@ -331,8 +371,8 @@ def propagate(x0, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0, wit
     x1 = np.empty(6)
     Phi = np.empty((6, 6))
     mu, j2, re, third, hmax, mus, mum = model.args()
-    propagate_nb(x0, float(dt_s), mu, j2, re, third, hmax, mus, mum, float(t0_j2000_s),
-                 bool(with_stm), x1, Phi)
+    run(propagate_nb, x0, float(dt_s), mu, j2, re, third, hmax, mus, mum, float(t0_j2000_s),
+        bool(with_stm), x1, Phi)
     return x1, (Phi if with_stm else None)
 
 
@@ -358,7 +398,8 @@ def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0,
     Phi = (np.empty((N, 6, 6)) if stm_out is None else stm_out) if with_stm else \
         np.empty((N, 1, 1))
     mu, j2, re, third, hmax, mus, mum = model.args()
-    _propagate_many_nb(X, dt, mu, j2, re, third, hmax, mus, mum, t0, bool(with_stm), X1, Phi)
+    kernel = _propagate_many_np if active() else _propagate_many_nb
+    kernel(X, dt, mu, j2, re, third, hmax, mus, mum, t0, bool(with_stm), X1, Phi)
     return X1, (Phi if with_stm else None)
 
 
@@ -405,7 +446,7 @@ def process_noise(dt_s, q_m2_s3):
     """
     dt, q = _dt_q(dt_s, q_m2_s3)
     out = np.zeros((dt.size, 6, 6))
-    _process_noise_many(np.ascontiguousarray(dt, dtype=float).reshape(-1),
+    run(_process_noise_many, np.ascontiguousarray(dt, dtype=float).reshape(-1),
                         np.ascontiguousarray(q, dtype=float).reshape(-1), out)
     return out[0] if dt.ndim == 0 else out.reshape(dt.shape + (6, 6))
 

@@ -22,7 +22,9 @@ a scalar ``t`` (-> (3,)) or an array (-> (N, 3)).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
+
+from factors.interpret import active, python_body
 
 __all__ = [
     "OBLIQUITY_J2000_RAD", "sun_position_eci_m", "moon_position_eci_m",
@@ -46,12 +48,9 @@ def _frac(x):
 
 @njit(cache=True)
 def _ecliptic_to_eme2000(x, y, z):
-    """Rotate ecliptic J2000 coordinates to EME2000: R_x(-eps)."""
-    out = np.empty(3)
-    out[0] = x
-    out[1] = _COS_EPS * y - _SIN_EPS * z
-    out[2] = _SIN_EPS * y + _COS_EPS * z
-    return out
+    """Rotate ecliptic J2000 coordinates to EME2000: R_x(-eps). Scalars -> (3,); as Python
+    (``factors.interpret``) arrays (N,) -> (3, N)."""
+    return np.array([x, _COS_EPS * y - _SIN_EPS * z, _SIN_EPS * y + _COS_EPS * z])
 
 
 @njit(cache=True)
@@ -102,10 +101,17 @@ def _many(t, which):
     return out
 
 
+COMPILED_FROM = 20000
+"""Number of times from which the positions are computed by the compiled loop; below, the
+kernel's own body runs on all the times at once with numpy (:mod:`factors.interpret`), as
+quick at that size and without loading numba. Both give the same numbers."""
+
+
 def _dispatch(t_j2000_s, which):
     t = np.asarray(t_j2000_s, dtype=float)
-    if t.ndim == 0:
-        return _many(t.reshape(1), which)[0]
+    if t.size < COMPILED_FROM or active():
+        body = python_body(sun_position_eci_m_nb if which == 0 else moon_position_eci_m_nb, arrays=True)
+        return np.moveaxis(body(t), 0, -1)
     return _many(np.ascontiguousarray(t.ravel()), which).reshape(t.shape + (3,))
 
 

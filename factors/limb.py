@@ -11,7 +11,8 @@ import functools
 import math
 
 import numpy as np
-from numba import njit
+from factors.interpret import run
+from factors.jit import njit
 
 from factors.adapters import custom_factor, pad_position_jacobian, vector_state
 from factors.errors import ModelDomainError
@@ -79,7 +80,7 @@ def limb_radius_residual(r_eci_m, rho_meas_rad, r_limb_m):
     rho = np.ascontiguousarray(np.broadcast_to(np.asarray(rho_meas_rad, dtype=float), (M,)))
     e = np.empty((M, 1))
     H_r = np.empty((M, 1, 3))
-    k = _limb_many(r, rho, rl, e, H_r)
+    k = run(_limb_many, r, rho, rl, e, H_r)
     if k >= 0:
         n = float(np.linalg.norm(r[k]))
         raise ModelDomainError(f"limb radius residual: |r| = {n:.1f} m is not above the limb "

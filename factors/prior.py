@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
 
 from factors.adapters import custom_factor, vector_state
 

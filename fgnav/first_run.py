@@ -32,6 +32,14 @@ def announce_first_compile(stream=None, packages=PACKAGES) -> None:
     global _installed
     if _installed:
         return
+    _installed = True
+    from factors.jit import when_numba_loads
+
+    # numba is imported at the first compiled call (factors.jit), not before: listen from then
+    when_numba_loads(lambda: _listen(stream, packages))
+
+
+def _listen(stream, packages) -> None:
     from numba.core import event
 
     class _Notice(event.Listener):
@@ -47,4 +55,3 @@ def announce_first_compile(stream=None, packages=PACKAGES) -> None:
             pass
 
     event.register("numba:compile", _Notice())
-    _installed = True

@@ -79,7 +79,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
 
 from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError

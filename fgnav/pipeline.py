@@ -5,6 +5,7 @@ The CLI (``fgnav smooth``/``demo``) is a thin layer over these functions.
 
 from __future__ import annotations
 
+import functools
 import shutil
 import time
 from dataclasses import dataclass, replace
@@ -37,6 +38,7 @@ from fgnav.orbit import truth_at
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
+from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
@@ -46,6 +48,20 @@ from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
+
+SHORT_PASS_ROWS = 2000
+"""Batch passes of up to this many measurement rows run the numerical kernels as Python
+(:mod:`factors.interpret`): quicker than numba's one-off set-up (~0.8 s a process), and the
+same solution to the solver's tolerance."""
+
+
+def _short_passes_interpreted(smooth):
+    """``smooth(log, method, ...)`` with the kernels run as Python for a short batch pass."""
+    @functools.wraps(smooth)
+    def wrapper(log, method: str = "batch", *args, **kw):
+        with interpreted(method == "batch" and len(log) <= SHORT_PASS_ROWS):
+            return smooth(log, method, *args, **kw)
+    return wrapper
 
 
 def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
@@ -136,7 +152,10 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
                                x_init=start.x_init, progress=progress)
             if sol.extras.get("converged"):
                 return sol
-        return smooth_batch(p, options, x_init=start.x_init, progress=progress)
+        x_init = start.x_init
+        if x_init is None and interpret_active() and not (p.inserted is not None and p.inserted.any()):
+            x_init = start.x_guess  # short pass, no bridged gap: the prior propagated, once
+        return smooth_batch(p, options, x_init=x_init, progress=progress)
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
@@ -249,6 +268,7 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
                       stage=stage, t0=t0, **solve_kw)
 
 
+@_short_passes_interpreted
 def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOptions(), *,
                truth_path: str | Path | None = None, truth: tuple | None = None,
                lag_s: float = 300.0, progress=None, ignore_prior: bool = False,

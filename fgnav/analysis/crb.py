@@ -16,7 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
+
+from factors.interpret import run
 
 from factors.dynamics import MotionModel, propagate_many
 from fgnav.errors import NotObservableError
@@ -84,7 +86,7 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
         Phik = np.empty((p.n_epochs, 6, 6))
         propagate_many(X_ref[:-1, :6], np.diff(p.t_s), model, t0 + p.t_s[:-1],
                        stm_out=Phik[1:])
-        accumulate_stm(Phik)
+        run(accumulate_stm, Phik)
     else:
         Phik = np.eye(6)[None]
     rows = linearize_all(p, X_ref, None, rejected)

@@ -31,6 +31,7 @@ from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
 from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
+from factors import interpret
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
@@ -394,7 +395,7 @@ def _ekf_first_guess(p: Pass, options: SmootherOptions):
     if p_orbit is None:
         return None
     try:
-        if numba_supports(p_orbit):
+        if numba_supports(p_orbit) and not interpret.active():  # compiled: long passes
             x = run_ekf_numba(p_orbit, options).x_eci
         elif p.inserted is not None and p.inserted.any():
             from fgnav.solvers.ekf import run_ekf

@@ -18,12 +18,23 @@ because ``dx_k = R_k^-1 (d_k - S_k dx_{k+1} + w_k)`` with ``w_k ~ N(0, I)`` inde
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
+
+from factors.interpret import run
+
+
+def back_substitute(R, S, d):
+    """Solve the chain's triangular system; R, S (N,n,n), d (N,n) -> dx (N,n)."""
+    return run(_back_substitute_nb, R, S, d)
+
+
+def chain_marginals(R, S):
+    """Marginal covariances (N,n,n) of every state from the chain's conditionals."""
+    return run(_chain_marginals_nb, R, S)
 
 
 @njit(cache=True)
-def back_substitute(R, S, d):
-    """Solve the chain's triangular system; R, S (N,n,n), d (N,n) -> dx (N,n)."""
+def _back_substitute_nb(R, S, d):
     N, n = d.shape
     dx = np.empty((N, n))
     dx[N - 1] = np.linalg.solve(R[N - 1], d[N - 1])
@@ -33,8 +44,7 @@ def back_substitute(R, S, d):
 
 
 @njit(cache=True)
-def chain_marginals(R, S):
-    """Marginal covariances (N,n,n) of every state from the chain's conditionals."""
+def _chain_marginals_nb(R, S):
     N, n, _ = R.shape
     P = np.empty((N, n, n))
     eye = np.eye(n)

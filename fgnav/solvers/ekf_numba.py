@@ -31,7 +31,7 @@ import math
 import time
 
 import numpy as np
-from numba import njit
+from factors.jit import njit
 
 from factors.altimeter import altitude_kernel
 from factors.celestial_angles import celestial_angle_kernel

@@ -17,7 +17,8 @@ def initial_guess(p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
     Xg = np.empty((p.n_epochs, 6))
     Xg[k0] = x0
     for k in range(k0 + 1, p.n_epochs):
-        Xg[k] = propagate(Xg[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1])[0]
+        Xg[k] = propagate(Xg[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1],
+                          with_stm=False)[0]
     Xg[:k0 + 1] = _back_to_start(p, k0, x0, model, t0_j2000_s)
     return Xg
 
@@ -33,5 +34,6 @@ def _back_to_start(p: Pass, k0: int, x0: np.ndarray, model: MotionModel, t0_j200
     out = np.empty((k0 + 1, 6))
     out[k0] = x0
     for k in range(k0 - 1, -1, -1):
-        out[k] = propagate(out[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1])[0]
+        out[k] = propagate(out[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1],
+                           with_stm=False)[0]
     return out
