@@ -58,9 +58,14 @@ _MAX_ROWS = 64            # rows of one (epoch, family) group handled by the ker
 
 
 def _code(mdl) -> int | None:
-    """The kernel code of a model, or None if the compiled EKF has no kernel for it."""
+    """The kernel code of a model, or None if the compiled EKF has no kernel for it.
+
+    Kernels are compared by their Python function (``py_func``): a model built before numba
+    was loaded holds the lazy kernel (:mod:`factors.jit`), this module's table may hold its
+    numba dispatcher, and both wrap the same function."""
+    py = getattr(mdl.numba_kernel, "py_func", None)
     for i, kern in enumerate(ROW_KERNELS):
-        if mdl.numba_kernel is kern:
+        if py is not None and getattr(kern, "py_func", None) is py:
             return i
     return None
 
