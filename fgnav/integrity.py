@@ -105,13 +105,6 @@ def _severity(test: dict, suspect_above: float = SUSPECT_NORMALIZED_CHI2,
     return "ok"
 
 
-def _normal_threshold(alpha: float) -> float:
-    """The one-sided N(0, 1) quantile exceeded with probability ``alpha``."""
-    from fgnav.chi2 import norm_isf
-
-    return norm_isf(alpha)
-
-
 def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | None:
     """The largest windowed mean of whitened residuals ``r`` (M, m) in time order.
 
@@ -281,7 +274,9 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                 f"m/s^2 here), which moves this solution by ~{third['position_rms_m']:.3g} m RMS "
                 f"({math.sqrt(third['mean_nees'] / 6):.2g} sigma)")
         if third["mean_nees"] > THIRD_BODY_NEES:
-            if third["expected_z"] < _normal_threshold(FALSE_ALARM_PROBABILITY):
+            from fgnav.chi2 import norm_isf
+
+            if third["expected_z"] < norm_isf(FALSE_ALARM_PROBABILITY):
                 # a consider warning, not a residual test: the fit absorbs the pull's
                 # signature, so the data cannot say whether the spacecraft feels it
                 text += (f"; the residuals cannot tell whether they act (z ~ "
