@@ -103,6 +103,10 @@ def build_pass(log) -> Pass:
     (star or attitude rows fix it, gyro rows carry it between them; :func:`check_observable`
     refuses the pass otherwise, naming the rows).
     """
+    if getattr(log, "n_spacecraft", 1) > 1:
+        raise UserError(f"{log.path}: {log.n_spacecraft} spacecraft ({', '.join(log.spacecraft)})"
+                        ": this version solves one spacecraft per log; split the log by its "
+                        "'spacecraft' column")
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
     xyz = np.asarray(log.xyz, dtype=float)
