@@ -47,7 +47,13 @@ import numpy as np
 from factors.adapters import whiten
 from fgnav.models.variables import Layout, Variable
 
-__all__ = ["MeasurementModel", "sqrt_information"]
+__all__ = ["MeasurementModel", "sqrt_information", "COLUMN_PREFIX", "ROLE_DIMS"]
+
+COLUMN_PREFIX = "col:"
+"""``fam.values[COLUMN_PREFIX + role]`` (M,): per row, the first block column of the variable
+that plays ``role`` for the row (a formation's rows, :meth:`MeasurementModel.evaluate`)."""
+ROLE_DIMS = {"orbit": 6, "orbit_tx": 6}
+"""Tangent dimension of each per-row variable role (others: 1, a clock or an ambiguity)."""
 
 
 def sqrt_information(C) -> np.ndarray:
@@ -123,6 +129,8 @@ class MeasurementModel:
     def evaluate(self, fam, X: np.ndarray, layout: Layout):
         """Residuals and Jacobians of every row at the block values ``X`` (N, n):
         ``e (M, m)`` unwhitened and ``H (M, m, n)`` in the layout's columns."""
+        if COLUMN_PREFIX + "orbit" in fam.values:
+            return self._evaluate_per_row(fam, X, layout)
         vals_all = layout.values_at(X, fam.k)
         vals = {name: vals_all[name] for name in self.variables_in(layout)}
         e, jac = self.residual(fam, vals)
@@ -131,6 +139,29 @@ class MeasurementModel:
         for name, h in jac.items():
             sl = slice(0, 3) if name == "position" else layout.slices[name]
             H[..., sl] = h
+        return e, H
+
+    def _evaluate_per_row(self, fam, X: np.ndarray, layout: Layout):
+        """:meth:`evaluate` for rows whose variables differ from row to row (a formation: the
+        orbit of the row's spacecraft, a link's two orbits and its clock): ``fam.values``
+        holds, per variable role ``name``, the first column of that row's variable in the
+        block, ``values["col:<name>"]`` (M,) (:func:`fgnav.formation.graph.bind_rows`)."""
+        M, m = len(fam), self.dim
+        k = np.asarray(fam.k)
+        rows = np.arange(M)
+        vals = {}
+        for key, start in fam.values.items():
+            if key.startswith(COLUMN_PREFIX):
+                name = key[len(COLUMN_PREFIX):]
+                d = ROLE_DIMS.get(name, 1)
+                vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
+        e, jac = self.residual(fam, vals)
+        e = np.asarray(e, dtype=float).reshape(M, m)
+        H = np.zeros((M, m, layout.n))
+        for name, h in jac.items():
+            role = "orbit" if name == "position" else name
+            cols = np.asarray(fam.values[COLUMN_PREFIX + role])[:, None] + np.arange(h.shape[-1])
+            H[rows[:, None, None], np.arange(m)[None, :, None], cols[:, None, :]] = h
         return e, H
 
     def evaluate_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
