@@ -53,10 +53,12 @@ beyond ``v_tx tau``), with numbers:
   2,000 km;
 - nothing else: the quadratic is the exact light time of the linearly moving antenna
   (no ``v/c`` expansion).
-Measured against an exact light-time solution on DOP853 truth (tests/test_isl.py): below
-0.1 mm in both cases; ignoring the light time altogether errs by metres to tens of metres
-in LEO (``u . v_tx tau``, ``v tau ~ 50 m`` at 2,000 km) and by centimetres for the 1 km GTO
-pair.
+Measured against an exact light-time solution on DOP853 truth, Earth-pointing attitudes and
+~1 m lever arms (tests/test_isl.py): 3.0e-5 m at most for two LEO spacecraft in different
+planes 540-1,970 km apart (the neglected terms above account for it to 1e-9 m), 1.2e-9 m for
+two spacecraft 1 km apart near the GTO perigee. Ignoring the light time altogether
+(``c tau = |d0|``) errs by ``u . v_tx tau``: 18-32 m in that LEO case (``v tau ~ 50 m``
+at 2,000 km), 2.0-2.7 cm for the GTO pair.
 
 Not modelled (below the code noise of the scenarios, named so a carrier-phase user can
 judge): the Shapiro delay ``(2 GM/c^2) ln((r_1 + r_2 + d)/(r_1 + r_2 - d))`` (Montenbruck
