@@ -12,7 +12,7 @@ from fgnav.formation.relative_motion import (
 )
 from fgnav.formation.relative_state import (
     deputy_from_relative_lvlh, lvlh_axes, relative_covariance_body, relative_covariance_lvlh,
-    relative_position_body, relative_state_lvlh,
+    relative_position_body, relative_state_body, relative_state_lvlh,
 )
 from fgnav.orbit import integrate_truth, rtn_frame
 
@@ -77,6 +77,18 @@ def test_body_frame_position_and_jacobians(pair):
     _check_state_columns(lambda x: relative_position_body(xc, x, R), xd, J_d, "deputy")
     check_jacobians(lambda Rr: relative_position_body(xc, xd, Rr), (R,), (J_att,), ("rot3",),
                     eps=(1e-4,), names=("attitude",))
+    # with the velocity seen from the rotating body (1 deg/s about a random axis)
+    w = np.deg2rad(1.0) * rng.normal(size=(xc.shape[0], 3))
+    rel, J_c6, J_d6, J_att6, J_w = relative_state_body(xc, xd, R, w)
+    assert np.allclose(rel[:, :3], r_body) and np.allclose(J_c6[:, :3], J_c)
+    assert np.allclose(np.einsum("nij,nj->ni", R, rel[:, 3:] + np.cross(w, r_body)),
+                       xd[:, 3:] - xc[:, 3:], rtol=0, atol=1e-9)
+    _check_state_columns(lambda x: relative_state_body(x, xd, R, w), xc, J_c6, "chief")
+    _check_state_columns(lambda x: relative_state_body(xc, x, R, w), xd, J_d6, "deputy")
+    check_jacobians(lambda Rr, ww: relative_state_body(xc, xd, Rr, ww), (R, w), (J_att6, J_w),
+                    ("rot3", "vector"), eps=(1e-4, 1e-6), names=("attitude", "rate"))
+    still, *_ = relative_state_body(xc, xd, R)
+    assert np.allclose(still[:, 3:], np.einsum("nji,nj->ni", R, xd[:, 3:] - xc[:, 3:]))
 
 
 def test_covariance_propagation_against_monte_carlo(pair):
@@ -94,7 +106,8 @@ def test_covariance_propagation_against_monte_carlo(pair):
         P[k] = (corr / np.outer(d, d)) * np.outer(scale, scale)
     P_rel = relative_covariance_lvlh(xc, xd, P)
     R = random_rotations(rng, n)
-    P_body = relative_covariance_body(xc, xd, R, P)
+    w = np.deg2rad(1.0) * rng.normal(size=(n, 3))
+    P_body = relative_covariance_body(xc, xd, R, P, w)
     n_draw = 40000
     for k in range(n):
         L = np.linalg.cholesky(P[k])
@@ -106,7 +119,7 @@ def test_covariance_propagation_against_monte_carlo(pair):
         sd = np.sqrt(np.diag(P_rel[k]))
         # sample covariance: standard error of a correlation ~ 1/sqrt(n_draw) = 0.005
         assert np.allclose(S / np.outer(sd, sd), P_rel[k] / np.outer(sd, sd), atol=0.03)
-        rb, _, _, _ = relative_position_body(xs_c, xs_d, np.broadcast_to(R[k], (n_draw, 3, 3)))
+        rb, *_ = relative_state_body(xs_c, xs_d, np.broadcast_to(R[k], (n_draw, 3, 3)), w[k])
         Sb = np.cov(rb.T)
         sb = np.sqrt(np.diag(P_body[k]))
         assert np.allclose(Sb / np.outer(sb, sb), P_body[k] / np.outer(sb, sb), atol=0.03)

@@ -28,6 +28,10 @@ Jacobians (derivation; ``dr``, ``dv`` the chief's perturbations, ``D* = d*/d[r_c
     d rho'/dx_c = dC(dv_eci) - [0, C] - K rho D omega_z - omega_z K d rho/dx_c
     d rho'/dx_d = [-omega_z K C, C]
 
+In the chief's body frame (``R = R_eci_from_body`` of the chief, ``omega`` its inertial rate
+in body axes): ``r_body = R^T (r_d - r_c)`` (Xing et al.'s ``r``, factors.pseudorange) and
+``v_body = R^T (v_d - v_c) - omega x r_body`` (:func:`relative_state_body`).
+
 Covariances: the relative covariance of the joint covariance ``P`` of ``[x_c; x_d]`` is
 ``J P J^T`` with ``J = [J_c, J_d]`` (first-order propagation, exact for the linear map of
 the body-frame position and accurate to ``sigma/|r|`` in LVLH).
@@ -41,7 +45,7 @@ from factors.geometry import skew
 
 __all__ = [
     "lvlh_axes", "relative_state_lvlh", "deputy_from_relative_lvlh", "relative_position_body",
-    "relative_covariance", "relative_covariance_lvlh", "relative_covariance_body",
+    "relative_state_body", "relative_covariance", "relative_covariance_lvlh", "relative_covariance_body",
 ]
 
 _K = skew(np.array([0.0, 0.0, 1.0]))
@@ -167,6 +171,52 @@ def relative_position_body(x_chief, x_deputy, R_eci_from_body_chief):
     return r_body, J_c, J_d, skew(r_body)
 
 
+def relative_state_body(x_chief, x_deputy, R_eci_from_body_chief, omega_body_rad_s=None):
+    """The deputy's ``[r_body m; v_body m/s]`` in the chief's body frame, as seen rotating
+    with the body (transport theorem, as for LVLH)::
+
+        r_body = R^T (r_d - r_c),     v_body = R^T (v_d - v_c) - omega x r_body
+
+    Parameters
+    ----------
+    x_chief, x_deputy : (N, 6) ECI states.
+    R_eci_from_body_chief : (N, 3, 3) the chief's attitude.
+    omega_body_rad_s : (N, 3) the chief's inertial angular velocity in its body frame (rad/s);
+        None: zero (``v_body`` is then the ECI relative velocity in body axes).
+
+    Returns
+    -------
+    rel : (N, 6); J_chief, J_deputy : (N, 6, 6);
+    J_attitude : (N, 6, 3) for the right perturbation of ``R``
+        (``[skew(r_body); skew(R^T dv) - skew(omega) skew(r_body)]``);
+    J_omega : (N, 6, 3) ``[0; skew(r_body)]``.
+    """
+    r_body, J_cp, J_dp, J_att_p = relative_position_body(x_chief, x_deputy,
+                                                        R_eci_from_body_chief)
+    xc = _states(x_chief)
+    xd = _states(x_deputy)
+    n = xc.shape[0]
+    w = (np.zeros((n, 3)) if omega_body_rad_s is None
+         else np.broadcast_to(np.asarray(omega_body_rad_s, dtype=float), (n, 3)))
+    Rt = -J_cp[:, :, :3]
+    W = skew(w)
+    v_rot = np.einsum("nij,nj->ni", Rt, xd[:, 3:] - xc[:, 3:])
+    v_body = v_rot - np.cross(w, r_body)
+    WRt = np.einsum("nij,njk->nik", W, Rt)
+    J_c = np.zeros((n, 6, 6))
+    J_d = np.zeros((n, 6, 6))
+    J_c[:, :3] = J_cp
+    J_d[:, :3] = J_dp
+    J_c[:, 3:, :3] = WRt
+    J_c[:, 3:, 3:] = -Rt
+    J_d[:, 3:, :3] = -WRt
+    J_d[:, 3:, 3:] = Rt
+    J_att = np.concatenate([J_att_p, skew(v_rot) - np.einsum("nij,njk->nik", W, J_att_p)],
+                           axis=1)
+    J_w = np.concatenate([np.zeros((n, 3, 3)), skew(r_body)], axis=1)
+    return np.concatenate([r_body, v_body], axis=1), J_c, J_d, J_att, J_w
+
+
 def relative_covariance(J_chief, J_deputy, P_joint):
     """``J P J^T`` with ``J = [J_chief, J_deputy]`` (N, m, 12): the (N, m, m) covariance of a
     relative quantity from the joint (N, 12, 12) covariance of ``[x_chief; x_deputy]``
@@ -188,8 +238,11 @@ def relative_covariance_lvlh(x_chief, x_deputy, P_joint):
     return relative_covariance(J_c, J_d, P_joint)
 
 
-def relative_covariance_body(x_chief, x_deputy, R_eci_from_body_chief, P_joint):
-    """(N, 3, 3) covariance of :func:`relative_position_body` (known attitude) from the joint
-    (N, 12, 12) covariance of ``[x_chief; x_deputy]`` (m^2)."""
-    _, J_c, J_d, _ = relative_position_body(x_chief, x_deputy, R_eci_from_body_chief)
+def relative_covariance_body(x_chief, x_deputy, R_eci_from_body_chief, P_joint,
+                             omega_body_rad_s=None):
+    """(N, 6, 6) covariance of :func:`relative_state_body` (known attitude and rate) from the
+    joint (N, 12, 12) covariance of ``[x_chief; x_deputy]`` (SI); its upper-left (N, 3, 3)
+    block is the covariance of :func:`relative_position_body`."""
+    _, J_c, J_d, _, _ = relative_state_body(x_chief, x_deputy, R_eci_from_body_chief,
+                                            omega_body_rad_s)
     return relative_covariance(J_c, J_d, P_joint)
