@@ -197,15 +197,29 @@ def isl_attitude_jacobians(x_rx, x_tx, R_rx, R_tx, a_rx_body_m, a_tx_body_m):
     return H_rx[:, None, :], H_tx[:, None, :]
 
 
-def _row(values, key_rx, key_tx, key_clock, R_rx, R_tx, a_rx, a_tx):
-    x_rx = vector_state(values, key_rx)[None, :6]
-    x_tx = vector_state(values, key_tx)[None, :6]
-    clock = 0.0 if key_clock is None else float(values.atVector(key_clock)[0])
-    return x_rx, x_tx, R_rx[None], R_tx[None], a_rx[None], a_tx[None], np.array([clock])
+def _isl_factor(key_rx, key_tx, key_clock, key_amb, R_rx, R_tx, a_rx, a_tx, sign, z, noise):
+    """One row's CustomFactor: pseudorange without ``key_amb``, carrier phase with it; keys
+    ``rx, tx, [clock], [amb]``."""
+    R_rx, R_tx, a_rx, a_tx = (np.array(a, dtype=float).copy() for a in (R_rx, R_tx, a_rx, a_tx))
+    s = np.array([float(sign)])
+    z = np.array([float(z)])
+    extra = ([] if key_clock is None else [key_clock]) + ([] if key_amb is None else [key_amb])
 
+    def residual(values):
+        x_rx = vector_state(values, key_rx)[None, :6]
+        x_tx = vector_state(values, key_tx)[None, :6]
+        clock = np.array([0.0 if key_clock is None else float(values.atVector(key_clock)[0])])
+        args = (x_rx, x_tx, R_rx[None], R_tx[None], a_rx[None], a_tx[None], clock, s, z)
+        if key_amb is None:
+            e, H_rx, H_tx, H_c = isl_range_residual(*args)
+            H_extra = [] if key_clock is None else [H_c[0]]
+        else:
+            amb = np.array([float(values.atVector(key_amb)[0])])
+            e, H_rx, H_tx, H_c, H_a = isl_carrier_residual(*args, amb)
+            H_extra = ([] if key_clock is None else [H_c[0]]) + [H_a[0]]
+        return e[0], [H_rx[0], H_tx[0]] + H_extra
 
-def _constants(R_rx, R_tx, a_rx, a_tx):
-    return tuple(np.array(a, dtype=float).copy() for a in (R_rx, R_tx, a_rx, a_tx))
+    return custom_factor([key_rx, key_tx] + extra, noise, residual, dim=1)
 
 
 def make_isl_range_factor(key_rx, key_tx, key_clock, R_rx, R_tx, a_rx, a_tx, sign, rho, noise):
@@ -217,19 +231,8 @@ def make_isl_range_factor(key_rx, key_tx, key_clock, R_rx, R_tx, a_rx, a_tx, sig
     (3, 3) ``R_eci_from_body``; ``a_rx``, ``a_tx`` (3,) lever arms (m); ``sign`` +1/-1;
     ``rho`` (m); ``noise``: sigma (m) or a gtsam noise model.
     """
-    R_rx, R_tx, a_rx, a_tx = _constants(R_rx, R_tx, a_rx, a_tx)
-    s = np.array([float(sign)])
-    z = np.array([float(rho)])
-
-    def residual(values):
-        x_rx, x_tx, Rr, Rt, ar, at, c = _row(values, key_rx, key_tx, key_clock, R_rx, R_tx,
-                                             a_rx, a_tx)
-        e, H_rx, H_tx, H_c = isl_range_residual(x_rx, x_tx, Rr, Rt, ar, at, c, s, z)
-        Hs = [H_rx[0], H_tx[0]] + ([] if key_clock is None else [H_c[0]])
-        return e[0], Hs
-
-    keys = [key_rx, key_tx] + ([] if key_clock is None else [key_clock])
-    return custom_factor(keys, noise, residual, dim=1)
+    return _isl_factor(key_rx, key_tx, key_clock, None, R_rx, R_tx, a_rx, a_tx, sign, rho,
+                       noise)
 
 
 def make_isl_carrier_factor(key_rx, key_tx, key_clock, key_amb, R_rx, R_tx, a_rx, a_tx, sign,
@@ -239,18 +242,5 @@ def make_isl_carrier_factor(key_rx, key_tx, key_clock, key_amb, R_rx, R_tx, a_rx
     As :func:`make_isl_range_factor` plus ``key_amb``: Vector1 float ambiguity of the link (m);
     ``phi``: measured carrier phase (m). Keys in order ``rx, tx, [clock], amb``.
     """
-    R_rx, R_tx, a_rx, a_tx = _constants(R_rx, R_tx, a_rx, a_tx)
-    s = np.array([float(sign)])
-    z = np.array([float(phi)])
-
-    def residual(values):
-        x_rx, x_tx, Rr, Rt, ar, at, c = _row(values, key_rx, key_tx, key_clock, R_rx, R_tx,
-                                             a_rx, a_tx)
-        amb = np.array([float(values.atVector(key_amb)[0])])
-        e, H_rx, H_tx, H_c, H_a = isl_carrier_residual(x_rx, x_tx, Rr, Rt, ar, at, c, s, z,
-                                                       amb)
-        Hs = [H_rx[0], H_tx[0]] + ([] if key_clock is None else [H_c[0]]) + [H_a[0]]
-        return e[0], Hs
-
-    keys = [key_rx, key_tx] + ([] if key_clock is None else [key_clock]) + [key_amb]
-    return custom_factor(keys, noise, residual, dim=1)
+    return _isl_factor(key_rx, key_tx, key_clock, key_amb, R_rx, R_tx, a_rx, a_tx, sign, phi,
+                       noise)
