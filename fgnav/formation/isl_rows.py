@@ -29,7 +29,9 @@ def clock_pair(a: int, b: int) -> tuple[int, int, float]:
 
 def _attitudes(log, k_of_row):
     """(spacecraft index, epoch index) -> R_eci_from_body (3, 3) from the attitude rows."""
-    i = np.flatnonzero(np.asarray(log.kind) == "attitude")
+    from fgnav.models.registry import ATTITUDE
+
+    i = np.flatnonzero(np.asarray(log.kind) == ATTITUDE.kind)
     sc = spacecraft_index(log)[i]
     R = so3_exp(np.asarray(log.xyz, dtype=float)[i])
     return {(int(s), int(k)): R[j] for j, (s, k) in enumerate(zip(sc, k_of_row[i]))}

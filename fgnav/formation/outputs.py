@@ -76,9 +76,10 @@ def _reference_attitude(p, sol):
     """R_eci_from_body (N, 3, 3) of the reference spacecraft at the solution's epochs where
     the log has an attitude row for it (NaN elsewhere)."""
     from fgnav.models.model import COLUMN_PREFIX
+    from fgnav.models.registry import ATTITUDE
 
     R = np.full((len(sol.t_s), 3, 3), np.nan)
-    fam = p.deferred.get("attitude")
+    fam = p.deferred.get(ATTITUDE.kind)
     if fam is not None:
         own = np.asarray(fam.values[COLUMN_PREFIX + "orbit"]) == 0
         R[fam.k[own]] = fam.values["R_eci_from_body"][own]

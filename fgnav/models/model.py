@@ -72,6 +72,12 @@ def _touched(mdl, layout: Layout) -> tuple[Variable, ...]:
     return tuple(v for v in layout.variables if v.name in names)
 
 
+@functools.lru_cache(maxsize=64)
+def _variables_by_start(layout: Layout) -> dict:
+    """The layout's variables by their first block column."""
+    return {layout.slices[v.name].start: v for v in layout.variables}
+
+
 @dataclass(frozen=True, eq=False)
 class MeasurementModel:
     kind: str
@@ -214,8 +220,13 @@ class MeasurementModel:
             return None
         return full, sqrt_information(C[full])
 
-    def keys(self, layout: Layout, k: int) -> dict[str, int]:
-        """GTSAM keys of the variables this model touches at epoch ``k``."""
+    def keys(self, layout: Layout, k: int, fam=None, j: int | None = None) -> dict[str, int]:
+        """GTSAM keys of the variables this model touches at epoch ``k`` (for a family whose
+        rows bind their own variables, a formation's, those of row ``j``: role -> key)."""
+        if fam is not None and COLUMN_PREFIX + "orbit" in fam.values:
+            by_start = _variables_by_start(layout)
+            return {key[len(COLUMN_PREFIX):]: by_start[int(cols[j])].key(k)
+                    for key, cols in fam.values.items() if key.startswith(COLUMN_PREFIX)}
         return {v.name: v.key(k) for v in _touched(self, layout)}
 
     def _noise(self, sigma: float, robust, W=None):
@@ -257,5 +268,8 @@ class MeasurementModel:
         if full is not None:
             for r, W in zip(*full):
                 Ws[r] = W
+        if COLUMN_PREFIX + "orbit" in fam.values:   # variables bound row by row
+            return [self.factor(fam, j, self.keys(layout, k, fam, j), self._noise(sig, robust, W))
+                    for j, sig, W in zip(rows.tolist(), sigmas.tolist(), Ws)]
         return [self.factor(fam, j, keys, self._noise(sig, robust, W))
                 for j, sig, W in zip(rows.tolist(), sigmas.tolist(), Ws)]

@@ -30,7 +30,8 @@ from factors.direction import (body_direction_residual, earth_direction_residual
                                star_direction_apparent_residual)
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
-from factors.isl import isl_carrier_residual, isl_range_residual
+from factors.isl import (isl_carrier_residual, isl_range_residual, make_isl_carrier_factor,
+                         make_isl_range_factor)
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
                            prior_velocity_kernel, state_prior_residual)
@@ -596,9 +597,17 @@ def _isl_residual(carrier):
 def _isl_model(kind, summary, carrier):
     from fgnav.formation.isl_rows import isl_values
 
+    def factor(fam, j, keys, noise):
+        v = fam.values
+        args = (keys["orbit"], keys["orbit_tx"], keys["clock"]) + (
+            (keys["ambiguity"],) if carrier else ())
+        make = make_isl_carrier_factor if carrier else make_isl_range_factor
+        return make(*args, v["R_rx"][j], v["R_tx"][j], v["a_rx"][j], v["a_tx"][j], v["sign"][j],
+                    v["rho_m"][j], noise)
+
     return MeasurementModel(kind=kind, dim=1, unit="m", observes_orbit=True, summary=summary,
-                            values=isl_values, residual=_isl_residual(carrier), variables=(),
-                            range_m=lambda fam: fam.values["rho_m"])
+                            values=isl_values, residual=_isl_residual(carrier), factor=factor,
+                            variables=(), range_m=lambda fam: fam.values["rho_m"])
 
 
 ISL_PSEUDORANGE = _isl_model("isl_pseudorange", "one-way inter-satellite pseudorange (m) between "
