@@ -112,15 +112,17 @@ def _process_factors(lay, k, dt, q, model, t0_j2000_s):
     if k == 0:
         return [make_rot3_prior_factor(v.key(0), np.eye(3), v.prior_sigma) if v.manifold == "rot3"
                 else make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
-                for v in lay.extra]
-    out = [make_motion_factor(X(k - 1), X(k), dt, q, model, t0_j2000_s)]
+                for v in lay.parameters]
+    # every orbit its motion factor (a formation's further spacecraft too)
+    out = [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s)
+           for v in lay.orbits]
     coupled = constant_rate(lay)
     if coupled:   # the attitude turns at its estimated body rate (factors.attitude_motion)
         out.append(make_constant_rate_factor(
             ATTITUDE_VARIABLE.key(k - 1), ATTITUDE_RATE.key(k - 1), ATTITUDE_VARIABLE.key(k),
             ATTITUDE_RATE.key(k), dt, max(ATTITUDE_RATE.psd, CONSTANT_PSD_FLOOR)))
     for v in lay.extra:
-        if coupled and v in (ATTITUDE_VARIABLE, ATTITUDE_RATE):
+        if v.orbit or (coupled and v in (ATTITUDE_VARIABLE, ATTITUDE_RATE)):
             continue
         sigma = float(v.step_sigma(dt))
         out.append(make_rot3_random_walk_factor(v.key(k - 1), v.key(k), sigma)
@@ -146,7 +148,7 @@ def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
     thresholds = np.array([opt.relinearize_position_m] * 3 + [opt.relinearize_velocity_mps] * 3)
     tmap = gtsam.ISAM2ThresholdMap()
     tmap.insert(("x", thresholds))
-    for v in (lay.extra if lay is not None else ()):
+    for v in (lay.parameters if lay is not None else ()):   # (a formation's orbits: 'x')
         tmap.insert((v.symbol, np.full(v.dim, opt.relinearize_rotation_rad
                                        if v.manifold == "rot3" else v.prior_sigma)))
     params.setRelinearizeThreshold(tmap)
@@ -161,7 +163,7 @@ def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
 def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                        inc: IncrementalOptions = IncrementalOptions(), *, method: str = "isam2",
                        progress=None, checkpoint: str | None = None, checkpoint_every: int = 100,
-                       resume: bool = False) -> Solution:
+                       resume: bool = False, x_start: np.ndarray | None = None) -> Solution:
     """Run iSAM2 (``method="isam2"``) or the fixed-lag smoother (``"fixed-lag"``) over a pass.
 
     ``checkpoint``: a file (.npz) written atomically every ``checkpoint_every`` epochs with
@@ -172,6 +174,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     the run continues where it stopped. The final trajectory agrees with an uninterrupted
     run to < 1e-5 sigma (see :func:`polish_chain`); the online estimates after the restart
     are those of the resumed run.
+
+    ``x_start``: the block values (n,) to start from at the first epoch (a formation's: every
+    spacecraft's orbit, :func:`fgnav.formation.joint.first_guess`); default the prior.
     """
     t_start = time.perf_counter()
     model = options.motion_model()
@@ -180,9 +185,12 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     lay = layout_of(p)
     per_epoch = rows_by_epoch(p)
     # The first guess of state 0 comes from the priors (propagated back if they are later).
-    x_first = first_state(p, model, t0_j2000)
+    x_first = first_state(p, model, t0_j2000) if x_start is None else x_start[:6]
     # further variables: first guesses from the rows that measure them (attitude rows)
     V0, measured = initial_block(p, np.broadcast_to(x_first, (N, 6)))
+    if x_start is not None:
+        for v in lay.orbits[1:]:
+            V0[:, lay.slices[v.name]] = x_start[lay.slices[v.name]]
     x_prev = V0[0].copy()
     turning = constant_rate(lay)
     if turning:
@@ -259,7 +267,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         x_prev = _read_block(isam, lay, k_start - 1)
         if gate is not None:
             _read_variable_marginals(isam, lay, k_start - 1, online_V)
-    _warm_up(p, per_epoch, options, model, t0_j2000, x_prev[:6], kernel)
+    _warm_up(p, per_epoch, options, model, t0_j2000, x_prev, kernel)
     with _gc_paused():
         for k in range(k_start, N):
             if fixed_lag and oldest < k and p.t_s[oldest] < p.t_s[k] - lag_internal:
@@ -272,6 +280,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             guess = x_prev.copy()
             if k > 0:
                 guess[:6], Phi_k = propagate(x_prev[:6], dt, model, t0_j2000 + p.t_s[k - 1])
+                for v in lay.orbits[1:]:   # a formation's further spacecraft
+                    sl = lay.slices[v.name]
+                    guess[sl] = propagate(x_prev[sl], dt, model, t0_j2000 + p.t_s[k - 1],
+                                          with_stm=False)[0]
             if k > 0 and turning:   # the attitude turned at its rate since k - 1
                 guess[sa] = so3_log(so3_exp(x_prev[sa]) @ so3_exp(x_prev[sw] * dt))
             for i, v in enumerate(lay.extra):
@@ -413,7 +425,9 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     values = gtsam.Values()
     graph = gtsam.NonlinearFactorGraph()
     lay = layout_of(p)
-    _insert_block(values, lay, 0, lay.initial(np.asarray(x0)[None])[0])
+    x0 = np.asarray(x0, dtype=float)
+    _insert_block(values, lay, 0, x0 if len(x0) == lay.n else lay.initial(x0[None, :6])[0])
+    x0 = x0[:6]
     for kind, rows in per_epoch[0]:
         if enters(p, kind):
             for f in factors_for_rows(p, kind, rows[:1], 0, kernel, x0):
