@@ -98,8 +98,8 @@ def test_a_wrong_link_sigma_is_flagged():
 
 def test_errors_a_user_can_act_on():
     log, _ = formation_log(5)
-    with pytest.raises(UserError, match="--method batch or isam2"):
-        smooth_log(log, "ekf", SmootherOptions())
+    with pytest.raises(UserError, match="--method batch, isam2 or ekf"):
+        smooth_log(log, "fixed-lag", SmootherOptions())
     with pytest.raises(UserError, match="--estimate"):
         smooth_log(log, "batch", SmootherOptions(estimate=("attitude",)))
     log, _ = formation_log(5, lever_arms=True)
@@ -172,3 +172,17 @@ def test_isam2_ends_where_batch_does_and_stays_sane_online():
     online = np.linalg.norm(ri.solution.online_x_eci[:, :3] - truth["A"][1][:, :3], axis=1)
     assert online.max() < 1000.0, online
     assert ri.summary["integrity"]["status"] == "ok"
+
+
+def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
+    """The EKF filters both orbits, the clock and the links: with a 3 m prior it tracks the
+    relative position to metres and its innovations (normalized by their covariance) pass;
+    with 100 m priors on a 1 km formation the first links' linearization error (d^2/2R ~
+    10 m) makes it diverge, and the verdict says so instead of returning a number."""
+    log, truth = formation_log(1, prior_sigma_m=3.0, prior_sigma_mps=1.5e-3)
+    res, p = smooth_log(log, "ekf", SmootherOptions())
+    assert res.summary["integrity"]["status"] == "ok", res.summary["integrity"]["reasons"]
+    assert _relative_errors(res, p, truth)[0] < 20.0
+    log, truth = formation_log(1)
+    res, p = smooth_log(log, "ekf", SmootherOptions())
+    assert res.summary["integrity"]["status"] == "failed"

@@ -165,21 +165,45 @@ def solve_formation(p: Pass, method: str, options, *, progress=None):
     from fgnav.solvers.batch import smooth_batch
     from fgnav.time import j2000_seconds
 
-    if method not in ("batch", "isam2"):
+    if method not in ("batch", "isam2", "ekf"):
         raise UserError(f"--method {method}: a log of several spacecraft is solved with "
-                        "--method batch or isam2 in this version")
+                        "--method batch, isam2 or ekf in this version")
     if options.gate_probability is not None:
         raise UserError("--gate: not yet available for a log of several spacecraft (the online "
                         "gate predicts one orbit's covariance)")
     model = options.motion_model()
     X0 = first_guess(p, model, float(j2000_seconds(p.epoch0)))
     options = converging_to_links(p, options)
+    if method == "ekf":
+        from fgnav.solvers.ekf import run_ekf
+
+        return run_ekf(p, options, progress=progress, x_start=X0[0],
+                       P_start=start_covariance(p))
     if method == "isam2":
         from fgnav.solvers.incremental import smooth_incremental
 
         return smooth_incremental(p, options, relinearizing_links(p), method="isam2",
                                   progress=progress, x_start=X0[0])
     return smooth_batch(p, options, x_init=X0, progress=progress)
+
+
+def start_covariance(p: Pass) -> np.ndarray:
+    """The first epoch's block covariance (n, n) for the filter: each spacecraft's prior rows
+    (:func:`fgnav.measurements.prior_covariance`), each further variable's prior."""
+    from fgnav.initial_orbit import has_prior
+    from fgnav.measurements import prior_covariance
+
+    lay = p.layout
+    P = np.zeros((lay.n, lay.n))
+    for s, v in enumerate(lay.orbits):
+        sub = spacecraft_pass(p, s)
+        if not has_prior(sub):
+            raise UserError(f"--method ekf: spacecraft '{p.spacecraft[s]}' has no prior rows "
+                            "(prior_position, prior_velocity); the filter starts from them")
+        P[lay.slices[v.name], lay.slices[v.name]] = prior_covariance(sub)
+    for v in lay.parameters:
+        P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
+    return P
 
 
 def relinearizing_links(p: Pass):

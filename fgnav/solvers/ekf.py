@@ -34,8 +34,13 @@ from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
 
-def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=None) -> Solution:
-    """Filter the pass forward; ``x_eci``/``P_eci`` are the filtered (a-posteriori) states."""
+def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=None,
+            x_start: np.ndarray | None = None, P_start: np.ndarray | None = None) -> Solution:
+    """Filter the pass forward; ``x_eci``/``P_eci`` are the filtered (a-posteriori) states.
+
+    ``x_start`` (n,), ``P_start`` (n, n): the first epoch's block and covariance (a
+    formation's: every spacecraft's prior, :mod:`fgnav.formation.joint`); default the
+    log's prior and the further variables' priors."""
     t_start = time.perf_counter()
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
@@ -47,12 +52,15 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     if between and not lay.extra:
         raise UserError(f"{p.source}: {', '.join(sorted(between))} rows join two epochs through "
                         f"further variables, and none is estimated")
-    x0 = first_state(p, model, t0_j2000)
-    x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
-    P = np.zeros((n, n))
-    P[:6, :6] = prior_covariance(p)
-    for v in lay.extra:
-        P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
+    if x_start is not None:
+        x, P = np.array(x_start, dtype=float), np.array(P_start, dtype=float)
+    else:
+        x0 = first_state(p, model, t0_j2000)
+        x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
+        P = np.zeros((n, n))
+        P[:6, :6] = prior_covariance(p)
+        for v in lay.extra:
+            P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))
     latency = np.empty(N)
@@ -61,6 +69,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     residuals: dict[str, np.ndarray] = {}  # innovations, whitened, in family row order
     rejected: dict[str, int] = {}
     weights: dict[str, np.ndarray] = {}  # kind -> (M,) 0 where the gate rejected the row
+    normalized: dict[str, np.ndarray] = {}  # innovations whitened by their covariance L^-1 b
     for k in range(N):
         t_k0 = time.perf_counter()
         if k > 0:
@@ -68,7 +77,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             x = x.copy()
             x[:6], Phi6 = propagate(x[:6], dt, model, t0_j2000 + p.t_s[k - 1])
             Q6 = process_noise(dt, options.q_m2_s3)
-            if lay.extra:
+            if len(lay.orbits) > 1:   # a formation: every orbit, the clocks, the ambiguities
+                x, P = _propagate_formation(lay, x, P, Phi6, Q6, dt, model,
+                                            t0_j2000 + p.t_s[k - 1])
+            elif lay.extra:
                 rows_k = [(kind, rows) for kind, rows in per_epoch[k] if kind in between]
                 x, P, r_between = propagate_variables(p, lay, x_prev, x, P, Phi6, Q6, dt, rows_k)
                 for kind, j, r in r_between:
@@ -99,6 +111,9 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                         continue
                 else:
                     S = A @ P @ A.T + np.eye(len(b))
+                if kind not in normalized:
+                    normalized[kind] = np.full((len(fam), len(b)), np.nan)
+                normalized[kind][j] = np.linalg.solve(np.linalg.cholesky(S), b)
                 K = np.linalg.solve(S, A @ P).T
                 x = lay.retract(x, K @ b)
                 IKA = eye_n - K @ A
@@ -118,10 +133,29 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     online_P_eci=Ps[:, :6, :6].copy(),
                     latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3, "residuals_are": "innovations (prior)",
+                            "normalized_innovations": normalized,
                             **({"gate_probability": options.gate_probability, "rejected": rejected,
                                 "row_weights": weights}
                                if options.gate_probability is not None else {}),
                             "latency_p50_s": float(np.median(latency))})
+
+
+def _propagate_formation(lay, x, P, Phi6, Q6, dt, model, t_j2000_s):
+    """A formation's prediction step: each further spacecraft's orbit propagated with its
+    STM and the same white-acceleration noise as the first's (``x[:6]``, already propagated
+    with ``Phi6``), every other variable a random walk (variance ``+ psd dt``)."""
+    n = lay.n
+    F = np.eye(n)
+    Q = np.zeros((n, n))
+    F[:6, :6], Q[:6, :6] = Phi6, Q6
+    for v in lay.orbits[1:]:
+        sl = lay.slices[v.name]
+        x[sl], F[sl, sl] = propagate(x[sl], dt, model, t_j2000_s)
+        Q[sl, sl] = Q6
+    for v in lay.parameters:
+        sl = lay.slices[v.name]
+        Q[sl, sl] = np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
+    return x, F @ P @ F.T + Q
 
 
 def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iterations=4):
