@@ -169,6 +169,11 @@ SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
 _SENSOR_REQUIRED = ("sigma_deg", "sigma_m")
 
 
+
+MAX_ORBIT_RADIUS_M = 1e13
+"""A scenario's initial position lies within this distance (m) of the centre (as a log's
+positions, ``fgnav.io.log_csv.MAX_DISTANCE_M``): 67 au."""
+
 def builtin_names() -> list[str]:
     return sorted(p.stem for p in (data_dir() / "scenarios").glob("*.toml"))
 
@@ -315,10 +320,11 @@ def _orbit_state(src: _Source, orbit: dict) -> tuple:
         missing = [k for k in _CARTESIAN if k not in v]
         if missing:
             raise src.error("orbit", 0, None, forms, label=f"orbit.{missing[0]}")
-        r = np.array(v["r_eci_m"])
-        if not np.linalg.norm(r) > R_EARTH_M:
-            raise src.error("orbit", 0, "r_eci_m", f"a position above the Earth's surface "
-                            f"(|r| > {R_EARTH_M:.0f} m)", f"|r| = {np.linalg.norm(r):.6g} m",
+        r_m = math.hypot(*v["r_eci_m"])   # (np.linalg.norm overflows on 1e154 components)
+        if not R_EARTH_M < r_m <= MAX_ORBIT_RADIUS_M:
+            raise src.error("orbit", 0, "r_eci_m", f"a position above the Earth's surface and "
+                            f"within {MAX_ORBIT_RADIUS_M:g} m ({R_EARTH_M:.0f} m < |r| <= "
+                            f"{MAX_ORBIT_RADIUS_M:g} m)", f"|r| = {r_m:.6g} m",
                             label="orbit.r_eci_m")
         return tuple(float(x) for x in v["r_eci_m"] + v["v_eci_mps"])
     missing = [k for k in _ELEMENTS if k not in v]

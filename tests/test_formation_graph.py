@@ -186,3 +186,26 @@ def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
     log, truth = formation_log(1)
     res, p = smooth_log(log, "ekf", SmootherOptions())
     assert res.summary["integrity"]["status"] == "failed"
+
+
+def test_batch_covariance_is_the_dense_bound_at_the_truth():
+    """The chain marginals of the joint problem against the Cramér–Rao bound from the dense
+    information matrix of every row at the truth (fgnav.formation.dense_bound): the same
+    per-epoch sigmas to a few per cent (the solution's linearization point is not the
+    truth) for both orbits, and for the relative position."""
+    from fgnav.formation.dense_bound import dense_bound
+
+    log, truth = formation_log(8, carrier=False, lever_arms=True)
+    res, p = smooth_log(log, "batch", SmootherOptions())
+    lay = p.layout
+    X_true = lay.initial(truth["A"][1])
+    X_true[:, lay.slices["orbit_B"]] = truth["B"][1]
+    X_true[:, lay.slices["clock_A_B"]] = truth["clock"][1][:, None]
+    C = dense_bound(p, X_true, SmootherOptions())
+    P = res.solution.P_block
+    sig_c, sig_p = (np.sqrt(np.diagonal(M, axis1=1, axis2=2)) for M in (C, P))
+    np.testing.assert_allclose(sig_p[:, :12], sig_c[:, :12], rtol=0.05)
+    D = np.zeros((3, lay.n))
+    D[:, 6:9], D[:, 0:3] = np.eye(3), -np.eye(3)
+    rel = [np.sqrt(np.trace(D @ M[k] @ D.T)) for M in (C, P) for k in (0, len(P) // 2)]
+    np.testing.assert_allclose(rel[2:], rel[:2], rtol=0.05)
