@@ -6,7 +6,6 @@ The CLI (``fgnav smooth``/``demo``) is a thin layer over these functions.
 from __future__ import annotations
 
 import functools
-import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -25,7 +24,7 @@ from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
 from fgnav.io.oem import read_oem, write_oem
 from fgnav.io.outputs import (
-    check_readable_file, commit_outputs, make_staging, remove_stale_staging,
+    check_readable_file, commit_outputs, staged,
 )
 from fgnav.io.summary import write_summary
 from fgnav.io.truth_params import read_truth_params_csv
@@ -454,14 +453,19 @@ def residual_times(res: SmoothResult, p: Pass) -> dict:
     return {kind: p.t_s[p.families[kind].k] for kind in res.solution.residuals if kind in p.families}
 
 
-def write_variables_csv(path: Path, sol: Solution) -> None:
+def write_variables_csv(path: Path, sol: Solution, variables=None) -> None:
     """``variables.csv``: the estimated variables beside the orbit at every epoch, columns
     ``epoch,t_s`` then per component ``<component>`` and ``<component>_sigma`` (its marginal
-    1-sigma), e.g. ``refraction_bias_m,refraction_bias_m_sigma``."""
+    1-sigma), e.g. ``refraction_bias_m,refraction_bias_m_sigma``. ``variables``: the
+    :class:`~fgnav.models.variables.Variable` of each name to write (default every one of
+    ``sol.variables``, from the registry)."""
     cols, data = ["epoch", "t_s"], []
     for name, (x, P) in sol.variables.items():
+        if variables is not None and name not in variables:
+            continue
+        v = variable(name) if variables is None else variables[name]
         sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
-        for i, c in enumerate(variable(name).components):
+        for i, c in enumerate(v.components):
             cols += [c, f"{c}_sigma"]
             data += [x[:, i], sig[:, i]]
     epochs = add_seconds(sol.epoch0, sol.t_s)
@@ -523,11 +527,7 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
         from fgnav.formation.outputs import write_formation_outputs
 
         return write_formation_outputs(out_dir, res, p)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    remove_stale_staging(out)
-    stage = make_staging(out)
-    try:
+    with staged(out_dir) as (out, stage):
         sol = res.solution
         names = ["trajectory.oem"]
         write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
@@ -551,5 +551,3 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
         return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)

@@ -25,7 +25,7 @@ from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.measurements import Family, Pass
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import ATTITUDE, MODELS
-from fgnav.models.variables import ORBIT, Layout, Variable, orbit_variable
+from fgnav.models.variables import Layout, Variable, orbit_variable
 
 __all__ = ["build_formation_pass", "spacecraft_pass", "orbit_columns", "spacecraft_states",
            "clock_variable", "ambiguity_variable"]

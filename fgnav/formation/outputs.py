@@ -15,7 +15,6 @@ Outputs (``fgnav smooth`` on a log with a ``spacecraft`` column):
 
 from __future__ import annotations
 
-import shutil
 import time
 from pathlib import Path
 
@@ -28,7 +27,7 @@ from fgnav.formation.relative_state import (relative_covariance, relative_state_
 from fgnav.integrity import ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test, _family_test, _severity
 from fgnav.io.atomic import atomic_write_text
 from fgnav.io.oem import write_oem
-from fgnav.io.outputs import commit_outputs, make_staging, remove_stale_staging
+from fgnav.io.outputs import commit_outputs, staged
 from fgnav.io.summary import write_summary
 from fgnav.time import add_seconds, format_utc
 
@@ -249,13 +248,9 @@ def _relative_csv(sol, p) -> str:
 def write_formation_outputs(out_dir, res, p) -> list[Path]:
     """Write a formation's outputs (module docstring) as one set, as
     :func:`fgnav.pipeline.write_outputs` does for one spacecraft."""
-    from fgnav.pipeline import residual_times, write_residuals_csv
+    from fgnav.pipeline import residual_times, write_residuals_csv, write_variables_csv
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    remove_stale_staging(out)
-    stage = make_staging(out)
-    try:
+    with staged(out_dir) as (out, stage):
         sol = res.solution
         names = []
         for sc, (x, P) in zip(p.spacecraft, spacecraft_states(sol, p.layout)):
@@ -269,30 +264,11 @@ def write_formation_outputs(out_dir, res, p) -> list[Path]:
         names.append("relative.csv")
         write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
         names.append("residuals.csv")
-        params = {n: v for n, v in sol.variables.items()
-                  if not n.startswith("orbit_")}
-        if params:
-            _write_parameters_csv(stage / "variables.csv", sol, p, params)
+        params = {v.name: v for v in p.layout.parameters}
+        if params:   # the clocks and ambiguities
+            write_variables_csv(stage / "variables.csv", sol, params)
             names.append("variables.csv")
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
         return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))
-    finally:
-        shutil.rmtree(stage, ignore_errors=True)
 
-
-def _write_parameters_csv(path, sol, p, params):
-    """``variables.csv``: the clocks and ambiguities at every epoch with 1-sigmas (columns as
-    :func:`fgnav.pipeline.write_variables_csv`)."""
-    by_name = {v.name: v for v in p.layout.variables}
-    cols, data = ["epoch", "t_s"], []
-    for name, (x, P) in params.items():
-        sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
-        for i, c in enumerate(by_name[name].components):
-            cols += [c, f"{c}_sigma"]
-            data += [x[:, i], sig[:, i]]
-    epochs = add_seconds(sol.epoch0, sol.t_s)
-    lines = [",".join(cols)] + [",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}"]
-                                         + [f"{d[k]:.9g}" for d in data])
-                                for k in range(len(sol.t_s))]
-    atomic_write_text(path, "\n".join(lines) + "\n")

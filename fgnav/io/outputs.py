@@ -72,6 +72,21 @@ def make_staging(out: Path) -> Path:
     return Path(tempfile.mkdtemp(prefix=f"{STAGING_PREFIX}{os.getpid()}-", dir=out))
 
 
+@contextlib.contextmanager
+def staged(out_dir):
+    """``with staged(out_dir) as (out, stage):`` the output folder (created) and a fresh
+    staging folder inside it (stale ones of killed runs removed first), removed on exit;
+    files written into ``stage`` are committed with :func:`commit_outputs`."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    remove_stale_staging(out)
+    stage = make_staging(out)
+    try:
+        yield out, stage
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
 def read_manifest(out: Path) -> dict[str, list[str]] | None:
     """group -> file names of the manifest in ``out``; None when there is none (or it is not
     ours: unreadable, or not of the documented form)."""
