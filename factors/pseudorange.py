@@ -40,6 +40,7 @@ __all__ = [
     "rotation_xyz", "m21_from_rpy", "link_offsets",
     "spherical_to_cartesian", "cartesian_to_spherical",
     "predict_ranges", "pseudorange_residual", "pseudorange_residual_spherical",
+    "offset_range_residual",
     "carrier_residual", "carrier_residual_spherical",
     "make_pseudorange_factor", "make_carrier_factor",
 ]
@@ -180,12 +181,27 @@ def pseudorange_residual(r_m, cdt_m, rho_meas_m, M21):
     (Single-epoch inputs give (6,), (6, 3), (6, 1).)
     """
     single, r, cdt, z, d = _as_batch(r_m, cdt_m, rho_meas_m, M21)
-    v = r[:, None, :] + d
-    rng = np.linalg.norm(v, axis=-1)
-    e = rng + CLOCK_SIGNS * cdt[:, None] - z
-    H_r = v / rng[..., None]
-    H_c = np.broadcast_to(CLOCK_SIGNS[None, :, None], (r.shape[0], N_LINKS, 1)).copy()
+    e, H_r, H_c = offset_range_residual(r, cdt, z, d, CLOCK_SIGNS)
     return (e[0], H_r[0], H_c[0]) if single else (e, H_r, H_c)
+
+
+def offset_range_residual(r_m, cdt_m, rho_meas_m, d_m, signs):
+    """The same model for any links: ``e_l = |r + d_l| + s_l c dt - rho_l`` (m).
+
+    ``r_m`` (N, 3) sat-2 position in the sat-1 body frame; ``cdt_m`` (N,); ``rho_meas_m``
+    (N, L); ``d_m`` (N, L, 3) or (L, 3) the links' antenna offsets in the sat-1 body frame
+    (``M21 a_2 - a_1`` for a link that sat 1 receives from sat 2: :func:`link_offsets` for
+    Xing et al.'s antennas); ``signs`` (L,) the clock sign ``s_l`` (+1 when sat 1 receives).
+    Returns ``e (N, L)``, ``H_r (N, L, 3)`` (line-of-sight unit vectors), ``H_c (N, L, 1)``.
+    """
+    r = np.asarray(r_m, dtype=float)
+    s = np.asarray(signs, dtype=float)
+    v = r[:, None, :] + np.asarray(d_m, dtype=float)
+    rng = np.linalg.norm(v, axis=-1)
+    e = rng + s * np.asarray(cdt_m, dtype=float)[:, None] - np.asarray(rho_meas_m, dtype=float)
+    H_r = v / rng[..., None]
+    H_c = np.broadcast_to(s[None, :, None], (r.shape[0], s.size, 1)).copy()
+    return e, H_r, H_c
 
 
 def pseudorange_residual_spherical(s, cdt_m, rho_meas_m, M21):

@@ -25,6 +25,7 @@ import numpy as np
 from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES
+from fgnav.io.log_spacecraft import ID_EXPECTED, ID_RE
 from fgnav.io.text import parse_toml, read_utf8_text
 from fgnav.models.registry import MODELS, simulated_kinds
 from fgnav.orbit import elements_to_state, mean_to_true_anomaly
@@ -81,6 +82,64 @@ class SensorSpec:
 
 
 @dataclass(frozen=True)
+class SpacecraftSpec:
+    """One spacecraft of a formation (``[[spacecraft]]``). Its orbit: ``x0_eci`` (its own
+    ``[spacecraft.orbit]`` table) or, when None, the scenario's ``[orbit]`` truth ``lead_s``
+    seconds later (a leader-follower pair on one orbit: ``lead_s`` > 0 flies ahead). Its
+    attitude: the Earth-pointing LVLH plan of its own orbit
+    (:func:`fgnav.simulate.body_directions.lvlh_R_eci_from_body`) turned by ``yaw_deg`` about
+    the body z axis (nadir)."""
+
+    id: str
+    x0_eci: tuple | None = None
+    lead_s: float = 0.0
+    yaw_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class LinkSpec:
+    """One inter-satellite link (``[[link]]``): ``rx`` receives from ``tx``, antenna to antenna
+    (empty name: the centre of mass)."""
+
+    rx: str
+    tx: str
+    rx_antenna: str = ""
+    tx_antenna: str = ""
+
+
+@dataclass(frozen=True)
+class RangingSpec:
+    """The links' measurement and clock (``[ranging]``), SI. ``carrier_sigma_m`` 0: no carrier
+    rows. The relative clock ``c (dt_1 - dt_2)`` of the first two spacecraft starts at
+    ``N(0, clock_sigma0_m^2)`` and random-walks with ``clock_random_walk_m_per_sqrt_s``
+    (1-sigma growth per sqrt(s)). ``attitude_sigma_rad`` the noise of the attitude
+    rows, written when a link uses an antenna (its lever arm needs the attitude)."""
+
+    sigma_m: float
+    period_s: float | None = None
+    carrier_sigma_m: float = 0.0
+    ambiguity_sigma_m: float = 1.0
+    clock_sigma0_m: float = 1.0
+    clock_random_walk_m_per_sqrt_s: float = 0.01
+    attitude_sigma_rad: float = 4.84813681109536e-06   # 1 arcsec, a star tracker's
+
+
+@dataclass(frozen=True)
+class FormationSpec:
+    """Several spacecraft and their links; every spacecraft carries the scenario's
+    ``[[sensor]]`` list (its own rows and noise draws)."""
+
+    spacecraft: tuple          # SpacecraftSpec, in order (the first is the reference)
+    antennas: tuple            # ((spacecraft id, antenna name, (x, y, z) body m), ...)
+    links: tuple               # LinkSpec
+    ranging: RangingSpec
+
+    @property
+    def ids(self) -> tuple:
+        return tuple(s.id for s in self.spacecraft)
+
+
+@dataclass(frozen=True)
 class Scenario:
     name: str
     description: str
@@ -97,6 +156,9 @@ class Scenario:
     prior_mode: str = "random"         # "random" | "fixed"
     sensors: tuple = field(default_factory=tuple)
     source: str = ""
+    formation: "FormationSpec | None" = None
+    """Several spacecraft with inter-satellite links (``[[spacecraft]]``, ``[[antenna]]``,
+    ``[[link]]``, ``[ranging]``); None: one spacecraft on ``[orbit]``."""
 
     def with_options(self, **kw) -> "Scenario":
         """A copy with the given fields replaced (``None`` keeps a field); ``step_s`` and
@@ -120,7 +182,9 @@ TOP_KEYS = {
     "duration_h": ("number", "h", 0.0, _INF, False, False),
     "step_s": ("number", "s", 0.0, _INF, False, False),
 }
-TOP_TABLES = ("orbit", "truth", "prior", "sensor")
+TOP_TABLES = ("orbit", "truth", "prior", "sensor", "spacecraft", "antenna", "link", "ranging")
+_ARRAY_TABLES = ("sensor", "spacecraft", "antenna", "link")
+"""The ``[[...]]`` arrays of tables (errors count their elements)."""
 ORBIT_KEYS = {
     "r_eci_m": ("vec3", "m", None, None, True, True),
     "v_eci_mps": ("vec3", "m/s", None, None, True, True),
@@ -162,6 +226,38 @@ SENSOR_KEYS = {
     "stars_per_epoch": ("number", "", 1.0, 50.0, True, True),
     "mounting_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
 }
+SPACECRAFT_KEYS = {
+    "id": ("id", "", None, None, True, True),
+    "lead_s": ("number", "s", -86400.0, 86400.0, True, True),
+    "yaw_deg": ("number", "deg", -360.0, 360.0, True, True),
+    "orbit": ("table", "", None, None, True, True),
+}
+ANTENNA_KEYS = {
+    "spacecraft": ("id", "", None, None, True, True),
+    "name": ("id", "", None, None, True, True),
+    "body_m": ("vec3", "m", None, None, True, True),
+}
+LINK_KEYS = {
+    "rx": ("id", "", None, None, True, True),
+    "tx": ("id", "", None, None, True, True),
+    "rx_antenna": ("id", "", None, None, True, True),
+    "tx_antenna": ("id", "", None, None, True, True),
+}
+RANGING_KEYS = {
+    "sigma_m": ("number", "m", 1e-6, 1e4, True, True),
+    "period_s": ("number", "s", 0.0, _INF, False, False),
+    "carrier_sigma_m": ("number", "m", 0.0, 1.0, True, True),
+    "ambiguity_sigma_m": ("number", "m", 0.0, 1e6, True, True),
+    "clock_sigma0_m": ("number", "m", 0.0, 1e6, True, True),
+    "clock_random_walk_m_per_sqrt_s": ("number", "m/sqrt(s)", 0.0, 1e3, True, True),
+    "attitude_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, False, True),
+}
+"""The formation tables (:class:`FormationSpec`): ``[[spacecraft]]`` (``id``, then either
+``lead_s`` or a ``[spacecraft.orbit]`` table, and ``yaw_deg``), ``[[antenna]]`` (lever arm
+``body_m`` of antenna ``name`` on ``spacecraft``, |.| <= 1000 m), ``[[link]]`` and
+``[ranging]`` (``sigma_m`` required; ``carrier_sigma_m`` > 0 adds carrier-phase rows)."""
+MAX_ANTENNA_ARM_M = 1000.0
+
 SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
 """Keys each sensor kind takes besides ``kind`` and ``period_s`` (its model's
 ``scenario_keys``, ``fgnav.models.registry``); ``sigma_deg`` and
@@ -205,7 +301,7 @@ class _Source:
                 continue
             k = s.split("=", 1)[0].strip().strip('"')
             in_table = (current is None and table is None) or (
-                current == table and (table != "sensor" or count == index))
+                current == table and (table not in _ARRAY_TABLES or count == index))
             if in_table and k == key:
                 return n
         return header_line if key is None else None
@@ -235,6 +331,10 @@ def _expected(spec) -> str:
         return "an ISO-8601 UTC epoch string 'YYYY-MM-DDTHH:MM:SS[.f]Z'"
     if typ == "choice":
         return "one of " + ", ".join(repr(c) for c in lo)
+    if typ == "id":
+        return f"a quoted name: {ID_EXPECTED}"
+    if typ == "table":
+        return "a table"
     if typ == "vec3":
         return f"an array of 3 finite numbers ({unit})"
     return f"a non-empty array of finite numbers ({unit})"
@@ -282,6 +382,14 @@ def _value(src: _Source, table, index, key, value, spec, label):
         if not isinstance(value, str) or value not in lo:
             raise bad()
         return value
+    if typ == "id":
+        if not isinstance(value, str) or not ID_RE.match(value):
+            raise bad()
+        return value
+    if typ == "table":
+        if not isinstance(value, dict):
+            raise bad()
+        return value
     if not isinstance(value, list) or not value or (typ == "vec3" and len(value) != 3):
         raise bad()
     for v in value:
@@ -306,38 +414,41 @@ def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
                             k, label=f"{label_prefix}{k}")
 
 
-def _orbit_state(src: _Source, orbit: dict) -> tuple:
-    _check_keys(src, "orbit", 0, orbit, tuple(ORBIT_KEYS), "orbit.", "[orbit]")
-    v = {k: _value(src, "orbit", 0, k, orbit[k], ORBIT_KEYS[k], f"orbit.{k}") for k in orbit}
+def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0,
+                 label: str = "orbit") -> tuple:
+    """The truth state (6,) of an ``[orbit]`` table (or of ``[spacecraft.orbit]``: ``table``,
+    ``index`` and ``label`` name it in errors)."""
+    _check_keys(src, table, index, orbit, tuple(ORBIT_KEYS), f"{label}.", f"[{label}]")
+    v = {k: _value(src, table, index, k, orbit[k], ORBIT_KEYS[k], f"{label}.{k}") for k in orbit}
     forms = "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg and " \
             "true_anomaly_deg or mean_anomaly_deg"
     cart = [k for k in _CARTESIAN if k in v]
     elem = [k for k in ORBIT_KEYS if k in v and k not in _CARTESIAN]
     if cart and elem:
-        raise src.error("orbit", 0, elem[0], f"{forms}, not both forms", elem[0],
-                        label=f"orbit.{elem[0]}")
+        raise src.error(table, index, elem[0], f"{forms}, not both forms", elem[0],
+                        label=f"{label}.{elem[0]}")
     if cart:
         missing = [k for k in _CARTESIAN if k not in v]
         if missing:
-            raise src.error("orbit", 0, None, forms, label=f"orbit.{missing[0]}")
+            raise src.error(table, index, None, forms, label=f"{label}.{missing[0]}")
         r_m = math.hypot(*v["r_eci_m"])   # (np.linalg.norm overflows on 1e154 components)
         if not R_EARTH_M < r_m <= MAX_ORBIT_RADIUS_M:
-            raise src.error("orbit", 0, "r_eci_m", f"a position above the Earth's surface and "
+            raise src.error(table, index, "r_eci_m", f"a position above the Earth's surface and "
                             f"within {MAX_ORBIT_RADIUS_M:g} m ({R_EARTH_M:.0f} m < |r| <= "
                             f"{MAX_ORBIT_RADIUS_M:g} m)", f"|r| = {r_m:.6g} m",
-                            label="orbit.r_eci_m")
+                            label=f"{label}.r_eci_m")
         return tuple(float(x) for x in v["r_eci_m"] + v["v_eci_mps"])
     missing = [k for k in _ELEMENTS if k not in v]
     n_anom = ("true_anomaly_deg" in v) + ("mean_anomaly_deg" in v)
     if missing or n_anom != 1:
         key = missing[0] if missing else "true_anomaly_deg"
-        raise src.error("orbit", 0, None, forms + ("" if n_anom < 2 else
-                        " (one anomaly, not both)"), label=f"orbit.{key}")
+        raise src.error(table, index, None, forms + ("" if n_anom < 2 else
+                        " (one anomaly, not both)"), label=f"{label}.{key}")
     e = v["e"]
     if not v["a_m"] * (1.0 - e) > R_EARTH_M:
-        raise src.error("orbit", 0, "a_m", f"a perigee above the Earth's surface (a_m (1 - e) > "
+        raise src.error(table, index, "a_m", f"a perigee above the Earth's surface (a_m (1 - e) > "
                         f"{R_EARTH_M:.0f} m)", f"a_m (1 - e) = {v['a_m'] * (1.0 - e):.6g} m",
-                        label="orbit.a_m")
+                        label=f"{label}.a_m")
     if "true_anomaly_deg" in v:
         nu = v["true_anomaly_deg"] * DEG
     else:
@@ -363,6 +474,114 @@ def _sensor(src: _Source, i: int, s) -> SensorSpec:
             raise src.error("sensor", i, None, f"a key '{k}' ({_expected(SENSOR_KEYS[k])}) for "
                             f"sensor kind '{kind}'", label=f"{label}.{k}")
     return SensorSpec(**kw)
+
+
+def _array(src: _Source, d: dict, name: str) -> list:
+    """The ``[[name]]`` array of tables of ``d`` (empty when absent)."""
+    a = d.get(name, [])
+    if not isinstance(a, list) or not all(isinstance(t, dict) for t in a):
+        raise src.error(None, 0, name, f"an array of tables [[{name}]]", a, label=name)
+    return a
+
+
+def _keyed(src, table, i, t, keys, label, required=()):
+    """Check the keys of the ``i``-th ``[[table]]`` ``t`` against ``keys`` and return the
+    converted values; a missing required key names the table."""
+    _check_keys(src, table, i, t, tuple(keys), f"{label}.", f"[[{table}]]")
+    for k in required:
+        if k not in t:
+            raise src.error(table, i, None, f"a key '{k}' ({_expected(keys[k])})",
+                            label=f"{label}.{k}")
+    return {k: _value(src, table, i, k, t[k], keys[k], f"{label}.{k}") for k in t}
+
+
+def _formation(src: _Source, d: dict) -> FormationSpec | None:
+    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them."""
+    present = [k for k in ("spacecraft", "antenna", "link", "ranging") if k in d]
+    if not present:
+        return None
+    sc_tables = _array(src, d, "spacecraft")
+    if len(sc_tables) < 2:
+        raise src.error("spacecraft", 0, None, "at least two [[spacecraft]] tables (a formation; "
+                        f"the scenario has {present[0]!r})", label="spacecraft")
+    spacecraft, ids = [], []
+    for i, t in enumerate(sc_tables):
+        label = f"spacecraft[{i + 1}]"
+        v = _keyed(src, "spacecraft", i, t, SPACECRAFT_KEYS, label, required=("id",))
+        if v["id"] in ids:
+            raise src.error("spacecraft", i, "id", "a spacecraft id not used before", v["id"],
+                            label=f"{label}.id")
+        if "orbit" in v and "lead_s" in v:
+            raise src.error("spacecraft", i, "lead_s", "either lead_s (along the scenario's "
+                            "[orbit]) or an own [spacecraft.orbit] table, not both", "both",
+                            label=f"{label}.lead_s")
+        x0 = (None if "orbit" not in v else
+              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit"))
+        ids.append(v["id"])
+        spacecraft.append(SpacecraftSpec(id=v["id"], x0_eci=x0, lead_s=v.get("lead_s", 0.0),
+                                         yaw_deg=v.get("yaw_deg", 0.0)))
+
+    def known(table, i, key, value, label):
+        if value not in ids:
+            raise src.error(table, i, key, "a spacecraft id of [[spacecraft]] ("
+                            + ", ".join(ids) + ")", value, label=f"{label}.{key}")
+
+    antennas = {}
+    for i, t in enumerate(_array(src, d, "antenna")):
+        label = f"antenna[{i + 1}]"
+        v = _keyed(src, "antenna", i, t, ANTENNA_KEYS, label, required=tuple(ANTENNA_KEYS))
+        known("antenna", i, "spacecraft", v["spacecraft"], label)
+        key = (v["spacecraft"], v["name"])
+        if key in antennas:
+            raise src.error("antenna", i, "name", f"each antenna of spacecraft '{key[0]}' once",
+                            v["name"], label=f"{label}.name")
+        if not all(abs(a) <= MAX_ANTENNA_ARM_M for a in v["body_m"]):
+            raise src.error("antenna", i, "body_m", f"a lever arm within {MAX_ANTENNA_ARM_M:g} m "
+                            "per axis", v["body_m"], label=f"{label}.body_m")
+        antennas[key] = v["body_m"]
+    links = []
+    link_tables = _array(src, d, "link")
+    if not link_tables:
+        raise InputFormatError(src.path, None, "link", "at least one [[link]] table (rx, tx, "
+                               "optional rx_antenna, tx_antenna) in a formation scenario")
+    for i, t in enumerate(link_tables):
+        label = f"link[{i + 1}]"
+        v = _keyed(src, "link", i, t, LINK_KEYS, label, required=("rx", "tx"))
+        for k in ("rx", "tx"):
+            known("link", i, k, v[k], label)
+        if v["rx"] == v["tx"]:
+            raise src.error("link", i, "tx", "a transmitting spacecraft other than rx",
+                            v["tx"], label=f"{label}.tx")
+        for end in ("rx", "tx"):
+            ant = v.get(f"{end}_antenna", "")
+            if ant and (v[end], ant) not in antennas:
+                raise src.error("link", i, f"{end}_antenna", f"an [[antenna]] of spacecraft "
+                                f"'{v[end]}'", ant, label=f"{label}.{end}_antenna")
+        links.append(LinkSpec(rx=v["rx"], tx=v["tx"], rx_antenna=v.get("rx_antenna", ""),
+                              tx_antenna=v.get("tx_antenna", "")))
+    if "ranging" not in d:
+        raise InputFormatError(src.path, None, "ranging", "a table [ranging] (sigma_m, the "
+                               "pseudorange 1-sigma, m) in a formation scenario")
+    r = _table(src, d, "ranging")
+    _check_keys(src, "ranging", 0, r, tuple(RANGING_KEYS), "ranging.", "[ranging]")
+    if "sigma_m" not in r:
+        raise src.error("ranging", 0, None, f"a key 'sigma_m' ({_expected(RANGING_KEYS['sigma_m'])})",
+                        label="ranging.sigma_m")
+    rv = {k: _value(src, "ranging", 0, k, r[k], RANGING_KEYS[k], f"ranging.{k}") for k in r}
+    arcsec = math.pi / (180.0 * 3600.0)
+    ranging = RangingSpec(
+        sigma_m=rv["sigma_m"], period_s=rv.get("period_s"),
+        carrier_sigma_m=rv.get("carrier_sigma_m", 0.0),
+        ambiguity_sigma_m=rv.get("ambiguity_sigma_m", 1.0),
+        clock_sigma0_m=rv.get("clock_sigma0_m", 1.0),
+        clock_random_walk_m_per_sqrt_s=rv.get("clock_random_walk_m_per_sqrt_s", 0.01),
+        attitude_sigma_rad=rv.get("attitude_sigma_arcsec", 1.0) * arcsec)
+    if 0.0 < ranging.carrier_sigma_m < 1e-9:
+        raise src.error("ranging", 0, "carrier_sigma_m", "0 (no carrier) or >= 1e-9 m",
+                        ranging.carrier_sigma_m, label="ranging.carrier_sigma_m")
+    return FormationSpec(spacecraft=tuple(spacecraft),
+                         antennas=tuple((a, b, arm) for (a, b), arm in antennas.items()),
+                         links=tuple(links), ranging=ranging)
 
 
 def load_scenario(name_or_path: str) -> Scenario:
@@ -424,15 +643,20 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         truth_srp=tv.get("srp", False),
         prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
         prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
-        prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path))
+        prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path),
+        formation=_formation(src, d))
 
 
 def sensor_epoch_count(scn: Scenario) -> int:
-    """Sensor epochs of a simulated pass, summed over the sensors (``pass_sim.sensor_epochs``)."""
-    n = 0
-    for s in scn.sensors:
-        period = scn.step_s if s.period_s is None else s.period_s
-        n += int(min(math.floor(scn.duration_h * 3600.0 / period + 1e-9), 10**15)) + 1
+    """Sensor epochs of a simulated pass, summed over the sensors (``pass_sim.sensor_epochs``);
+    a formation's counts each spacecraft's sensors and the link epochs."""
+    def epochs(period_s):
+        period = scn.step_s if period_s is None else period_s
+        return int(min(math.floor(scn.duration_h * 3600.0 / period + 1e-9), 10**15)) + 1
+
+    n = sum(epochs(s.period_s) for s in scn.sensors)
+    if scn.formation is not None:
+        n = n * len(scn.formation.spacecraft) + epochs(scn.formation.ranging.period_s)
     return n
 
 

@@ -198,8 +198,9 @@ def test_good_variants_load(tmp_path):
 def test_builtin_scenarios_load_unchanged():
     from fgnav.scenarios import builtin_names, load_scenario
 
-    assert builtin_names() == ["geo-limb", "gto-transfer", "leo-sun-earth-moon", "refraction-leo",
-                               "refraction-leo-bias", "sextant-leo"]
+    assert builtin_names() == ["constellation-leo", "formation-gto", "geo-limb", "gto-transfer",
+                               "leo-sun-earth-moon", "refraction-leo", "refraction-leo-bias",
+                               "sextant-leo"]
     gto = load_scenario("gto-transfer")
     assert gto.x0_eci == (6509244.371304875, 0.0, 3713244.835519765,
                           -3737.397235776740, 0.0, 8790.602460568101)

@@ -2,7 +2,9 @@
 
 Subcommands:
 - ``conditioning``: Cartesian vs spherical conditioning on Xing et al.'s geometry (rcond of
-  A^T A, covariance at two epochs, Monte Carlo 1-sigma coverage of the range).
+  A^T A, covariance at two epochs, Monte Carlo 1-sigma coverage of the range); with
+  ``--log LOG [--epoch ISO]`` on one epoch of a logged formation pass (its six
+  isl_pseudorange rows, declared antennas and both attitude rows).
 - ``track``: time-series case (CW relative orbit of 1 km), batch or iSAM2 smoother; writes
   ``DIR/trajectory.csv`` and ``DIR/summary.json`` (and a Rerun recording when asked).
 """
@@ -22,13 +24,29 @@ def register(subparsers):
                               description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="formation_command", metavar="SUBCOMMAND")
 
-    c = sub.add_parser("conditioning", help="Cartesian vs spherical conditioning study")
+    c = sub.add_parser("conditioning", help="Cartesian vs spherical conditioning study",
+                       description="Xing et al.'s single-epoch study: rcond of A^T A for "
+                                   "Cartesian and spherical unknowns, the 1-sigma of range, "
+                                   "angles and clock, and the Monte Carlo coverage of the "
+                                   "range; on the built-in geometry, or with --log on one "
+                                   "epoch of a logged pass (six isl_pseudorange rows between "
+                                   "the first two spacecraft, their declared antennas, and "
+                                   "both spacecraft's attitude rows at that epoch).")
+    c.add_argument("--log", metavar="LOG.csv",
+                   help="a measurement log with a spacecraft column (e.g. from `fgnav "
+                        "simulate formation-gto`; the shipped data/formation/"
+                        "xing-single-epoch.csv is Xing et al.'s geometry)")
+    c.add_argument("--epoch", metavar="ISO",
+                   help="with --log: the epoch to study, ISO-8601 UTC (default the first "
+                        "epoch with isl_pseudorange rows)")
+    c.add_argument("--out", metavar="FILE.json", help="also write the figures as JSON")
     c.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     c.add_argument("--runs", type=int, default=5000,  # checked in run
                    help="Monte Carlo runs for the 1-sigma coverage of R (default 5000)")
     c.add_argument("--seed", type=T.seed, default=0, help="random seed (default 0)")
-    c.add_argument("--sigma-cm", type=T.pos("cm"), default=1.0,
-                   help="pseudorange noise, 1 sigma, cm (default 1 cm, Xing et al.)")
+    c.add_argument("--sigma-cm", type=T.pos("cm"), default=None,
+                   help="pseudorange noise, 1 sigma, cm (default 1 cm, Xing et al.; with --log "
+                        "the rows' sigma column)")
     c.set_defaults(func=run_conditioning)
 
     t = sub.add_parser("track", help="time-series relative navigation on a 1 km CW orbit")
@@ -60,22 +78,53 @@ def register(subparsers):
 
 def run_conditioning(args) -> int:
     from fgnav.errors import UserError
-    from fgnav.formation.study import conditioning_study
 
     if args.runs < 1:
         raise UserError(f"--runs must be >= 1, got {args.runs}")
-    if not args.sigma_cm > 0:
-        raise UserError(f"--sigma-cm must be positive, got {args.sigma_cm}")
-    out = conditioning_study(runs=args.runs, seed=args.seed, sigma_m=args.sigma_cm / 100.0)
+    sigma_cm = 1.0 if args.sigma_cm is None else args.sigma_cm
+    if not sigma_cm > 0:
+        raise UserError(f"--sigma-cm must be positive, got {sigma_cm}")
+    log_path = getattr(args, "log", None)
+    epoch = getattr(args, "epoch", None)
+    if epoch is not None and log_path is None:
+        raise UserError("--epoch needs --log (the epoch of a logged pass)")
+    if log_path is not None:
+        from fgnav.formation.logged import logged_conditioning, logged_epoch
+        from fgnav.io.log_csv import read_log
+
+        if args.sigma_cm is not None:
+            raise UserError("--sigma-cm: with --log the rows' sigma column is the noise")
+        ep = logged_epoch(read_log(log_path), epoch)
+        out = logged_conditioning(ep, runs=args.runs, seed=args.seed)
+    else:
+        from fgnav.formation.study import conditioning_study
+
+        out = conditioning_study(runs=args.runs, seed=args.seed, sigma_m=sigma_cm / 100.0)
+    if getattr(args, "out", None):
+        from fgnav.io.atomic import atomic_writer
+
+        try:
+            with atomic_writer(args.out, "w") as fh:
+                json.dump(out, fh, indent=2)
+        except OSError as exc:
+            raise UserError(f"--out {args.out}: cannot write: {exc.strerror or exc}") from None
     if args.json:
         print(json.dumps(out))
         return 0
+    if log_path is not None:
+        lg = out["log"]
+        print(f"{lg['path']}, epoch {lg['epoch']}: {len(lg['links'])} links between "
+              f"{' and '.join(lg['spacecraft'])}; estimate R = {out['estimate']['R_m']:.4f} m, "
+              f"az = {out['estimate']['az_rad']:.4g} rad, el = {out['estimate']['el_rad']:.4g} "
+              f"rad, c dt = {100 * out['estimate']['cdt_m']:.3f} cm")
     for p in ("cartesian", "spherical"):
         d = out[p]
+        change = ("" if "covariance" not in d or "relative_change" not in d["covariance"] else
+                  f"; covariance change between epochs = "
+                  f"{d['covariance']['relative_change']:.3g} (in epoch-1 sigmas)")
         print(f"{p:9s}: rcond(A^T A) = {d['rcond']:.3g} (1-norm {d['rcond_1norm']:.3g}), "
-              f"cond = {d['cond']:.3g}; covariance change between epochs = "
-              f"{d['covariance']['relative_change']:.3g} (in epoch-1 sigmas)")
-    s = out["spherical"]["sigmas_epoch1"]
+              f"cond = {d['cond']:.3g}{change}")
+    s = out["spherical"].get("sigmas_epoch1", out["spherical"].get("sigmas"))
     print(f"sigma_R = {100 * s[0]:.3f} cm, sigma_az = {s[1]:.4f} rad, sigma_el = {s[2]:.4f} rad, "
           f"sigma_clock = {100 * s[3]:.3f} cm")
     print(f"Monte Carlo ({out['runs']} runs): {100 * out['coverage_1sigma']:.1f} % of range "

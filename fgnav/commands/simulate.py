@@ -15,7 +15,12 @@ def register(sub):
                                    "DIR/truth_refraction_bias.csv (epoch,refraction_bias_m); a "
                                    "star camera with a mounting error (sensor key "
                                    "mounting_sigma_arcsec, or --star-mounting-sigma-arcsec) "
-                                   "DIR/truth_camera_alignment.csv (epoch,align_x,align_y,align_z).")
+                                   "DIR/truth_camera_alignment.csv (epoch,align_x,align_y,align_z). "
+                                   "A formation (formation-gto, constellation-leo: several "
+                                   "spacecraft and inter-satellite links) writes one "
+                                   "DIR/measurements.csv with a spacecraft column, "
+                                   "DIR/truth-<id>.oem per spacecraft and DIR/truth_clock.csv "
+                                   "(epoch,clock_m).")
     p.add_argument("scenario", help="built-in name or path to a scenario .toml")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
@@ -82,6 +87,12 @@ def run(args) -> int:
 
             camera = replace(RAW_STAR_CAMERA, mounting_sigma_arcsec=mounting)
         scn = raw_star_scenario(scn) if camera is None else raw_star_scenario(scn, camera)
+    if scn.formation is not None:
+        for opt, on in (("--raw-stars", getattr(args, "raw_stars", False)),
+                        ("--images", getattr(args, "images", False))):
+            if on:
+                raise UserError(f"{opt}: scenario {scn.name} has several spacecraft; {opt} "
+                                "simulates one (use a one-spacecraft scenario)")
     check_size(scn, args.max_epochs, args.max_duration_h)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -91,6 +102,17 @@ def run(args) -> int:
         tempfile.TemporaryFile(dir=out).close()
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write there: {exc.strerror or exc}") from None
+    if scn.formation is not None:   # several spacecraft: one log, truth-<id>.oem each
+        from fgnav.simulate.formation_sim import simulate_formation_pass, write_formation_files
+
+        fsim = simulate_formation_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
+                                       max_duration_h=args.max_duration_h)
+        written = write_formation_files(out, fsim)
+        if not args.quiet:
+            print(f"{scn.name}: {len(fsim.ids)} spacecraft ({', '.join(fsim.ids)}), "
+                  f"{len(fsim.log.t_s)} measurement rows over {len(fsim.t_s)} epochs -> "
+                  + ", ".join(str(w) for w in written))
+        return 0
     sim = simulate_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
                         max_duration_h=args.max_duration_h)
     written = write_pass_files(out, sim)

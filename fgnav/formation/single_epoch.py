@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.pseudorange import (
-    N_LINKS, cartesian_to_spherical, pseudorange_residual, pseudorange_residual_spherical,
-    spherical_to_cartesian,
+    N_LINKS, cartesian_to_spherical, offset_range_residual, pseudorange_residual,
+    pseudorange_residual_spherical, spherical_to_cartesian,
 )
 from fgnav.errors import UserError
 
-__all__ = ["SingleEpochSolution", "PARAMS", "design_matrix", "conditioning", "solve_single_epoch",
+__all__ = ["SingleEpochSolution", "LinkGeometry", "PARAMS", "design_matrix", "conditioning", "solve_single_epoch",
            "solve_single_epoch_many", "to_param", "from_param"]
 
 PARAMS = ("cartesian", "spherical")
@@ -52,13 +52,41 @@ def from_param(p, param):
     return spherical_to_cartesian(p.reshape(-1, 3))[0].reshape(shp)
 
 
-def design_matrix(x, M21, param):
-    """Design matrix ``A = de/dx`` (6, 4) at ``x = [position coords (3), c dt m]``."""
+@dataclass(frozen=True)
+class LinkGeometry:
+    """The links of one epoch for any antennas (a logged epoch): ``offsets_m`` (L, 3) the
+    antenna offsets ``d_l`` in the sat-1 body frame (range ``|r + d_l|``) and ``signs`` (L,)
+    the clock signs ``s_l`` (:func:`factors.pseudorange.offset_range_residual`). Without
+    it, the functions here use Xing et al.'s six links through ``M21``."""
+
+    offsets_m: np.ndarray
+    signs: np.ndarray
+
+
+def _model(param, M21, links):
+    """``f(p (K, 3), cdt (K,), z (K, L)) -> (e, H_p, H_c)`` in ``param`` coordinates."""
     _check_param(param)
+    if links is None:
+        f = pseudorange_residual if param == "cartesian" else pseudorange_residual_spherical
+        return lambda p, c, z: f(p, c, z, M21)
+
+    def g(p, c, z):
+        if param == "cartesian":
+            return offset_range_residual(p, c, z, links.offsets_m, links.signs)
+        r, J = spherical_to_cartesian(p)
+        e, H_r, H_c = offset_range_residual(r, c, z, links.offsets_m, links.signs)
+        return e, H_r @ J, H_c
+
+    return g
+
+
+def design_matrix(x, M21, param, links: LinkGeometry | None = None):
+    """Design matrix ``A = de/dx`` (L, 4) at ``x = [position coords (3), c dt m]`` (Xing et
+    al.'s six links through ``M21``, or ``links``)."""
     x = np.asarray(x, dtype=float)
-    f = pseudorange_residual if param == "cartesian" else pseudorange_residual_spherical
-    _, H_p, H_c = f(x[:3], x[3], np.zeros(N_LINKS), M21)
-    return np.hstack([H_p, H_c])
+    n = N_LINKS if links is None else len(links.signs)
+    _, H_p, H_c = _model(param, M21, links)(x[None, :3], x[None, 3], np.zeros((1, n)))
+    return np.hstack([H_p[0], H_c[0]])
 
 
 def conditioning(A):
@@ -101,7 +129,7 @@ class SingleEpochSolution:
 
 
 def solve_single_epoch(rho_meas_m, M21, param="spherical", x0=None, sigma_m=0.01,
-                       max_iter=30, tol=1e-10):
+                       max_iter=30, tol=1e-10, links: LinkGeometry | None = None):
     """Gauss–Newton for ``(r, c dt)`` from six pseudoranges of one epoch.
 
     Parameters
@@ -112,6 +140,7 @@ def solve_single_epoch(rho_meas_m, M21, param="spherical", x0=None, sigma_m=0.01
     x0 : (4,) initial Cartesian ``[x, y, z, c dt]`` m; default Xing et al.'s ``R = 1992 m,
         az = el = 0, c dt = 0``.
     sigma_m : pseudorange noise (1 sigma, m) scaling the covariance.
+    links : the links of a logged epoch (any antennas; ``M21`` is then unused).
 
     Returns
     -------
@@ -119,9 +148,9 @@ def solve_single_epoch(rho_meas_m, M21, param="spherical", x0=None, sigma_m=0.01
     """
     x0 = np.array([1992.0, 0.0, 0.0, 0.0]) if x0 is None else np.asarray(x0, dtype=float)
     sol = solve_single_epoch_many(np.asarray(rho_meas_m, dtype=float)[None], M21, param,
-                                  x0[None], max_iter=max_iter, tol=tol)
+                                  x0[None], max_iter=max_iter, tol=tol, links=links)
     x, it, conv = sol[0][0], int(sol[1]), bool(sol[2][0])
-    A = design_matrix(x, M21, param)
+    A = design_matrix(x, M21, param, links)
     N = A.T @ A
     Qc = np.linalg.inv(N)
     cd = conditioning(A)
@@ -132,23 +161,24 @@ def solve_single_epoch(rho_meas_m, M21, param="spherical", x0=None, sigma_m=0.01
                                rcond_1norm=cd["rcond_1norm"], iterations=it, converged=conv)
 
 
-def solve_single_epoch_many(rho_meas_m, M21, param, x0_cart, max_iter=30, tol=1e-10):
+def solve_single_epoch_many(rho_meas_m, M21, param, x0_cart, max_iter=30, tol=1e-10,
+                            links: LinkGeometry | None = None):
     """Vectorized Gauss–Newton over K independent epochs / Monte Carlo runs.
 
     ``rho_meas_m`` (K, 6); ``M21`` (3, 3) or (K, 3, 3); ``x0_cart`` (K, 4) Cartesian initial
     ``[r m, c dt m]``. Each step solves the 6x4 least squares by QR (not the normal
     equations). Returns ``(x (K, 4) in param coordinates, iterations, converged (K,))``.
+    ``links``: the links of a logged epoch (:class:`LinkGeometry`; ``M21`` unused).
     """
-    _check_param(param)
+    f = _model(param, M21, links)
     z = np.asarray(rho_meas_m, dtype=float)
     K = z.shape[0]
     x0 = np.asarray(x0_cart, dtype=float)
     x = np.concatenate([to_param(x0[:, :3], param), x0[:, 3:4]], axis=1)
-    f = pseudorange_residual if param == "cartesian" else pseudorange_residual_spherical
     conv = np.zeros(K, dtype=bool)
     it = 0
     for it in range(1, max_iter + 1):
-        e, H_p, H_c = f(x[:, :3], x[:, 3], z, M21)
+        e, H_p, H_c = f(x[:, :3], x[:, 3], z)
         A = np.concatenate([H_p, H_c], axis=2)
         Q, R = np.linalg.qr(A)
         dx = np.linalg.solve(R, -np.einsum("kji,kj->ki", Q, e)[..., None])[..., 0]

@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 
-from factors.pseudorange import predict_ranges, spherical_to_cartesian
+from factors.pseudorange import offset_range_residual, predict_ranges, spherical_to_cartesian
 from fgnav.formation.single_epoch import (
     PARAMS, conditioning, design_matrix, from_param, solve_single_epoch, solve_single_epoch_many,
     to_param,
@@ -30,7 +30,7 @@ from fgnav.formation.smoother import (
 )
 
 __all__ = ["FORMATION_REFERENCE", "formation_reference_truth", "conditioning_study", "coverage_monte_carlo",
-           "covariance_change"]
+           "covariance_change", "range_coverage", "predicted_ranges", "reference_ranges"]
 
 FORMATION_REFERENCE = {
     "R_m": (999.922, 999.891),          # Table 1, true range at epochs 1 and 2
@@ -72,23 +72,62 @@ def coverage_monte_carlo(runs=5000, seed=0, sigma_m=0.01, param="spherical"):
     sigma_R = sqrt(P_RR) at its estimate (Xing et al.: 120 runs, 67.5 %; Gaussian 68.27 %).
     Returns ``(fraction, errors (runs,), sigmas (runs,))``.
     """
-    rng = np.random.default_rng(seed)
     r, cdt, M21 = formation_reference_truth(1)
-    clean = predict_ranges(r, cdt, M21)
-    z = clean + sigma_m * rng.standard_normal((runs, clean.size))
-    x0 = np.tile(np.asarray(FORMATION_REFERENCE["x0_cart_m"]), (runs, 1))
-    x, _, conv = solve_single_epoch_many(z, M21, param, x0)
+    return range_coverage(r, cdt, M21, runs, seed, sigma_m, param,
+                          np.asarray(FORMATION_REFERENCE["x0_cart_m"]))
+
+
+def range_coverage(r_m, cdt_m, M21, runs, seed, sigma_m, param="spherical", x0_cart=None,
+                   links=None):
+    """Monte Carlo 1-sigma coverage of the range at any geometry: sat 2 at ``r_m`` (3,) in
+    the sat-1 body frame, clock ``cdt_m``, Xing et al.'s links through ``M21`` or ``links``
+    (:class:`~fgnav.formation.single_epoch.LinkGeometry`); ``sigma_m`` scalar or per link (m);
+    Gauss–Newton from ``x0_cart`` (4,) Cartesian. Returns ``(fraction, errors, sigmas)`` as
+    :func:`coverage_monte_carlo`."""
+    rng = np.random.default_rng(seed)
+    r = np.asarray(r_m, dtype=float)
+    clean = predicted_ranges(r, cdt_m, M21, links)
+    sigma = np.asarray(sigma_m, dtype=float)
+    z = clean + sigma * rng.standard_normal((runs, clean.size))
+    x0 = np.tile(np.asarray(x0_cart, dtype=float), (runs, 1))
+    x, _, conv = solve_single_epoch_many(z, M21, param, x0, links=links)
     if param == "cartesian":
         s = to_param(from_param(x[:, :3], param), "spherical")
     else:
         s = x[:, :3]
-    err = s[:, 0] - FORMATION_REFERENCE["R_m"][0]
+    err = s[:, 0] - float(np.linalg.norm(r))
     # sigma_R at each estimate (spherical design matrix)
     sig = np.empty(runs)
     for i in range(runs):
-        A = design_matrix(np.r_[s[i], x[i, 3]], M21, "spherical")
-        sig[i] = sigma_m * np.sqrt(np.linalg.inv(A.T @ A)[0, 0])
+        A = design_matrix(np.r_[s[i], x[i, 3]], M21, "spherical", links)
+        if sigma.ndim == 0:
+            sig[i] = sigma * np.sqrt(np.linalg.inv(A.T @ A)[0, 0])
+        else:
+            Aw = A / sigma[:, None]
+            sig[i] = np.sqrt(np.linalg.inv(Aw.T @ Aw)[0, 0])
     return float(np.mean(np.abs(err) <= sig)), err, sig
+
+
+def predicted_ranges(r_m, cdt_m, M21, links=None):
+    """Noise-free pseudoranges (L,), m: sat 2 at ``r_m`` (3,) in the sat-1 body frame, clock
+    ``cdt_m``; Xing et al.'s six links through ``M21`` or any ``links``."""
+    if links is None:
+        return predict_ranges(np.asarray(r_m, dtype=float), cdt_m, M21)
+    e, _, _ = offset_range_residual(np.asarray(r_m, dtype=float)[None], np.array([cdt_m]),
+                                    np.zeros((1, len(links.signs))), links.offsets_m, links.signs)
+    return e[0]
+
+
+def reference_ranges(seed=0, sigma_m=0.01):
+    """Xing et al.'s measured pseudoranges (2, 6), m, at epochs 1 and 2 as the study draws
+    them: the true geometry (:func:`formation_reference_truth`) plus N(0, sigma_m^2) noise from
+    ``default_rng(seed)`` (epoch 1's six draws first)."""
+    rng = np.random.default_rng(seed)
+    out = np.empty((2, 6))
+    for ep in (1, 2):
+        r, cdt, M21 = formation_reference_truth(ep)
+        out[ep - 1] = predict_ranges(r, cdt, M21) + sigma_m * rng.standard_normal(6)
+    return out
 
 
 def conditioning_study(runs=5000, seed=0, sigma_m=0.01):
@@ -100,17 +139,15 @@ def conditioning_study(runs=5000, seed=0, sigma_m=0.01):
     ``frobenius_change``}; ``sigmas_epoch1``; ``estimate_epoch1/2``), ``coverage_1sigma``,
     ``runs``, ``seed``, ``geometry`` and ``seed003_reported``.
     """
-    rng = np.random.default_rng(seed)
     out = {}
-    noise = [sigma_m * rng.standard_normal(6) for _ in (1, 2)]
+    measured = reference_ranges(seed, sigma_m)
     for param in PARAMS:
         r, cdt, M21 = formation_reference_truth(1)
         cd = conditioning(design_matrix(np.r_[to_param(r, param), cdt], M21, param))
         sols = []
         for ep in (1, 2):
             r, cdt, M21 = formation_reference_truth(ep)
-            z = predict_ranges(r, cdt, M21) + noise[ep - 1]
-            sols.append(solve_single_epoch(z, M21, param, np.asarray(FORMATION_REFERENCE["x0_cart_m"]),
+            sols.append(solve_single_epoch(measured[ep - 1], M21, param, np.asarray(FORMATION_REFERENCE["x0_cart_m"]),
                                            sigma_m=sigma_m))
         rel, fro = covariance_change(sols[0].covariance, sols[1].covariance)
         out[param] = {

@@ -26,6 +26,7 @@ import numpy as np
 
 from fgnav.errors import UserError
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, log_from_arrays
+from fgnav.io.log_spacecraft import ID_COLUMNS
 from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
@@ -97,42 +98,70 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
     """Truth and a measurement log for ``scn``; the same seed gives the same numbers.
 
     ``seed`` is an integer >= 0. A pass beyond ``max_epochs`` sensor epochs or
-    ``max_duration_h`` hours is refused (:func:`fgnav.scenarios.check_size`).
+    ``max_duration_h`` hours is refused (:func:`fgnav.scenarios.check_size`). A formation
+    scenario (``scn.formation``) is simulated by
+    :func:`fgnav.simulate.formation_sim.simulate_formation_pass`.
     """
+    check_seed(seed)
+    if scn.formation is not None:
+        raise UserError(f"scenario {scn.name}: several spacecraft; simulate it with "
+                        "fgnav.simulate.formation_sim.simulate_formation_pass")
+    check_size(scn, max_epochs, max_duration_h)
+    epoch0 = parse_utc(scn.epoch)
+    t_all = truth_epochs(scn)
+    x_true = integrate_scenario_truth(scn, np.array(scn.x0_eci), t_all)
+    chunks, truth_params = sensor_chunks(scn, t_all, x_true, epoch0, (seed,))
+    log = chunks_to_log(epoch0, chunks)
+    return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
+                         truth_params=truth_params)
+
+
+def check_seed(seed) -> None:
+    """A simulation seed is an integer >= 0 (:class:`UserError` otherwise)."""
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise UserError(f"seed: expected an integer >= 0, found {seed!r}")
-    check_size(scn, max_epochs, max_duration_h)
-    rng = np.random.default_rng(seed)
-    epoch0 = parse_utc(scn.epoch)
-    t_by_sensor = [sensor_epochs(scn, s.period_s) for s in scn.sensors]
-    t_all = np.unique(np.concatenate([[0.0], *t_by_sensor]))
-    x_true = integrate_truth(np.array(scn.x0_eci), t_all, j2=scn.truth_j2,
-                             third_body=scn.truth_third_body, t0_j2000_s=float(j2000_seconds(epoch0)),
-                             drag=scn.truth_drag or None, srp=scn.truth_srp or None)
-    kinds, ts, xyz, sig, extras = [], [], [], [], []
-    truth_params = {}
 
-    def add(kind, t, values, sigma, extra=None):
-        kinds.extend([kind] * len(t))
-        ts.append(t)
-        xyz.append(values)
-        sig.append(np.broadcast_to(sigma, (len(t),)).astype(float))
-        extras.append((len(t), extra))
 
+def truth_epochs(scn: Scenario, *more) -> np.ndarray:
+    """The truth epochs of a pass, s: t = 0, every sensor epoch and the epochs ``more``."""
+    return np.unique(np.concatenate([[0.0], *[sensor_epochs(scn, s.period_s)
+                                               for s in scn.sensors], *more]))
+
+
+def integrate_scenario_truth(scn: Scenario, x0_eci, t_s) -> np.ndarray:
+    """The truth states (N, 6) at ``t_s`` from ``x0_eci`` at t = 0 under the scenario's force
+    model (:func:`fgnav.orbit.integrate_truth`, scipy DOP853)."""
+    return integrate_truth(np.asarray(x0_eci, dtype=float), t_s, j2=scn.truth_j2,
+                           third_body=scn.truth_third_body,
+                           t0_j2000_s=float(j2000_seconds(parse_utc(scn.epoch))),
+                           drag=scn.truth_drag or None, srp=scn.truth_srp or None)
+
+
+def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
+    """The prior rows and every ``[[sensor]]``'s rows of one spacecraft with truth ``x_true``
+    at ``t_all`` (which holds every sensor epoch), as chunks ``(kind, t_s, values, sigma,
+    extra)``, and the truth of model parameters (``SimulatedPass.truth_params``).
+
+    Random draws: ``numpy.random.default_rng(list(words))`` in sensor order; the bias and
+    mounting streams append their stream number to ``words`` (``(seed,)`` for a pass of one
+    spacecraft, the same numbers as ``default_rng(seed)``)."""
+    rng = np.random.default_rng(list(words))
+    chunks, truth_params = [], {}
     sp, sv = scn.prior_position_sigma_m, scn.prior_velocity_sigma_mps
     if scn.prior_mode == "random":
         err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
     else:
         err = np.array([sp] * 3 + [sv] * 3)
-    add(PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
-    add(PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
-    mounting_rng = np.random.default_rng([seed, MOUNTING_STREAM])
-    for spec, t in zip(scn.sensors, t_by_sensor):
+    chunks.append((PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp))
+    chunks.append((PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv))
+    mounting_rng = np.random.default_rng([*words, MOUNTING_STREAM])
+    for spec in scn.sensors:
+        t = sensor_epochs(scn, spec.period_s)
         idx = np.searchsorted(t_all, t)
         bias = {}
         if has_model_bias(spec):   # only a refraction sensor takes the bias keys
             b_all = refraction_bias_path_m(
-                spec, t_all, np.random.default_rng([seed, REFRACTION_BIAS_STREAM]))
+                spec, t_all, np.random.default_rng([*words, REFRACTION_BIAS_STREAM]))
             bias = {"bias_m": b_all[idx]}
         mount = {}
         if spec.kind == STAR_DIRECTION_BODY.kind:
@@ -141,22 +170,43 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                 mount = {"mounting_rotvec": w}
                 truth_params.update({c: np.full(len(t_all), w[i])
                                      for i, c in enumerate(CAMERA_ALIGNMENT.components)})
-        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount)
-        if bias and any(c[0] == spec.kind for c in chunks):
+        got = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount)
+        if bias and any(c[0] == spec.kind for c in got):
             truth_params[REFRACTION_BIAS.components[0]] = b_all
-        for chunk in chunks:
-            add(*chunk)
+        chunks.extend(got)
+    return chunks, truth_params
+
+
+def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None) -> MeasurementLog:
+    """One log of chunks ``(kind, t_s, values (n, 3), sigma, extra dict or None)``, rows
+    stably sorted by epoch (chunk order within an epoch). Id columns (``spacecraft``, ...)
+    hold names (:func:`fgnav.io.log_csv.log_from_arrays`)."""
+    kinds, ts, xyz, sig, extras = [], [], [], [], []
+    for chunk in chunks:
+        kind, t, values, sigma = chunk[:4]
+        extra = chunk[4] if len(chunk) > 4 else None
+        kinds.extend([kind] * len(t))
+        ts.append(t)
+        xyz.append(values)
+        sig.append(np.broadcast_to(sigma, (len(t),)).astype(float))
+        extras.append((len(t), extra))
     t_cat = np.concatenate(ts)
     order = np.argsort(t_cat, kind="stable")
     extra = None
-    if any(e is not None for _, e in extras):  # extra columns (refraction, star rows) only
-        extra = {c: np.concatenate([np.full(n, np.nan) if e is None or c not in e
-                                    else np.asarray(e[c], dtype=float) for n, e in extras])[order]
-                 for c in EXTRA_COLUMNS}
-    log = log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
-                          np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
-    return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
-                         truth_params=truth_params)
+    if any(e is not None for _, e in extras):  # extra columns (refraction, star, id rows) only
+        extra = {}
+        for c in EXTRA_COLUMNS:
+            if c in ID_COLUMNS:
+                if any(e is not None and c in e for _, e in extras):
+                    extra[c] = np.concatenate([np.full(n, None, dtype=object) if e is None or c not in e
+                                               else np.asarray(e[c], dtype=object)
+                                               for n, e in extras])[order]
+                continue
+            extra[c] = np.concatenate([np.full(n, np.nan) if e is None or c not in e
+                                       else np.asarray(e[c], dtype=float) for n, e in extras])[order]
+    return log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
+                           np.concatenate(xyz)[order], np.concatenate(sig)[order], extra,
+                           spacecraft=spacecraft, antennas=antennas)
 
 
 def write_pass_files(out_dir, sim: SimulatedPass) -> list:

@@ -1,0 +1,322 @@
+"""Xing et al.'s single-epoch study on one epoch of a logged formation pass.
+
+Xing et al. (ST-3 Autonomous Formation Flyer pseudorange positioning) solve sat 2's position
+in sat 1's body frame and the relative clock from the six pseudoranges of one epoch, and
+compare the conditioning of the Cartesian and the spherical unknowns. Here the same solution
+(:mod:`fgnav.formation.single_epoch`) runs on a measurement log (format v1 with the
+``spacecraft`` column, :mod:`fgnav.io.log_spacecraft`):
+
+* the epoch's ``isl_pseudorange`` rows (six: sat 2's transmit antenna to sat 1's three
+  receive antennas and back), between the log's first two spacecraft;
+* their antennas' lever arms from the ``# antenna:`` declarations (an empty antenna is the
+  centre of mass);
+* the relative attitude ``M21 = R_body1_from_body2 = R1^T R2`` from the two spacecraft's
+  ``attitude`` rows at that epoch (``R_eci_from_body`` as rotation vectors).
+
+A row received by sat 1 from sat 2 is ``|r + M21 a_tx - a_rx| + c dt``, one received by sat 2
+from sat 1 ``|r + M21 a_rx - a_tx| - c dt`` (Xing et al., eq. (1); ``c dt`` = c (dt_1 - dt_2),
+the clock of the log's format). The model is instantaneous: the light time of a logged pass
+moves each transmitter by ``v tau`` (~3 cm in the formation-gto scenario), which changes the
+two directions' ranges by ``-/+ u.v tau`` -- the pattern of the clock term -- so it appears in
+the clock estimate (``c dt - u.v tau``), not in the range or the angles.
+
+Figures (those of :func:`fgnav.formation.study.conditioning_study`, at the logged estimate
+since a log has no truth): rcond of the unwhitened ``A^T A`` for both parameterizations, the
+1-sigma of (R, az, el, c dt) from ``(A^T W A)^-1`` with the rows' sigmas, and the Monte Carlo
+1-sigma coverage of the range around the estimate (Xing et al.: 67.5 % of 120 runs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.geometry import so3_exp
+from fgnav.errors import UserError
+from fgnav.formation.single_epoch import PARAMS, LinkGeometry, conditioning, solve_single_epoch
+from fgnav.formation.study import FORMATION_REFERENCE, range_coverage, reference_ranges
+from fgnav.io.log_csv import MeasurementLog, log_from_arrays
+from fgnav.io.log_spacecraft import ISL_KINDS
+from fgnav.time import add_seconds, format_utc, parse_utc
+
+__all__ = ["LoggedEpoch", "logged_epoch", "far_field_guess", "logged_conditioning",
+           "xing_single_epoch_log", "XING_LOG_NAME", "XING_EPOCH", "N_LINKS_LOGGED"]
+
+N_LINKS_LOGGED = 6
+"""Rows the study needs at its epoch: Xing et al.'s six links."""
+XING_LOG_NAME = "formation/xing-single-epoch.csv"
+"""Xing et al.'s two epochs as a log, under the package data (:func:`xing_single_epoch_log`)."""
+XING_EPOCH = "2025-01-01T00:00:00Z"
+"""The first epoch of that log (Xing et al. give no date; the second epoch is 10 s later)."""
+FAR_FIELD_RCOND = 1e-3
+"""Singular values of the far-field system below this fraction of the largest are taken as
+unobserved (:func:`far_field_guess`)."""
+XING_ATTITUDE_SIGMA_RAD = 4.84813681109536e-06
+"""The 1-sigma written on that log's attitude rows: 1 arcsec (a star tracker's)."""
+
+
+@dataclass
+class LoggedEpoch:
+    """One epoch's links, SI. ``rho_m``, ``sigma_m`` (L,), ``links`` the offsets and clock
+    signs in the sat-1 body frame, ``M21`` (3, 3) sat-2 body -> sat-1 body, ``lines`` the
+    rows' file lines, ``labels`` ``rx/rx_antenna <- tx/tx_antenna`` per row."""
+
+    path: str
+    epoch: np.datetime64
+    ids: tuple
+    rho_m: np.ndarray
+    sigma_m: np.ndarray
+    links: LinkGeometry
+    M21: np.ndarray
+    lines: np.ndarray
+    labels: list = field(default_factory=list)
+    face_m: np.ndarray | None = None
+    """Sat 1's mean receive-antenna lever arm, body m (the side the partner is on)."""
+
+    @property
+    def epoch_utc(self) -> str:
+        return format_utc(self.epoch)
+
+
+def _name(vocab, code) -> str:
+    return "" if np.isnan(code) else vocab[int(code)]
+
+
+def logged_epoch(log: MeasurementLog, epoch: str | None = None) -> LoggedEpoch:
+    """The links of one epoch of ``log`` (ISO-8601 UTC ``epoch``, default the first epoch
+    with ``isl_pseudorange`` rows). A :class:`UserError` names the log, the epoch and what is
+    missing: no such epoch, not six links between the first two spacecraft, a link in one
+    direction only, an attitude row missing (or repeated) for either spacecraft."""
+    path = log.path
+    kind = np.asarray(log.kind).astype(str)
+    isl = np.flatnonzero(kind == ISL_KINDS[0])
+    if not isl.size:
+        raise UserError(f"{path}: no {ISL_KINDS[0]} rows (the single-epoch study needs the "
+                        f"{N_LINKS_LOGGED} inter-satellite pseudoranges of one epoch)")
+    ns = add_seconds(log.epoch0, log.t_s).astype(np.int64)
+    if epoch is None:
+        t_ns = int(ns[isl[0]])
+    else:
+        try:
+            t_ns = int(parse_utc(epoch).astype("datetime64[ns]").astype(np.int64))
+        except ValueError as exc:
+            raise UserError(f"--epoch {epoch!r}: expected an ISO-8601 UTC epoch "
+                            f"YYYY-MM-DDTHH:MM:SS[.f]Z ({exc})") from None
+    when = format_utc(np.datetime64(t_ns, "ns"))
+    rows = isl[ns[isl] == t_ns]
+    if len(log.spacecraft) < 2:
+        raise UserError(f"{path}: one spacecraft; the study needs two (a 'spacecraft' column "
+                        "and isl_pseudorange rows between them)")
+    ids = log.spacecraft[:2]
+    sc, tx = log.extra["spacecraft"], log.extra["tx_spacecraft"]
+    if len(rows) != N_LINKS_LOGGED:
+        span = (f"the log's {ISL_KINDS[0]} epochs run from "
+                f"{format_utc(np.datetime64(int(ns[isl].min()), 'ns'))} to "
+                f"{format_utc(np.datetime64(int(ns[isl].max()), 'ns'))}")
+        raise UserError(f"{path}: epoch {when}: expected {N_LINKS_LOGGED} {ISL_KINDS[0]} rows "
+                        f"(Xing et al.'s six links: three receive antennas on each spacecraft), "
+                        f"found {len(rows)}" + (f" (lines {', '.join(str(int(log.line[i])) for i in rows)})"
+                                                if len(rows) else f"; {span}"))
+    pair = {0.0, 1.0}
+    for i in rows:
+        if {float(sc[i]), float(tx[i])} != pair:
+            raise UserError(f"{path}, line {int(log.line[i])}: a link between "
+                            f"{_name(log.spacecraft, sc[i])} and {_name(log.spacecraft, tx[i])}; "
+                            f"the study takes the links between the first two spacecraft "
+                            f"({ids[0]}, {ids[1]})")
+    to1 = sc[rows] == 0.0
+    if to1.all() or not to1.any():
+        raise UserError(f"{path}: epoch {when}: every link is received by "
+                        f"{ids[0] if to1.all() else ids[1]}; the range and the clock separate "
+                        "only with links in both directions")
+    R = {}
+    att = np.flatnonzero((kind == "attitude") & (ns == t_ns))
+    for k, name in enumerate(ids):
+        mine = att[np.asarray(log.extra["spacecraft"])[att] == float(k)]
+        if len(mine) != 1:
+            raise UserError(f"{path}: epoch {when}: expected one attitude row of spacecraft "
+                            f"{name} (M21 = R1^T R2 needs both attitudes), found {len(mine)}"
+                            + (f" (lines {', '.join(str(int(log.line[i])) for i in mine)})"
+                               if len(mine) else ""))
+        R[k] = so3_exp(log.xyz[mine[0]])
+    M21 = R[0].T @ R[1]
+    d = np.empty((len(rows), 3))
+    signs = np.where(to1, 1.0, -1.0)
+    labels, face = [], []
+    for n, i in enumerate(rows):
+        rx_sc, tx_sc = int(sc[i]), int(tx[i])
+        rx_ant = _name(log.antenna_names, log.extra["rx_antenna"][i])
+        tx_ant = _name(log.antenna_names, log.extra["tx_antenna"][i])
+        a_rx = log.antennas.get((ids[rx_sc], rx_ant), np.zeros(3)) if rx_ant else np.zeros(3)
+        a_tx = log.antennas.get((ids[tx_sc], tx_ant), np.zeros(3)) if tx_ant else np.zeros(3)
+        # range vector in the sat-1 body frame: r + M21 a_(sat 2) - a_(sat 1)
+        d[n] = (M21 @ a_tx - a_rx) if rx_sc == 0 else (M21 @ a_rx - a_tx)
+        if rx_sc == 0:
+            face.append(a_rx)
+        labels.append(f"{ids[rx_sc]}/{rx_ant or 'CoM'} <- {ids[tx_sc]}/{tx_ant or 'CoM'}")
+    return LoggedEpoch(path=str(path), epoch=np.datetime64(t_ns, "ns"), ids=ids,
+                       rho_m=log.xyz[rows, 0].copy(), sigma_m=log.sigma[rows].copy(),
+                       links=LinkGeometry(d, signs), M21=M21,
+                       lines=np.asarray(log.line)[rows], labels=labels,
+                       face_m=np.mean(face, axis=0))
+
+
+def far_field_guess(rho_m, links: LinkGeometry, face_m=None) -> np.ndarray:
+    """A first guess ``[r (3), c dt]`` (m) for Gauss–Newton from the ranges alone.
+
+    For a separation far beyond the antenna offsets, ``|r + d_l| ~ R + u.d_l``, so
+    ``rho_l = R + s_l c dt + u.d_l`` is linear in ``x = (R, c dt, u)``; with ``|u| = 1``.
+    Antennas on one face of each spacecraft (Xing et al.'s) leave one direction of ``x``
+    unobserved (the offsets have no component along the face normal, or a constant one): the
+    ranges are then the same for sat 2 in front of the face and for its mirror image behind
+    it. The guess is the least-squares ``x`` moved along that null direction to ``|u| = 1``,
+    on the side of ``face_m`` (sat 1's mean receive-antenna lever arm: the antennas face the
+    partner). Raises :class:`UserError` when the links leave more unobserved (no lever
+    arms: the direction is not measured at all). A direction is unobserved when its singular
+    value is below :data:`FAR_FIELD_RCOND` of the largest (offsets that differ by a
+    relative attitude's micro-radians do not observe it)."""
+    rho = np.asarray(rho_m, dtype=float)
+    A = np.column_stack([np.ones(len(rho)), links.signs, links.offsets_m])
+    _, sv, Vt = np.linalg.svd(A)
+    rank = int(np.sum(sv > FAR_FIELD_RCOND * sv[0]))
+    sol = np.linalg.lstsq(A, rho, rcond=FAR_FIELD_RCOND)[0]
+    if rank == 5:
+        u = sol[2:]
+    elif rank == 4:
+        v = Vt[-1]
+        a, b, c = v[2:] @ v[2:], sol[2:] @ v[2:], sol[2:] @ sol[2:] - 1.0
+        disc = b * b - a * c
+        face = np.zeros(3) if face_m is None else np.asarray(face_m, dtype=float)
+        if not (a > 0 and disc >= 0):
+            raise UserError("the links do not fix sat 2's direction (the far-field solution "
+                            "has no unit line of sight)")
+        roots = [(-b + sg * np.sqrt(disc)) / a for sg in (1.0, -1.0)]
+        front = [t for t in roots if (sol[2:] + t * v[2:]) @ face > 0]
+        t = front[0] if front else roots[0]
+        sol = sol + t * v
+        u = sol[2:]
+    else:
+        raise UserError("the links do not fix sat 2's direction: the antenna offsets span "
+                        f"{rank - 2} direction(s), three are needed (are the antennas "
+                        "declared with their lever arms?)")
+    n = np.linalg.norm(u)
+    if not (n > 0 and sol[0] > 0):
+        raise UserError("the links do not fix sat 2's position (no positive far-field range)")
+    return np.r_[sol[0] * u / n, sol[1]]
+
+
+def logged_conditioning(ep: LoggedEpoch, runs: int = 5000, seed: int = 0) -> dict:
+    """The single-epoch study on a logged epoch as one JSON-able dict (module docstring).
+
+    Keys: ``cartesian`` and ``spherical`` (each: ``rcond``, ``cond``, ``rcond_1norm`` of the
+    unwhitened ``A^T A`` at its estimate; ``unknowns``; ``covariance`` (4x4 at the estimate,
+    m^2 / rad^2); ``cofactor`` ``(A^T A)^-1``; ``sigmas``; ``iterations``; ``converged``),
+    ``estimate`` (``R_m``, ``az_rad``, ``el_rad``, ``cdt_m``, ``r_body1_m``),
+    ``coverage_1sigma``, ``runs``, ``seed``, ``rcond_ratio_spherical_over_cartesian``,
+    ``log`` (path, epoch, spacecraft, links, M21) and ``seed003_reported`` (Xing et al.).
+    """
+    if isinstance(runs, bool) or not isinstance(runs, (int, np.integer)) or runs < 1:
+        raise UserError(f"--runs must be an integer >= 1, got {runs!r}")
+    x0 = far_field_guess(ep.rho_m, ep.links, ep.face_m)
+    w = 1.0 / ep.sigma_m
+    out = {}
+    est = None
+    for param in PARAMS:
+        sol = solve_single_epoch(ep.rho_m, ep.M21, param, x0, sigma_m=1.0, links=ep.links)
+        if not sol.converged:
+            raise UserError(f"{ep.path}: epoch {ep.epoch_utc}: Gauss–Newton did not converge "
+                            f"({param}, {sol.iterations} iterations); the links do not fix "
+                            "the relative position")
+        Aw = sol.A * w[:, None]
+        cov = np.linalg.inv(Aw.T @ Aw)
+        out[param] = {
+            **conditioning(sol.A),
+            "unknowns": (["x_m", "y_m", "z_m", "cdt_m"] if param == "cartesian"
+                         else ["R_m", "az_rad", "el_rad", "cdt_m"]),
+            "covariance": cov.tolist(), "cofactor": sol.cofactor.tolist(),
+            "sigmas": np.sqrt(np.diag(cov)).tolist(), "iterations": sol.iterations,
+            "converged": sol.converged,
+        }
+        if param == "spherical":
+            est = sol
+    cov, _, _ = range_coverage(est.r_m, est.cdt_m, None, runs, seed + 1, ep.sigma_m,
+                               "spherical", np.r_[est.r_m, est.cdt_m], links=ep.links)
+    out["estimate"] = {"R_m": float(est.spherical[0]), "az_rad": float(est.spherical[1]),
+                       "el_rad": float(est.spherical[2]), "cdt_m": est.cdt_m,
+                       "r_body1_m": est.r_m.tolist()}
+    out["coverage_1sigma"] = cov
+    out["runs"] = int(runs)
+    out["seed"] = int(seed)
+    out["rcond_ratio_spherical_over_cartesian"] = (out["spherical"]["rcond"]
+                                                   / out["cartesian"]["rcond"])
+    out["log"] = {"path": ep.path, "epoch": ep.epoch_utc, "spacecraft": list(ep.ids),
+                  "links": [{"link": lab, "line": int(ln), "rho_m": float(r), "sigma_m": float(s)}
+                            for lab, ln, r, s in zip(ep.labels, ep.lines, ep.rho_m, ep.sigma_m)],
+                  "M21": ep.M21.tolist(),
+                  "units": "x, y, z, R, c dt in m; az, el in rad; rcond = lambda_min/lambda_max "
+                           "of A^T A (A unwhitened) at the estimate"}
+    out["seed003_reported"] = FORMATION_REFERENCE["reported"]
+    return out
+
+
+def xing_single_epoch_log(seed: int = 0, sigma_m: float = 0.01) -> MeasurementLog:
+    """Xing et al.'s geometry as a log: spacecraft ``sat1``, ``sat2`` with the ST-3 antennas
+    (:data:`factors.pseudorange.ANTENNA_TX_BODY_M`, ``ANTENNA_RX_BODY_M``) declared, both
+    attitudes the identity (``M21 = I``) as attitude rows, and the six pseudoranges of each
+    of the two epochs (:data:`XING_EPOCH` and 10 s later) as the built-in study draws them
+    (:func:`fgnav.formation.study.reference_ranges`), so a logged epoch and the built-in
+    geometry give the same estimate. Link order: sat 1's receive antennas rx1-rx3 from sat
+    2's tx0, then sat 2's from sat 1's (``factors.pseudorange.link_offsets``)."""
+    from factors.pseudorange import ANTENNA_RX_BODY_M, ANTENNA_TX_BODY_M
+
+    ids = ("sat1", "sat2")
+    antennas = {}
+    for s in ids:
+        antennas[(s, "tx0")] = ANTENNA_TX_BODY_M
+        for j, a in enumerate(ANTENNA_RX_BODY_M):
+            antennas[(s, f"rx{j + 1}")] = a
+    rho = reference_ranges(seed, sigma_m)
+    t, kind, xyz, sig = [], [], [], []
+    ex = {c: [] for c in ("spacecraft", "tx_spacecraft", "rx_antenna", "tx_antenna")}
+
+    def row(t_s, k, v, s, sc, txs=None, rxa=None, txa=None):
+        t.append(t_s)
+        kind.append(k)
+        xyz.append(v)
+        sig.append(s)
+        for c, val in zip(ex, (sc, txs, rxa, txa)):
+            ex[c].append(val)
+
+    for e in range(2):
+        t_s = 10.0 * e
+        for s in ids:
+            row(t_s, "attitude", [0.0, 0.0, 0.0], XING_ATTITUDE_SIGMA_RAD, s)
+        for l in range(6):
+            rx, txs = (ids[0], ids[1]) if l < 3 else (ids[1], ids[0])
+            row(t_s, ISL_KINDS[0], [rho[e, l], np.nan, np.nan], sigma_m, rx, txs,
+                f"rx{l % 3 + 1}", "tx0")
+    return log_from_arrays(XING_EPOCH, t, kind, xyz, sig, {c: np.array(v, dtype=object)
+                                                           for c, v in ex.items()},
+                           spacecraft=ids, antennas=antennas)
+
+
+def write_xing_single_epoch_log(path) -> None:
+    """Write :func:`xing_single_epoch_log` (the shipped ``fgnav/data/`` + :data:`XING_LOG_NAME`
+    is this function's output: ``python -m fgnav.formation.logged``)."""
+    from fgnav.io.log_csv import write_log
+
+    write_log(path, xing_single_epoch_log(), comments=(
+        "Xing et al., ST-3 Autonomous Formation Flyer pseudorange positioning: Table 1 "
+        "geometry (sat 2 on sat 1's body +x, R = 999.922 m then 999.891 m, az = el = 0, "
+        "M21 = I, c dt = 0), 1 cm noise as the built-in study draws it (seed 0)",
+        "written by fgnav.formation.logged.write_xing_single_epoch_log"))
+
+
+if __name__ == "__main__":   # regenerate the shipped log
+    from fgnav.paths import data_dir
+
+    target = data_dir() / XING_LOG_NAME
+    target.parent.mkdir(parents=True, exist_ok=True)
+    write_xing_single_epoch_log(target)
+    print(target)

@@ -1,0 +1,258 @@
+"""Formation scenarios (formation-gto, constellation-leo) in `fgnav simulate`: one log of
+several spacecraft, truth-<id>.oem each, truth_clock.csv. The link rows are checked against
+an independent prediction from the written files: the truth OEMs, a second-order Taylor
+step of the transmitter back over the light time (not the simulator's re-integration), the
+attitude truth and the relative clock (Montenbruck & Gill, "Satellite Orbits", 2000,
+section 6.2.2, light-time iteration; Xing et al., eq. (1), the clock signs)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from factors.constants import C_LIGHT_M_S
+from factors.geometry import so3_exp
+from fgnav.cli import main
+from fgnav.constants import MU_EARTH_M3_S2
+from fgnav.errors import InputFormatError, UserError
+from fgnav.io.log_csv import read_log
+from fgnav.io.oem import read_oem
+from fgnav.io.truth_params import read_truth_params_csv
+from fgnav.paths import data_dir
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.formation_sim import simulate_formation_pass
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.time import seconds_since
+
+
+def _simulate(tmp_path, name, *args):
+    out = tmp_path / name
+    assert main(["simulate", name, "--out", str(out), "--quiet", *args]) == 0
+    return out
+
+
+def _names(log, column):
+    vocab = log.spacecraft if column in ("spacecraft", "tx_spacecraft") else log.antenna_names
+    return [None if math.isnan(c) else vocab[int(c)] for c in log.extra[column]]
+
+
+def _predict(out, light_time=True):
+    """(measured, predicted, sigma) of every isl_pseudorange row from the written files."""
+    log = read_log(out / "measurements.csv")
+    ids = log.spacecraft
+    truth = {i: read_oem(out / f"truth-{i}.oem") for i in ids}
+    t64, clk = read_truth_params_csv(out / "truth_clock.csv")
+    t_clk = seconds_since(t64, log.epoch0)
+    att = {}
+    for i in ids:
+        p = out / f"truth_attitude-{i}.csv"
+        if p.exists():
+            _, w = read_truth_params_csv(p)
+            att[i] = so3_exp(np.column_stack([w["att_x"], w["att_y"], w["att_z"]]))
+    rows = np.flatnonzero(log.kind == "isl_pseudorange")
+    sc, tx = _names(log, "spacecraft"), _names(log, "tx_spacecraft")
+    rxa, txa = _names(log, "rx_antenna"), _names(log, "tx_antenna")
+    t_truth = truth[ids[0]].t_s + seconds_since(truth[ids[0]].epoch0, log.epoch0)
+    meas, pred = log.xyz[rows, 0], np.empty(len(rows))
+    for n, i in enumerate(rows):
+        k = int(np.flatnonzero(np.abs(t_truth - log.t_s[i]) < 1e-6)[0])
+        kc = int(np.flatnonzero(np.abs(t_clk - log.t_s[i]) < 1e-6)[0])
+
+        def antenna(s, name):
+            arm = np.zeros(3) if name is None else log.antennas[(s, name)]
+            R = att[s][k] if s in att else np.eye(3)
+            x = truth[s].x_eci[k]
+            return x[:3] + R @ arm, x[3:]
+
+        p_r, _ = antenna(sc[i], rxa[i])
+        p_t, v_t = antenna(tx[i], txa[i])
+        r_t = truth[tx[i]].x_eci[k, :3]
+        a_t = -MU_EARTH_M3_S2 * r_t / np.linalg.norm(r_t) ** 3
+        tau = np.linalg.norm(p_r - p_t) / C_LIGHT_M_S
+        for _ in range(4 if light_time else 0):
+            tau = np.linalg.norm(p_r - (p_t - v_t * tau + 0.5 * a_t * tau ** 2)) / C_LIGHT_M_S
+        sign = 1.0 if sc[i] == ids[0] else -1.0
+        pred[n] = C_LIGHT_M_S * tau + sign * clk["clock_m"][kc]
+    return meas, pred, log.sigma[rows]
+
+
+def _chi2_ok(meas, pred, sigma):
+    z = (meas - pred) / sigma
+    n = z.size
+    chi2 = float(np.sum(z ** 2))
+    return abs(chi2 - n) < 5.0 * math.sqrt(2.0 * n) and abs(z.mean()) < 5.0 / math.sqrt(n), chi2
+
+
+def test_formation_gto_writes_one_log_and_truth_per_spacecraft(tmp_path):
+    out = _simulate(tmp_path, "formation-gto", "--duration-h", "0.5")
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["measurements.csv", "truth-sat1.oem", "truth-sat2.oem",
+                     "truth_attitude-sat1.csv", "truth_attitude-sat2.csv", "truth_clock.csv"]
+    log = read_log(out / "measurements.csv")
+    assert log.spacecraft == ("sat1", "sat2")
+    assert set(log.antenna_names) == {"tx0", "rx1", "rx2", "rx3"}
+    np.testing.assert_array_equal(log.antennas[("sat2", "rx3")], [0.5, -0.5, -0.5])
+    epochs = np.unique(log.t_s)
+    isl = log.kind == "isl_pseudorange"
+    assert isl.sum() == 6 * epochs.size                      # six links at every epoch
+    for kind in ("earth_direction", "attitude", "prior_position"):
+        got = [s for s, k in zip(_names(log, "spacecraft"), log.kind) if k == kind]
+        assert got.count("sat1") == got.count("sat2") > 0, kind
+    # ~1 km apart, antenna faces facing: sat2 on sat1's body +x, M21 = diag(-1, -1, 1)
+    x1, x2 = read_oem(out / "truth-sat1.oem").x_eci, read_oem(out / "truth-sat2.oem").x_eci
+    d = np.linalg.norm(x2[:, :3] - x1[:, :3], axis=1)
+    assert 900.0 < d[0] < 1000.0 and d.min() > 500.0
+    _, w1 = read_truth_params_csv(out / "truth_attitude-sat1.csv")
+    _, w2 = read_truth_params_csv(out / "truth_attitude-sat2.csv")
+    R1 = so3_exp(np.column_stack([w1["att_x"], w1["att_y"], w1["att_z"]]))
+    R2 = so3_exp(np.column_stack([w2["att_x"], w2["att_y"], w2["att_z"]]))
+    M21 = np.einsum("kji,kjl->kil", R1, R2)
+    assert np.abs(M21 - np.diag([-1.0, -1.0, 1.0])).max() < 1e-3
+    los = np.einsum("kji,kj->ki", R1, (x2[:, :3] - x1[:, :3]) / d[:, None])
+    assert los[:, 0].min() > 0.5                             # in front of sat1's antenna face
+
+
+def test_formation_gto_ranges_are_truth_geometry_light_time_and_clock(tmp_path):
+    out = _simulate(tmp_path, "formation-gto", "--duration-h", "0.5", "--seed", "4")
+    meas, pred, sigma = _predict(out)
+    ok, chi2 = _chi2_ok(meas, pred, sigma)
+    assert ok, (chi2, meas.size)
+    assert np.all(sigma == 0.01)
+    # 10 km/s x 3.2 us: the light time moves the transmitter by ~3 cm, three sigmas
+    assert not _chi2_ok(meas, _predict(out, light_time=False)[1], sigma)[0]
+    # the lever arms matter: centre-of-mass ranges are wrong by centimetres to decimetres
+    log = read_log(out / "measurements.csv")
+    rows = log.kind == "isl_pseudorange"
+    r_rx = log.xyz[rows, 0].reshape(-1, 6)
+    assert np.ptp(r_rx, axis=1).min() > 0.05                 # six different antenna pairs
+
+
+def test_constellation_leo_light_time_matters(tmp_path):
+    out = _simulate(tmp_path, "constellation-leo", "--duration-h", "1")
+    meas, pred, sigma = _predict(out)
+    ok, chi2 = _chi2_ok(meas, pred, sigma)
+    assert ok, (chi2, meas.size)
+    _, pred0, _ = _predict(out, light_time=False)
+    err = np.abs(meas - pred0)
+    assert np.sqrt(np.mean((pred - pred0) ** 2)) > 5.0       # metres without the light time
+    assert not _chi2_ok(meas, pred0, sigma)[0]
+    d = np.array([np.linalg.norm(a[:3] - b[:3]) for a, b in zip(
+        read_oem(out / "truth-leo1.oem").x_eci, read_oem(out / "truth-leo2.oem").x_eci)])
+    assert 500e3 < d.min() and d.max() < 2000e3 and err.max() > 10.0
+    log = read_log(out / "measurements.csv")
+    assert "attitude" not in set(log.kind)                   # centre-of-mass links
+
+
+def test_first_spacecraft_rows_equal_the_one_spacecraft_pass():
+    """sat1 draws from the seed's stream as gto-transfer does: its rows are that pass's."""
+    one = simulate_pass(load_scenario("gto-transfer").with_options(duration_h=0.2), seed=3)
+    two = simulate_formation_pass(load_scenario("formation-gto").with_options(duration_h=0.2),
+                                  seed=3)
+    sc = np.array(_names(two.log, "spacecraft"))
+    for kind in ("prior_position", "earth_direction"):
+        a = one.log.xyz[one.log.kind == kind]
+        b = two.log.xyz[(two.log.kind == kind) & (sc == "sat1")]
+        c = two.log.xyz[(two.log.kind == kind) & (sc == "sat2")]
+        np.testing.assert_array_equal(a, b)
+        assert not np.allclose(b, c, rtol=0, atol=1e-9)      # sat2: own draws
+    np.testing.assert_array_equal(one.x_true, two.x_true["sat1"])
+
+
+def test_deterministic_per_seed_and_carrier_phase(tmp_path):
+    scn = load_scenario("formation-gto").with_options(duration_h=0.1)
+    a, b = simulate_formation_pass(scn, 7), simulate_formation_pass(scn, 7)
+    np.testing.assert_array_equal(a.log.xyz, b.log.xyz)
+    assert not np.array_equal(a.log.xyz, simulate_formation_pass(scn, 8).log.xyz)
+    # carrier phase: code + a constant ambiguity per link, 10 um noise
+    from dataclasses import replace
+
+    f = replace(scn.formation, ranging=replace(scn.formation.ranging, carrier_sigma_m=1e-5,
+                                               ambiguity_sigma_m=2.0))
+    c = simulate_formation_pass(scn.with_options(formation=f), 7)
+    code = c.log.xyz[c.log.kind == "isl_pseudorange", 0].reshape(-1, 6)
+    phase = c.log.xyz[c.log.kind == "isl_carrier_phase", 0].reshape(-1, 6)
+    diff = phase - code                                       # ambiguity + code noise
+    np.testing.assert_allclose(diff.mean(axis=0), c.ambiguity_m, atol=5 * 0.01 / math.sqrt(len(diff)))
+    assert np.abs(c.ambiguity_m).max() > 0.1
+    assert np.all(c.log.sigma[c.log.kind == "isl_carrier_phase"] == 1e-5)
+    np.testing.assert_array_equal(code, a.log.xyz[a.log.kind == "isl_pseudorange", 0].reshape(-1, 6))
+
+
+FORMATION = (data_dir() / "scenarios" / "formation-gto.toml").read_text()
+
+
+def _bad(old, new, count=1):
+    assert old in FORMATION, old
+    return FORMATION.replace(old, new, count)
+
+
+BAD = {
+    "one_spacecraft": (_bad('[[spacecraft]]\nid = "sat1"\n', ""), "spacecraft", "at least two"),
+    "duplicate_id": (_bad('id = "sat2"', 'id = "sat1"'), "spacecraft[2].id", "not used before"),
+    "bad_id": (_bad('id = "sat2"', 'id = "sat 2"'), "spacecraft[2].id", "letters, digits"),
+    "unknown_spacecraft_key": (_bad("lead_s = 0.1", "lead_s = 0.1\nlead_m = 1000.0"),
+                               "spacecraft[2].lead_m", "known: id, lead_s"),
+    "lead_and_orbit": (_bad("yaw_deg = 180.0", "yaw_deg = 180.0\n[spacecraft.orbit]\n"
+                            "a_m = 7e6\ne = 0.0\ni_deg = 0.0\nraan_deg = 0.0\nargp_deg = 0.0\n"
+                            "true_anomaly_deg = 0.0"), "spacecraft[2].lead_s", "not both"),
+    "own_orbit_bad": (_bad("lead_s = 0.1\nyaw_deg = 180.0", "yaw_deg = 180.0\n[spacecraft.orbit]\n"
+                           "a_m = 7e6\ne = 1.5"),
+                      "spacecraft[2].orbit.e", "< 1"),
+    "antenna_of_unknown_spacecraft": (_bad('spacecraft = "sat2"\nname = "rx3"',
+                                           'spacecraft = "sat3"\nname = "rx3"'),
+                                      "antenna[8].spacecraft", "sat1, sat2"),
+    "antenna_twice": (_bad('name = "rx3"', 'name = "rx2"'), "antenna[4].name", "once"),
+    "antenna_arm_far": (_bad("body_m = [0.5, 0.5, -0.5]", "body_m = [5000.0, 0.5, -0.5]"),
+                        "antenna[1].body_m", "within 1000 m"),
+    "link_to_itself": (_bad('rx = "sat1"\nrx_antenna = "rx1"\ntx = "sat2"',
+                            'rx = "sat1"\nrx_antenna = "rx1"\ntx = "sat1"'), "link[1].tx",
+                       "other than rx"),
+    "link_undeclared_antenna": (_bad('rx_antenna = "rx2"', 'rx_antenna = "rx9"'),
+                                "link[2].rx_antenna", "an [[antenna]] of spacecraft 'sat1'"),
+    "link_unknown_spacecraft": (_bad('rx = "sat2"', 'rx = "sat9"'), "link[4].rx", "sat1, sat2"),
+    "ranging_missing": (FORMATION.split("\n[ranging]\n")[0], "ranging", "[ranging]"),
+    "ranging_sigma_missing": (_bad("sigma_m = 0.01\n", ""), "ranging.sigma_m", "sigma_m"),
+    "ranging_sigma_negative": (_bad("sigma_m = 0.01", "sigma_m = -0.01"), "ranging.sigma_m",
+                               ">= 1e-06"),
+    "ranging_unknown_key": (_bad("sigma_m = 0.01", "sigma_m = 0.01\nsigma_cm = 1.0"),
+                            "ranging.sigma_cm", "known: sigma_m"),
+    "attitude_sigma_zero": (_bad("attitude_sigma_arcsec = 1.0", "attitude_sigma_arcsec = 0.0"),
+                            "ranging.attitude_sigma_arcsec", "> 0"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_formation_scenario_is_exit_2_naming_the_key(case, tmp_path, capsys):
+    text, key, expected = BAD[case]
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    rc = main(["simulate", str(path), "--out", str(tmp_path / "out"), "--quiet"])
+    out, err = capsys.readouterr()
+    assert rc == 2, (case, out, err)
+    assert "Traceback" not in out + err
+    assert err.startswith("fgnav: error: ") and str(path) in err, err
+    assert f"'{key}'" in err and expected in err, err
+    assert not (tmp_path / "out").exists()
+
+
+def test_formation_options_and_limits(tmp_path, capsys):
+    for opt in ("--raw-stars", "--images"):
+        assert main(["simulate", "formation-gto", "--out", str(tmp_path / "o"), opt]) == 2
+        assert "several spacecraft" in capsys.readouterr().err
+    # the size limit counts both spacecraft's sensor epochs and the link epochs
+    assert main(["simulate", "formation-gto", "--out", str(tmp_path / "o"),
+                 "--max-epochs", "4000"]) == 2
+    assert "4,323 sensor epochs" in capsys.readouterr().err
+    with pytest.raises(UserError, match="several spacecraft"):
+        simulate_pass(load_scenario("formation-gto"))
+    three = FORMATION.replace("[[antenna]]", '[[spacecraft]]\nid = "sat3"\nlead_s = 0.2\n\n'
+                              "[[antenna]]", 1)
+    path = tmp_path / "three.toml"
+    path.write_text(three)
+    with pytest.raises(UserError, match="exactly two"):
+        simulate_formation_pass(load_scenario(str(path)))
+    path.write_text(_bad("sigma_m = 0.01", "sigma_m = nan"))
+    with pytest.raises(InputFormatError):
+        load_scenario(str(path))
