@@ -137,25 +137,32 @@ def spacecraft_states(sol, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def first_guess(p: Pass, model, t0_j2000_s: float) -> np.ndarray:
-    """Block values (N, n) to start from: each spacecraft's orbit from its own rows (its
-    prior propagated, or without a prior the orbit its measurements give,
+def first_guess(p: Pass, model, t0_j2000_s: float, options=None):
+    """Block values (N, n) to start from: each spacecraft's orbit from its own rows (with
+    ``options``, the filtered trajectory of the compiled EKF where it applies, as the
+    one-spacecraft batch starts: returns ``(X, every orbit filtered)``; else its prior
+    propagated, or without a prior the orbit its measurements give,
     :func:`fgnav.initial_orbit.start_point`), clocks and ambiguities at their prior mean
     (the links are linear in them: one Gauss-Newton step places them)."""
     from fgnav.initial_orbit import has_prior, start_point
+    from fgnav.solvers.batch import _ekf_first_guess
     from fgnav.solvers.first_guess import initial_guess
 
     lay = p.layout
     X = lay.initial(np.zeros((p.n_epochs, 6)))
+    filtered = True
     for s, v in enumerate(lay.orbits):
         sub = spacecraft_pass(p, s)
         if not sub.families:
             raise UserError(f"{p.source}: spacecraft '{p.spacecraft[s]}' has no rows of its own "
                             "(priors or celestial measurements): its orbit cannot be started")
-        x = (initial_guess(sub, model, t0_j2000_s) if has_prior(sub) else
-             start_point(sub, "batch", model, t0_j2000_s).x_guess)
+        x = _ekf_first_guess(sub, options) if options is not None and has_prior(sub) else None
+        filtered &= x is not None
+        if x is None:
+            x = (initial_guess(sub, model, t0_j2000_s) if has_prior(sub) else
+                 start_point(sub, "batch", model, t0_j2000_s).x_guess)
         X[:, lay.slices[v.name]] = x
-    return X
+    return (X, filtered) if options is not None else X
 
 
 def solve_formation(p: Pass, method: str, options, *, progress=None):
@@ -172,7 +179,7 @@ def solve_formation(p: Pass, method: str, options, *, progress=None):
         raise UserError("--gate: not yet available for a log of several spacecraft (the online "
                         "gate predicts one orbit's covariance)")
     model = options.motion_model()
-    X0 = first_guess(p, model, float(j2000_seconds(p.epoch0)))
+    X0, filtered = first_guess(p, model, float(j2000_seconds(p.epoch0)), options)
     options = converging_to_links(p, options)
     if method == "ekf":
         from fgnav.solvers.ekf import run_ekf
@@ -184,6 +191,11 @@ def solve_formation(p: Pass, method: str, options, *, progress=None):
 
         return smooth_incremental(p, options, relinearizing_links(p), method="isam2",
                                   progress=progress, x_start=X0[0])
+    if filtered:   # every orbit filtered: Gauss-Newton at the requested process noise at once
+        sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3), x_init=X0,
+                           progress=progress)
+        if sol.extras.get("converged"):
+            return sol
     return smooth_batch(p, options, x_init=X0, progress=progress)
 
 
