@@ -287,8 +287,14 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
 
         if truth is not None:
             raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
+        given = [name for name, on in (("--ignore-prior", ignore_prior),
+                                       ("--checkpoint", solve_kw.get("checkpoint")),
+                                       ("--resume", solve_kw.get("resume"))) if on]
+        if given:
+            raise UserError(f"{', '.join(given)}: not yet available for a log of several "
+                            "spacecraft")
         return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
-                                stage=stage, t0=t0)
+                                stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0))
     p = build_pass(log)
     if not aberration:
         p = without_aberration(p)

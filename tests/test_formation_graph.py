@@ -209,3 +209,17 @@ def test_batch_covariance_is_the_dense_bound_at_the_truth():
     D[:, 6:9], D[:, 0:3] = np.eye(3), -np.eye(3)
     rel = [np.sqrt(np.trace(D @ M[k] @ D.T)) for M in (C, P) for k in (0, len(P) // 2)]
     np.testing.assert_allclose(rel[2:], rel[:2], rtol=0.05)
+
+
+def test_what_a_formation_does_not_do_yet_is_said(tmp_path):
+    """Options the formation path does not take are refused by name, not ignored; a gap the
+    one-spacecraft path would bridge is refused with its length and place."""
+    log, _ = formation_log(9, links=False)
+    for kw, words in ((dict(ignore_prior=True), "--ignore-prior"),
+                      (dict(checkpoint=str(tmp_path / "c.npz")), "--checkpoint")):
+        with pytest.raises(UserError, match=words):
+            smooth_log(log, "isam2", SmootherOptions(), **kw)
+    late = log.t_s > 900.0
+    log.t_s = np.where(late, log.t_s + 7200.0, log.t_s)
+    with pytest.raises(UserError, match="gap of 2.0 h after"):
+        smooth_log(log, "batch", SmootherOptions())

@@ -29,6 +29,7 @@ from fgnav.io.atomic import atomic_write_text
 from fgnav.io.oem import write_oem
 from fgnav.io.outputs import commit_outputs, staged
 from fgnav.io.summary import write_summary
+from fgnav.measurements import format_duration, long_gaps
 from fgnav.time import add_seconds, format_utc
 
 __all__ = ["smooth_formation", "formation_summary", "write_formation_outputs",
@@ -191,7 +192,7 @@ def formation_summary(sol, p, options, truths=None) -> dict:
 
 
 def smooth_formation(log, method: str, options, *, truth_path=None, progress=None,
-                     stage=None, t0=None):
+                     stage=None, t0=None, gap_factor: float | None = 10.0):
     """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`."""
     from contextlib import nullcontext
 
@@ -204,6 +205,13 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
         raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
                         "and carrier ambiguities; further variables are not yet supported there")
     p = build_pass(log)
+    if gap_factor is not None and len(long_gaps(p, gap_factor)):
+        k = int(long_gaps(p, gap_factor)[0])
+        raise UserError(
+            f"{p.source}: a gap of {format_duration(p.t_s[k + 1] - p.t_s[k])} after "
+            f"{format_utc(add_seconds(p.epoch0, p.t_s[k]))} (more than {gap_factor:g} median "
+            "steps): gaps are not yet bridged for a log of several spacecraft; split the log "
+            "at the gap and solve the parts")
     truths = None if truth_path is None else read_formation_truth(truth_path, p)
     with stage(f"solving {p.n_epochs:,} epochs of {len(p.spacecraft)} spacecraft ({method})",
                p.n_epochs):
