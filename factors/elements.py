@@ -39,7 +39,7 @@ import numpy as np
 from factors.constants import MU_EARTH_M3_S2
 
 __all__ = ["mee_from_cartesian", "cartesian_from_mee", "mee_jacobian_inverse",
-           "gauss_variational_equations", "ELEMENT_NAMES", "ELEMENT_UNITS"]
+           "gauss_variational_equations", "gauss_propagate", "ELEMENT_NAMES", "ELEMENT_UNITS"]
 
 ELEMENT_NAMES = ("p", "f", "g", "h", "k", "L")
 ELEMENT_UNITS = ("m", "1", "1", "1", "1", "rad")
@@ -181,3 +181,35 @@ def gauss_variational_equations(E, mu=MU_EARTH_M3_S2):
     B[..., 5, 2] = q * u / w
     A = np.stack([zero, zero, zero, zero, zero, np.sqrt(mu * p) * (w / p) ** 2], axis=-1)
     return A, B
+
+
+def gauss_propagate(E0, dt_s, n_steps, perturbation, mu=MU_EARTH_M3_S2):
+    """The elements ``E0`` (..., 6) after ``dt_s`` (s): ``n_steps`` classical fourth-order
+    Runge-Kutta steps of Gauss's variational equations (:func:`gauss_variational_equations`),
+    the Keplerian rate plus the perturbing acceleration ``perturbation(r_eci_m) -> (..., 3)``
+    (m/s^2, ECI: e.g. the J2 term) turned into the radial / transverse / normal frame of the
+    osculating state. The lecture's formulation of the motion model (the mean only: a
+    transition matrix of this map equals ``(dc/dE_1)^-1 Phi (dc/dE_0)`` of the Cartesian
+    flow up to the integration error, because both integrate the same flow)."""
+    E = np.array(E0, dtype=float)
+    h = float(dt_s) / int(n_steps)
+
+    def rate(E):
+        x = cartesian_from_mee(E, mu, jacobian=False)
+        r, v = x[..., :3], x[..., 3:]
+        rh = r / np.linalg.norm(r, axis=-1, keepdims=True)
+        w = np.cross(r, v)
+        nh = w / np.linalg.norm(w, axis=-1, keepdims=True)
+        th = np.cross(nh, rh)
+        a = np.asarray(perturbation(r), dtype=float)
+        a_rtn = np.stack([np.sum(a * rh, -1), np.sum(a * th, -1), np.sum(a * nh, -1)], -1)
+        A, B = gauss_variational_equations(E, mu)
+        return A + np.einsum("...ij,...j->...i", B, a_rtn)
+
+    for _ in range(int(n_steps)):
+        k1 = rate(E)
+        k2 = rate(E + 0.5 * h * k1)
+        k3 = rate(E + 0.5 * h * k2)
+        k4 = rate(E + h * k3)
+        E = E + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return E

@@ -72,3 +72,24 @@ def test_retrograde_equatorial_is_refused():
     x = elements_to_state(7e6, 0.01, np.pi, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="retrograde"):
         mee_from_cartesian(x)
+
+
+def test_gauss_propagation_is_the_cartesian_flow():
+    """RK4 of Gauss's equations with the J2 term and the independent DOP853 integrator
+    reach the same state after 2 h of the transfer orbit (to the RK4 error at 10 s steps)."""
+    from factors.dynamics import accel_j2
+    from factors.elements import gauss_propagate
+    from fgnav.orbit import integrate_truth
+
+    x0 = STATES[0]
+    x_true = integrate_truth(x0, np.array([0.0, 7200.0]))[-1]
+
+    def j2_only(r):
+        return accel_j2(r.reshape(-1, 3)).reshape(r.shape) + MU * r / np.linalg.norm(
+            r, axis=-1, keepdims=True) ** 3
+
+    E1 = gauss_propagate(mee_from_cartesian(x0), 7200.0, 720, j2_only)
+    x1 = cartesian_from_mee(E1, jacobian=False)
+    assert np.linalg.norm(x1[:3] - x_true[:3]) < 1.0           # m, after 2 h
+    E1_kepler = gauss_propagate(mee_from_cartesian(x0), 7200.0, 720, lambda r: 0.0 * r)
+    assert np.linalg.norm(cartesian_from_mee(E1_kepler, jacobian=False)[:3] - x_true[:3]) > 1e3
