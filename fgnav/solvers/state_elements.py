@@ -86,16 +86,6 @@ class ElementChart:
         out[..., :6] = cartesian_from_mee(_elements(X[..., :6]) + dX[..., :6], jacobian=False)
         return out
 
-    def to_cartesian_step(self, X: np.ndarray, dX: np.ndarray) -> np.ndarray:
-        """An element step ``dX`` at ``X`` as the Cartesian step it makes (orbit columns
-        replaced; for the convergence tests in metres and m/s)."""
-        out = np.array(dX, dtype=float, copy=True)
-        out[..., :6] = self.retract_orbit(X, dX) - X[..., :6]
-        return out
-
-    def retract_orbit(self, X, dX):
-        return cartesian_from_mee(_elements(X[..., :6]) + dX[..., :6], jacobian=False)
-
     def covariance_to_cartesian(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Block covariances (..., n, n) in the elements -> in Cartesian (``T P T^T``,
         ``T = diag(dc/dE, I)``)."""
