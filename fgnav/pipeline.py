@@ -44,6 +44,7 @@ from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.incremental import smooth_incremental
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.solvers.state_elements import check_state
 from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
@@ -83,6 +84,7 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
+    check_state(options.state, method)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
     from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
@@ -158,7 +160,7 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
-        if options.gate_probability is None and numba_supports(p):
+        if options.gate_probability is None and options.state == "cartesian" and numba_supports(p):
             return run_ekf_numba(p, options, progress=progress)
         return run_ekf(p, options, progress=progress)
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
@@ -402,6 +404,8 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "gravity": options.gravity, "source": p.source}
+    if options.state != "cartesian":
+        s["state"] = options.state   # the orbit's coordinates in the solver (--state)
     s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
     if p.inserted is not None and p.inserted.any():
         s["inserted_epochs"] = int(p.inserted.sum())

@@ -127,7 +127,7 @@ def solver_options(args):
     kw = {"third_body": bool(args.third_body),
           "robust": None if args.robust == "none" else args.robust, "robust_k": args.robust_k,
           "gate_probability": args.gate, "estimate": estimate_names(getattr(args, "estimate", ())),
-          "gravity": getattr(args, "gravity", "j2")}
+          "gravity": getattr(args, "gravity", "j2"), "state": getattr(args, "state", "cartesian")}
     sig = getattr(args, "alignment_sigma_arcsec", None)
     if sig is not None:
         from fgnav.models.registry import CAMERA_ALIGNMENT
@@ -189,6 +189,10 @@ def register(sub):
                         "angular acceleration of 1e-10 rad^2/s^3 (for a pass without gyro rows: "
                         "the attitude between its measured epochs follows the turn)")
     add_solver_options(p)
+    p.add_argument("--state", choices=["cartesian", "elements"], default="cartesian",
+                   help="the orbit's coordinates in the solver: cartesian (position and velocity, "
+                        "default) or elements (modified equinoctial elements: the same graph, "
+                        "linearized in the elements; batch and ekf; outputs stay Cartesian)")
     p.set_defaults(func=run)
 
 

@@ -204,6 +204,9 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
     if options.estimate:
         raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
                         "and carrier ambiguities; further variables are not yet supported there")
+    if getattr(options, "state", "cartesian") != "cartesian":
+        raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
+                        "Cartesian states")
     p = build_pass(log)
     if gap_factor is not None and len(long_gaps(p, gap_factor)):
         k = int(long_gaps(p, gap_factor)[0])

@@ -36,6 +36,7 @@ from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.process import variable_step_rows
+from fgnav.solvers.state_elements import chart_of
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.variables import block_variables
@@ -113,13 +114,21 @@ class _Factors:
     of epochs (:meth:`make`), so that a long pass is never held as one graph."""
 
     def __init__(self, p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
-                 robust=None, rejected=None):
+                 robust=None, rejected=None, chart=None):
         N = p.n_epochs
         n = layout_of(p).n
         self.N, self.n = N, n
         self.rows = rows = linearize_all(p, Xs, robust, rejected)
         self.starts = np.searchsorted(rows.k, np.arange(N + 1))
         self.A0_mot, self.W, self.b_mot = process_blocks(p, Xs, q, model, t0_j2000_s)
+        if chart is not None:   # the orbit in other coordinates (--state elements)
+            J = chart.jacobian(Xs)
+            rows.A = chart.chain(rows.A[:, None], J[rows.k])[:, 0]
+            self.A0_mot, self.W = chart.chain(self.A0_mot, J[:-1]), chart.chain(self.W, J[1:])
+            if rows.steps is not None:
+                sk, sA0, sA1, sb = rows.steps
+                rows.steps = (sk, chart.chain(sA0[:, None], J[sk])[:, 0],
+                              chart.chain(sA1[:, None], J[sk + 1])[:, 0], sb)
         # rows between epochs k and k + 1 (a gyro interval), stacked under step k's motion rows
         if rows.steps is not None:
             self.s_k, self.s_A0, self.s_A1, self.s_b = rows.steps
@@ -259,10 +268,12 @@ def eliminate_in_chunks(fs: _Factors, source: str = "", chunk: int | None = None
 
 
 def linearize_and_eliminate(p: Pass, Xs: np.ndarray, q: float, model: MotionModel,
-                            t0_j2000_s: float, robust=None, rejected=None) -> Linearization:
+                            t0_j2000_s: float, robust=None, rejected=None,
+                            chart=None) -> Linearization:
     """Linearize the whole pass at ``Xs`` and eliminate it with GTSAM (QR), in chunks of
-    epochs (:func:`eliminate_in_chunks`)."""
-    fs = _Factors(p, Xs, q, model, t0_j2000_s, robust, rejected)
+    epochs (:func:`eliminate_in_chunks`); ``chart``: the orbit's coordinates when not
+    Cartesian (:mod:`fgnav.solvers.state_elements`)."""
+    fs = _Factors(p, Xs, q, model, t0_j2000_s, robust, rejected, chart)
     R, S, d = eliminate_in_chunks(fs, p.source)
     return Linearization(R, S, d, fs.chi2_meas, fs.chi2_motion, fs.rows.residuals,
                          fs.rows.weights, fs.col_norm)
@@ -306,20 +317,26 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     q_stages.append(options.q_m2_s3)
     kernel = RobustKernel.create(options.robust, options.robust_k)
     iterations = 0
+    chart = chart_of(options)
 
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
         lin = None
         for _ in range(max_iterations):
             lin = None   # the previous linearization is not needed: free it first (memory)
-            lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected)
+            lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected,
+                                          chart)
             _check_rank(p, lin)
             dx = back_substitute(lin.R, lin.S, lin.d)
             if not np.all(np.isfinite(dx)):
                 raise NotObservableError(f"{p.source}: the Gauss-Newton update is not finite")
-            Xs = lay.retract(Xs, dx)
+            X_old, Xs = Xs, (lay.retract(Xs, dx) if chart is None else chart.retract(lay, Xs, dx))
+            dx_m = dx if chart is None else Xs[:, :6] - X_old[:, :6]   # the step in m, m/s
+            del X_old
             iterations += 1
-            step_r, step_v = _orbit_steps(lay, dx)
+            step_r, step_v = (_orbit_steps(lay, dx) if chart is None else
+                              (float(np.max(np.abs(dx_m[:, :3]))),
+                               float(np.max(np.abs(dx_m[:, 3:6])))))
             if progress is not None:
                 progress(q, iterations, step_r)
             if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
@@ -367,6 +384,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         lin.weights = {k: np.where(rejected[k], 0.0, weights_robust[k]) if k in rejected else w
                        for k, w in weights_robust.items()}
     P = chain_marginals(lin.R, lin.S)
+    if chart is not None:
+        P = chart.covariance_to_cartesian(Xs, P)
     wall = time.perf_counter() - t_start
     return Solution(method="batch", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=Xs[:, :6],
                     P_eci=P[:, :6, :6], variables=block_variables(lay, Xs, P),

@@ -30,6 +30,7 @@ from fgnav.solution import Solution
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.process import variable_step_rows
+from fgnav.solvers.state_elements import chart_of
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
@@ -61,6 +62,9 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
         P[:6, :6] = prior_covariance(p)
         for v in lay.extra:
             P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
+    chart = chart_of(options)   # the orbit's coordinates when not Cartesian (--state elements)
+    if chart is not None:
+        P = chart.covariance_from_cartesian(x, P)
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))
     latency = np.empty(N)
@@ -77,6 +81,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             x = x.copy()
             x[:6], Phi6 = propagate(x[:6], dt, model, t0_j2000 + p.t_s[k - 1])
             Q6 = process_noise(dt, options.q_m2_s3)
+            if chart is not None:
+                Phi6, Q6 = chart.transition(x_prev[:6], x[:6], Phi6, Q6)
             if len(lay.orbits) > 1:   # a formation: every orbit, the clocks, the ambiguities
                 x, P = _propagate_formation(lay, x, P, Phi6, Q6, dt, model,
                                             t0_j2000 + p.t_s[k - 1])
@@ -100,6 +106,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 _, A, b, _ = linearize_family(p, kind, fam.subset(np.array([j]), 0), x[None])
                 A = A.reshape(-1, n)
                 b = b.reshape(-1)
+                if chart is not None:
+                    A = chart.chain(A, chart.jacobian(x))
                 if kind not in residuals:
                     residuals[kind] = np.full((len(fam), len(b)), np.nan)
                 residuals[kind][j] = -b
@@ -115,11 +123,11 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     normalized[kind] = np.full((len(fam), len(b)), np.nan)
                 normalized[kind][j] = np.linalg.solve(np.linalg.cholesky(S), b)
                 K = np.linalg.solve(S, A @ P).T
-                x = lay.retract(x, K @ b)
+                x = lay.retract(x, K @ b) if chart is None else chart.retract(lay, x, K @ b)
                 IKA = eye_n - K @ A
                 P = IKA @ P @ IKA.T + K @ K.T
         xs[k] = x
-        Ps[k] = P
+        Ps[k] = P if chart is None else chart.covariance_to_cartesian(x, P)
         x_prev = x
         latency[k] = time.perf_counter() - t_k0
         if progress is not None:

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from factors.dynamics import MotionModel
 from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.errors import UserError
+from fgnav.solvers.state_elements import check_state
 
 GRAVITY_MODELS = ("j2", "point-mass")
 """Earth gravity fields of the motion model: ``j2`` (central term + J2, Vallado 2013,
@@ -39,11 +40,13 @@ class SmootherOptions:
     estimate: tuple[str, ...] = ()  # graph variables beyond the orbit state, e.g. ("refraction-bias",)
     prior_sigma: tuple = ()  # ((variable name, 1-sigma in its unit), ...): its prior instead of the registry's
     gravity: str = "j2"  # Earth's field in the motion model, one of GRAVITY_MODELS
+    state: str = "cartesian"  # the orbit's coordinates: "cartesian" | "elements" (state_elements)
 
     def __post_init__(self):
         if self.gravity not in GRAVITY_MODELS:
             raise UserError(f"gravity (--gravity): expected one of {', '.join(GRAVITY_MODELS)}, "
                             f"found {self.gravity!r}")
+        check_state(self.state)
 
     def motion_model(self) -> MotionModel:
         kw = {"third_body": self.third_body}
