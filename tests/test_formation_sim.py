@@ -181,60 +181,13 @@ def test_deterministic_per_seed_and_carrier_phase(tmp_path):
 
 
 FORMATION = (data_dir() / "scenarios" / "formation-gto.toml").read_text()
+# the bad formation TOMLs (a key named in the message) are cases of
+# tests/test_scenario_validation.py::test_bad_scenario_toml_is_exit_2_naming_the_key
 
 
 def _bad(old, new, count=1):
     assert old in FORMATION, old
     return FORMATION.replace(old, new, count)
-
-
-BAD = {
-    "one_spacecraft": (_bad('[[spacecraft]]\nid = "sat1"\n', ""), "spacecraft", "at least two"),
-    "duplicate_id": (_bad('id = "sat2"', 'id = "sat1"'), "spacecraft[2].id", "not used before"),
-    "bad_id": (_bad('id = "sat2"', 'id = "sat 2"'), "spacecraft[2].id", "letters, digits"),
-    "unknown_spacecraft_key": (_bad("lead_s = 0.1", "lead_s = 0.1\nlead_m = 1000.0"),
-                               "spacecraft[2].lead_m", "known: id, lead_s"),
-    "lead_and_orbit": (_bad("yaw_deg = 180.0", "yaw_deg = 180.0\n[spacecraft.orbit]\n"
-                            "a_m = 7e6\ne = 0.0\ni_deg = 0.0\nraan_deg = 0.0\nargp_deg = 0.0\n"
-                            "true_anomaly_deg = 0.0"), "spacecraft[2].lead_s", "not both"),
-    "own_orbit_bad": (_bad("lead_s = 0.1\nyaw_deg = 180.0", "yaw_deg = 180.0\n[spacecraft.orbit]\n"
-                           "a_m = 7e6\ne = 1.5"),
-                      "spacecraft[2].orbit.e", "< 1"),
-    "antenna_of_unknown_spacecraft": (_bad('spacecraft = "sat2"\nname = "rx3"',
-                                           'spacecraft = "sat3"\nname = "rx3"'),
-                                      "antenna[8].spacecraft", "sat1, sat2"),
-    "antenna_twice": (_bad('name = "rx3"', 'name = "rx2"'), "antenna[4].name", "once"),
-    "antenna_arm_far": (_bad("body_m = [0.5, 0.5, -0.5]", "body_m = [5000.0, 0.5, -0.5]"),
-                        "antenna[1].body_m", "within 1000 m"),
-    "link_to_itself": (_bad('rx = "sat1"\nrx_antenna = "rx1"\ntx = "sat2"',
-                            'rx = "sat1"\nrx_antenna = "rx1"\ntx = "sat1"'), "link[1].tx",
-                       "other than rx"),
-    "link_undeclared_antenna": (_bad('rx_antenna = "rx2"', 'rx_antenna = "rx9"'),
-                                "link[2].rx_antenna", "an [[antenna]] of spacecraft 'sat1'"),
-    "link_unknown_spacecraft": (_bad('rx = "sat2"', 'rx = "sat9"'), "link[4].rx", "sat1, sat2"),
-    "ranging_missing": (FORMATION.split("\n[ranging]\n")[0], "ranging", "[ranging]"),
-    "ranging_sigma_missing": (_bad("sigma_m = 0.01\n", ""), "ranging.sigma_m", "sigma_m"),
-    "ranging_sigma_negative": (_bad("sigma_m = 0.01", "sigma_m = -0.01"), "ranging.sigma_m",
-                               ">= 1e-06"),
-    "ranging_unknown_key": (_bad("sigma_m = 0.01", "sigma_m = 0.01\nsigma_cm = 1.0"),
-                            "ranging.sigma_cm", "known: sigma_m"),
-    "attitude_sigma_zero": (_bad("attitude_sigma_arcsec = 1.0", "attitude_sigma_arcsec = 0.0"),
-                            "ranging.attitude_sigma_arcsec", "> 0"),
-}
-
-
-@pytest.mark.parametrize("case", sorted(BAD))
-def test_bad_formation_scenario_is_exit_2_naming_the_key(case, tmp_path, capsys):
-    text, key, expected = BAD[case]
-    path = tmp_path / "bad.toml"
-    path.write_text(text)
-    rc = main(["simulate", str(path), "--out", str(tmp_path / "out"), "--quiet"])
-    out, err = capsys.readouterr()
-    assert rc == 2, (case, out, err)
-    assert "Traceback" not in out + err
-    assert err.startswith("fgnav: error: ") and str(path) in err, err
-    assert f"'{key}'" in err and expected in err, err
-    assert not (tmp_path / "out").exists()
 
 
 def test_formation_options_and_limits(tmp_path, capsys):

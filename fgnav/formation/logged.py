@@ -38,6 +38,7 @@ from fgnav.formation.single_epoch import PARAMS, LinkGeometry, conditioning, sol
 from fgnav.formation.study import FORMATION_REFERENCE, range_coverage, reference_ranges
 from fgnav.io.log_csv import MeasurementLog, log_from_arrays
 from fgnav.io.log_spacecraft import ISL_KINDS
+from fgnav.models.registry import ATTITUDE
 from fgnav.time import add_seconds, format_utc, parse_utc
 
 __all__ = ["LoggedEpoch", "logged_epoch", "far_field_guess", "logged_conditioning",
@@ -131,7 +132,7 @@ def logged_epoch(log: MeasurementLog, epoch: str | None = None) -> LoggedEpoch:
                         f"{ids[0] if to1.all() else ids[1]}; the range and the clock separate "
                         "only with links in both directions")
     R = {}
-    att = np.flatnonzero((kind == "attitude") & (ns == t_ns))
+    att = np.flatnonzero((kind == ATTITUDE.kind) & (ns == t_ns))
     for k, name in enumerate(ids):
         mine = att[np.asarray(log.extra["spacecraft"])[att] == float(k)]
         if len(mine) != 1:
@@ -291,7 +292,7 @@ def xing_single_epoch_log(seed: int = 0, sigma_m: float = 0.01) -> MeasurementLo
     for e in range(2):
         t_s = 10.0 * e
         for s in ids:
-            row(t_s, "attitude", [0.0, 0.0, 0.0], XING_ATTITUDE_SIGMA_RAD, s)
+            row(t_s, ATTITUDE.kind, [0.0, 0.0, 0.0], XING_ATTITUDE_SIGMA_RAD, s)
         for l in range(6):
             rx, txs = (ids[0], ids[1]) if l < 3 else (ids[1], ids[0])
             row(t_s, ISL_KINDS[0], [rho[e, l], np.nan, np.nan], sigma_m, rx, txs,

@@ -41,7 +41,7 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.errors import UserError
 from fgnav.io.log_csv import MeasurementLog
 from fgnav.io.log_spacecraft import ISL_KINDS
-from fgnav.models.registry import MODELS
+from fgnav.models.registry import ATTITUDE, MODELS
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.pass_sim import (chunks_to_log, check_seed, integrate_scenario_truth,
@@ -190,7 +190,7 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
         for i in ids:
             noise = rs.attitude_sigma_rad * rng.standard_normal((K, 3))
             w = so3_log(R[i][idx] @ so3_exp(noise))
-            chunks.append(("attitude", t_link, w, rs.attitude_sigma_rad,
+            chunks.append((ATTITUDE.kind, t_link, w, rs.attitude_sigma_rad,
                            {"spacecraft": np.full(K, i, dtype=object)}))
     amb = rs.ambiguity_sigma_m * rng.standard_normal(len(f.links))
     code_noise = rs.sigma_m * rng.standard_normal((len(f.links), K))
