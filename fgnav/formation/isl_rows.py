@@ -91,7 +91,7 @@ def isl_values(log, i, k_of_row=None) -> dict:
     return out
 
 
-def isl_families(log, k_of_row, sc, orbits):
+def isl_families(log, k_of_row):
     """The inter-satellite families of a formation's log and the variables they add (the
     pairs' clocks, the carrier links' ambiguities), in a fixed order: ``({kind: Family},
     [Variable, ...])``."""

@@ -85,7 +85,7 @@ def build_formation_pass(log) -> Pass:
     sigma = np.asarray(log.sigma, dtype=float)
     lines = np.asarray(log.line)
     orbits = tuple(orbit_variable(i, s) for i, s in enumerate(ids))
-    isl, extra_vars = isl_families(log, k_of_row, sc, orbits)
+    isl, extra_vars = isl_families(log, k_of_row)
     lay = Layout(orbits + tuple(extra_vars))
     start = orbit_columns(lay)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
@@ -124,8 +124,8 @@ def spacecraft_pass(p: Pass, s: int) -> Pass:
         sub = fam.subset(rows)
         sub.values = {n: v for n, v in sub.values.items() if not n.startswith(COLUMN_PREFIX)}
         fams[kind] = sub
-    return replace(p, families=fams, layout=Layout(), spacecraft=(p.spacecraft[s],),
-                   warnings=[], deferred={}, unconverted={})
+    return replace(p, families=fams, layout=Layout(), spacecraft=(), warnings=[], deferred={},
+                   unconverted={}, source=f"{p.source} (spacecraft {p.spacecraft[s]})")
 
 
 def spacecraft_states(sol, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
