@@ -263,6 +263,23 @@ def orbit_eye(r_m: np.ndarray, v_m: np.ndarray | None = None) -> tuple[np.ndarra
     return eye, n
 
 
+def time_series_view(origin, name, t_range_s=None):
+    """A time plot of the entities under ``origin`` with its legend, showing the whole pass
+    ``t_range_s`` (s on the ``t_s`` timeline) rather than a window around the time cursor."""
+    import rerun.blueprint as rrb
+
+    kw = {}
+    if t_range_s is not None:
+        t0, t1 = (float(t) for t in t_range_s)
+        kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(
+            start=rrb.TimeRangeBoundary.absolute(seconds=t0),
+            end=rrb.TimeRangeBoundary.absolute(seconds=t1 if t1 > t0 else t0 + 1.0)))
+    return rrb.TimeSeriesView(
+        origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=True),
+        time_ranges=rrb.VisibleTimeRange("t_s", start=rrb.TimeRangeBoundary.infinite(),
+                                         end=rrb.TimeRangeBoundary.infinite()), **kw)
+
+
 def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, t_range_s=None,
                       eye_km=None, eye_up=None, has_attitude=False, has_camera=False,
                       boresight_body=None):
@@ -277,16 +294,7 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
     import rerun.blueprint as rrb
 
     def series_view(origin, name):
-        kw = {}
-        if t_range_s is not None:
-            t0, t1 = (float(t) for t in t_range_s)
-            kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(
-                start=rrb.TimeRangeBoundary.absolute(seconds=t0),
-                end=rrb.TimeRangeBoundary.absolute(seconds=t1 if t1 > t0 else t0 + 1.0)))
-        return rrb.TimeSeriesView(
-            origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=True),
-            time_ranges=rrb.VisibleTimeRange("t_s", start=rrb.TimeRangeBoundary.infinite(),
-                                             end=rrb.TimeRangeBoundary.infinite()), **kw)
+        return time_series_view(origin, name, t_range_s)
 
     root = "errors" if has_truth else "sigma"
     unit = "error" if has_truth else "3σ"
