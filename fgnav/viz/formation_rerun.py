@@ -40,7 +40,6 @@ residuals, NEES and the legend; every time plot shows the whole pass.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +47,8 @@ import numpy as np
 from factors.constants import R_EARTH_M
 from fgnav.viz.rerun_log import (_F_WGS84, AXIS_COLORS, RTN_AXES, _lighter, _safe, _time_index,
                                  auto_magnification, covariance_ellipsoids, error_and_sigma,
-                                 nees, orbit_eye, time_series_view)
+                                 nees, orbit_eye, recording_file, spatial_view,
+                                 time_series_view, views_blueprint)
 
 __all__ = ["log_formation", "log_formation_result", "residual_color", "SPACECRAFT_COLORS",
            "LVLH_AXES", "link_segments"]
@@ -156,10 +156,7 @@ def log_formation(rrd_path, sol, p, *, truths=None, sigma_scale=3.0,
     blueprint = formation_blueprint(ids, has_truth=truths is not None, links=sorted(links),
                                     t_range_s=(t_s[0], t_s[-1]) if n else None, eye_km=eye,
                                     eye_up=up, lvlh_eye=_lvlh_eye(rel))
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    rec = rr.RecordingStream(application_id)
-    rec.save(str(tmp), default_blueprint=blueprint)
-    try:
+    with recording_file(path, blueprint, application_id) as rec:
         log = _Logger(rec, rr, sol.epoch0, t_s)
         log.scene(ids, states, truths)
         mag = log.lvlh(ids, rel, k)
@@ -168,13 +165,6 @@ def log_formation(rrd_path, sol, p, *, truths=None, sigma_scale=3.0,
         log.residuals(sol, p)
         log.static("legend", rr.TextDocument(legend_text(ids, k, mag, truths is not None),
                                              media_type="text/markdown"))
-        rec.flush()
-        rec.disconnect()
-        os.replace(tmp, path)
-    except BaseException:
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
     return {"path": str(path), "entities": log.entities, "epochs": n, "magnification": mag}
 
 
@@ -401,44 +391,25 @@ def formation_blueprint(ids, *, has_truth, links=(), t_range_s=None, eye_km=None
     right, tabs = [], []
     for sc in ids[1:]:
         r = f"relative/{_safe(sc)}"
-        right.append(time_series_view(f"{r}/position_lvlh_m", f"{sc} relative to {ref}: position in "
-                                 "LVLH x/y/z [m]", t_range_s))
-        right.append(time_series_view(f"{r}/{root}/position_lvlh_m", f"{sc} relative position {what} "
-                                 "LVLH x/y/z [m]", t_range_s))
+        right.append(time_series_view(f"{r}/position_lvlh_m", f"{sc} relative to {ref}: "
+                                      "position in LVLH x/y/z [m]", t_range_s))
+        right.append(time_series_view(f"{r}/{root}/position_lvlh_m", f"{sc} relative position "
+                                      f"{what} LVLH x/y/z [m]", t_range_s))
         tabs.append(time_series_view(f"{r}/{root}/velocity_lvlh_mps", f"{sc} relative velocity "
-                                f"{what} LVLH x/y/z [m/s]", t_range_s))
+                                     f"{what} LVLH x/y/z [m/s]", t_range_s))
         if has_truth:
             tabs.append(time_series_view(f"{r}/nees", f"{sc} relative NEES (6 dof)", t_range_s))
     for sc in ids:
         tabs.append(time_series_view(f"spacecraft/{_safe(sc)}/{root}/position_rtn_m",
-                                f"{sc} position {what} R/T/N [m]", t_range_s))
+                                     f"{sc} position {what} R/T/N [m]", t_range_s))
     if links:
         tabs.append(time_series_view("residuals", "whitened residuals [-]", t_range_s))
     tabs.append(rrb.TextDocumentView(origin="legend", name="legend"))
     right.append(rrb.Tabs(*tabs))
-    eye = {}
-    if eye_km is not None:
-        eye["eye_controls"] = rrb.EyeControls3D(
-            kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in eye_km],
-            look_target=[0.0, 0.0, 0.0],
-            eye_up=[float(v) for v in (eye_up if eye_up is not None else (0.0, 0.0, 1.0))])
-    world = rrb.Spatial3DView(origin="world", name="orbits (ECI, km)", **eye)
-    eye = {}
-    if lvlh_eye is not None:
-        eye["eye_controls"] = rrb.EyeControls3D(
-            kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in lvlh_eye[0]],
-            look_target=[float(v) for v in lvlh_eye[1]],
-            eye_up=[float(v) for v in lvlh_eye[2]])
-    lvlh = rrb.Spatial3DView(origin="lvlh", name=f"formation in the LVLH frame of {ref} (m)",
-                             **eye)
-    return rrb.Blueprint(
-        rrb.Horizontal(rrb.Vertical(world, lvlh, row_shares=[1, 1]), rrb.Vertical(*right),
-                       column_shares=[3, 2]),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(timeline="t_s", state="collapsed"),
-        collapse_panels=False,
-    )
+    world = spatial_view("world", "orbits (ECI, km)", eye_km, (0.0, 0.0, 0.0), eye_up)
+    lvlh = spatial_view("lvlh", f"formation in the LVLH frame of {ref} (m)",
+                        *(lvlh_eye if lvlh_eye is not None else ()))
+    return views_blueprint(rrb.Vertical(world, lvlh, row_shares=[1, 1]), rrb.Vertical(*right))
 
 
 def legend_text(ids, k, mag, has_truth) -> str:
