@@ -29,7 +29,8 @@
 
 Link colours (:func:`residual_color`, stated in the recording's ``legend`` document): the
 largest ``|whitened residual|`` of that kind's rows on the pair at the epoch (both
-directions), green at 0, yellow at 1.5, red at 3 (linear in between), magenta beyond 3
+directions; for the EKF its innovations normalized by their own covariance, the values its
+integrity verdict tests), green at 0, yellow at 1.5, red at 3 (linear in between), magenta beyond 3
 (outside the 3-sigma band).
 
 The stored blueprint opens on both 3-D views (ECI orbits framed on the whole orbit, the
@@ -55,10 +56,11 @@ __all__ = ["log_formation", "log_formation_result", "residual_color", "SPACECRAF
 
 _KM = 1.0e-3
 
-#: Named colours of the spacecraft, in the log's order (the reference first).
-SPACECRAFT_COLORS = (("orange", [255, 140, 0]), ("cyan", [0, 190, 255]),
-                     ("violet", [170, 110, 255]), ("lime", [150, 220, 40]),
-                     ("pink", [255, 105, 180]), ("gold", [230, 200, 60]))
+#: Named colours of the spacecraft, in the log's order (the reference first): hues apart
+#: from the links' residual scale (green, yellow, red, magenta).
+SPACECRAFT_COLORS = (("cyan", [0, 190, 255]), ("violet", [120, 90, 255]),
+                     ("teal", [0, 140, 130]), ("grey", [170, 170, 170]),
+                     ("navy", [30, 40, 140]), ("brown", [140, 90, 40]))
 
 #: LVLH axis names: x radial, y along-track, z orbit normal.
 LVLH_AXES = ("x", "y", "z")
@@ -99,7 +101,7 @@ def link_segments(sol, p):
     out = {}
     for kind in ISL_KINDS:
         fam = p.families.get(kind)
-        r = (sol.residuals or {}).get(kind)
+        r = _tested_residuals(sol).get(kind)
         if fam is None or r is None or len(r) != len(fam.k):
             continue
         a = np.array([sc_of_col[int(c)] for c in fam.values[COLUMN_PREFIX + "orbit"]])
@@ -112,6 +114,13 @@ def link_segments(sol, p):
         np.maximum.at(wmax, inv.reshape(-1), w)
         out[kind] = (uniq[:, 0], uniq[:, 1], uniq[:, 2], wmax)
     return out
+
+
+def _tested_residuals(sol) -> dict:
+    """The whitened residuals the integrity verdict tests
+    (:func:`fgnav.formation.outputs.formation_integrity`): a filter's innovations normalized
+    by their own covariance, else the solution's whitened residuals."""
+    return (sol.extras or {}).get("normalized_innovations") or sol.residuals or {}
 
 
 def log_formation_result(rrd_path, res, p, *, truth=None, sigma_scale=3.0) -> dict:
