@@ -12,7 +12,10 @@ def register(subparsers) -> None:
         description=(
             "Read RESULT_DIR (from `fgnav smooth LOG --out DIR`: trajectory.oem, summary.json, "
             "residuals.csv, optional online.oem, latency.csv, attitude.aem, "
-            "attitude_covariance.csv) and write errors_rtn.png (or sigma_rtn.png without truth; "
+            "attitude_covariance.csv; a formation's folder: trajectory-<id>.oem per spacecraft and "
+            "relative.csv, reported per spacecraft as errors_rtn-<id>.png / sigma_rtn-<id>.png "
+            "and for the relative state in the reference's LVLH frame as relative_lvlh-<id>.png "
+            "and relative_errors_lvlh-<id>.png / relative_sigma_lvlh-<id>.png) and write errors_rtn.png (or sigma_rtn.png without truth; "
             "m and m/s vs hours, RTN, ±3σ of the same estimate, labelled smoothed / filtered by "
             "method), online_errors_rtn.png (iSAM2, fixed-lag: the online error against the "
             "online ±3σ), residuals_time.png (gaps shaded), residuals_hist.png, "
@@ -25,7 +28,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", metavar="DIR", default=None,
                    help="where to write the report (default: RESULT_DIR)")
     p.add_argument("--truth", metavar="TRUTH.oem", default=None,
-                   help="truth OEM (default: summary.json's truth_path, if any)")
+                   help="truth OEM, or for a formation the directory of its truth-<id>.oem files "
+                        "(default: summary.json's truth_path, if any)")
     p.add_argument("--sigma", type=T.positive, default=3.0, metavar="K",
                    help="envelope width in standard deviations (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object with the files written")

@@ -280,7 +280,10 @@ def run(args) -> int:
         for note in p.warnings:
             if "gap" in note:
                 print(f"fgnav: note: {note}", file=sys.stderr)
-    if args.rerun:
+    if args.rerun and p.spacecraft:   # a formation: every orbit, the links, LVLH
+        from fgnav.viz.formation_rerun import log_formation_result
+        log_formation_result(args.rerun, res, p, truth=args.truth)
+    elif args.rerun:
         from fgnav.models.registry import ATTITUDE_VARIABLE
         from fgnav.viz.rerun_log import log_solution, read_truth_attitude
         truth_R = (read_truth_attitude(args.truth, res.solution.epoch0, res.solution.t_s)

@@ -711,7 +711,13 @@ def write_report(data: ResultData, out_dir, *, k_sigma=3.0, title=None) -> dict:
 
 
 def report_result_dir(result_dir, out_dir=None, *, truth_path=None, k_sigma=3.0) -> dict:
-    """``load_result`` + ``write_report`` (into ``result_dir`` unless ``out_dir``)."""
+    """``load_result`` + ``write_report`` (into ``result_dir`` unless ``out_dir``); a
+    formation's result directory (``trajectory-<id>.oem`` per spacecraft) is reported by
+    :func:`fgnav.viz.formation_report.report_formation_dir`."""
+    from fgnav.viz.formation_report import is_formation_dir, report_formation_dir
+
+    if is_formation_dir(result_dir):
+        return report_formation_dir(result_dir, out_dir, truth_path=truth_path, k_sigma=k_sigma)
     data = load_result(result_dir, truth_path=truth_path)
     res = write_report(data, out_dir if out_dir is not None else result_dir, k_sigma=k_sigma)
     res["notes"] = list(data.notes)

@@ -38,6 +38,7 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Mapping
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -263,6 +264,23 @@ def orbit_eye(r_m: np.ndarray, v_m: np.ndarray | None = None) -> tuple[np.ndarra
     return eye, n
 
 
+def time_series_view(origin, name, t_range_s=None):
+    """A time plot of the entities under ``origin`` with its legend, showing the whole pass
+    ``t_range_s`` (s on the ``t_s`` timeline) rather than a window around the time cursor."""
+    import rerun.blueprint as rrb
+
+    kw = {}
+    if t_range_s is not None:
+        t0, t1 = (float(t) for t in t_range_s)
+        kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(
+            start=rrb.TimeRangeBoundary.absolute(seconds=t0),
+            end=rrb.TimeRangeBoundary.absolute(seconds=t1 if t1 > t0 else t0 + 1.0)))
+    return rrb.TimeSeriesView(
+        origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=True),
+        time_ranges=rrb.VisibleTimeRange("t_s", start=rrb.TimeRangeBoundary.infinite(),
+                                         end=rrb.TimeRangeBoundary.infinite()), **kw)
+
+
 def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, t_range_s=None,
                       eye_km=None, eye_up=None, has_attitude=False, has_camera=False,
                       boresight_body=None):
@@ -277,16 +295,7 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
     import rerun.blueprint as rrb
 
     def series_view(origin, name):
-        kw = {}
-        if t_range_s is not None:
-            t0, t1 = (float(t) for t in t_range_s)
-            kw["axis_x"] = rrb.TimeAxis(view_range=rrb.TimeRange(
-                start=rrb.TimeRangeBoundary.absolute(seconds=t0),
-                end=rrb.TimeRangeBoundary.absolute(seconds=t1 if t1 > t0 else t0 + 1.0)))
-        return rrb.TimeSeriesView(
-            origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=True),
-            time_ranges=rrb.VisibleTimeRange("t_s", start=rrb.TimeRangeBoundary.infinite(),
-                                             end=rrb.TimeRangeBoundary.infinite()), **kw)
+        return time_series_view(origin, name, t_range_s)
 
     root = "errors" if has_truth else "sigma"
     unit = "error" if has_truth else "3σ"
@@ -305,13 +314,7 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
         tabs.append(series_view("timing", "update latency [ms]"))
     tabs.append(rrb.TextDocumentView(origin="about", name="about"))
     series.append(rrb.Tabs(*tabs))
-    eye = {}
-    if eye_km is not None:
-        eye["eye_controls"] = rrb.EyeControls3D(
-            kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in eye_km],
-            look_target=[0.0, 0.0, 0.0],
-            eye_up=[float(v) for v in (eye_up if eye_up is not None else (0.0, 0.0, 1.0))])
-    world = rrb.Spatial3DView(origin="world", name="orbit (ECI, km)", **eye)
+    world = spatial_view("world", "orbit (ECI, km)", eye_km, (0.0, 0.0, 0.0), eye_up)
     if has_camera:
         b = np.array([0.0, 0.0, 1.0]) if boresight_body is None else np.asarray(boresight_body, float)
         b = b / np.linalg.norm(b)
@@ -325,8 +328,30 @@ def default_blueprint(*, has_truth: bool, residual_kinds=(), has_latency=False, 
             row_shares=[3, 2])
     else:
         left = world
+    return views_blueprint(left, rrb.Vertical(*series))
+
+
+def spatial_view(origin, name, eye=None, target=(0.0, 0.0, 0.0), up=None):
+    """A 3-D view of the entities under ``origin`` whose orbital camera starts at ``eye``
+    looking at ``target`` with ``up`` upwards (default z; no ``eye``: Rerun's own framing)."""
+    import rerun.blueprint as rrb
+
+    kw = {}
+    if eye is not None:
+        kw["eye_controls"] = rrb.EyeControls3D(
+            kind=rrb.Eye3DKind.Orbital, position=[float(v) for v in eye],
+            look_target=[float(v) for v in target],
+            eye_up=[float(v) for v in (up if up is not None else (0.0, 0.0, 1.0))])
+    return rrb.Spatial3DView(origin=origin, name=name, **kw)
+
+
+def views_blueprint(left, right):
+    """The blueprint of ``left`` (3 shares) beside ``right`` (2 shares), the blueprint,
+    selection and time panels collapsed (the time panel on ``t_s``)."""
+    import rerun.blueprint as rrb
+
     return rrb.Blueprint(
-        rrb.Horizontal(left, rrb.Vertical(*series), column_shares=[3, 2]),
+        rrb.Horizontal(left, right, column_shares=[3, 2]),
         rrb.BlueprintPanel(state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(timeline="t_s", state="collapsed"),
@@ -450,23 +475,11 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
                                   has_attitude=att is not None and att[2] is not None,
                                   has_camera=bool(body_rows), boresight_body=_boresight(body_rows))
 
-    # Written to a temporary file in the same directory and renamed when complete, so an
-    # interrupted run never leaves a half-written recording under the final name.
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    rec = rr.RecordingStream(application_id)
-    rec.save(str(tmp), default_blueprint=blueprint)
-    try:
+    with recording_file(path, blueprint, application_id) as rec:
         entities = _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks,
                             ellipsoid_every, magnification, residual_t_s, rkinds, has_latency)
         entities[0].extend(_log_attitude(rec, rr, solution.epoch0, t_s, x, att, body_rows, k,
                                          truth_attitude_R))
-        rec.flush()
-        rec.disconnect()
-        os.replace(tmp, path)
-    except BaseException:
-        rec.disconnect()
-        tmp.unlink(missing_ok=True)
-        raise
     entities, mag = entities
     result = {"path": str(path), "entities": entities, "magnification": mag, "epochs": n}
     if spawn:
@@ -474,6 +487,29 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
         print(msg, file=sys.stderr)
         result["viewer"] = launched
     return result
+
+
+@contextmanager
+def recording_file(path, blueprint, application_id="fgnav"):
+    """A recording stream saved to ``path`` with ``blueprint`` as its default layout. It is
+    written to a temporary file in the same directory and renamed when the ``with`` block
+    completes, so an interrupted run never leaves a half-written recording under the final
+    name (the temporary file is removed)."""
+    import rerun as rr
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    rec = rr.RecordingStream(application_id)
+    rec.save(str(tmp), default_blueprint=blueprint)
+    try:
+        yield rec
+        rec.flush()
+        rec.disconnect()
+        os.replace(tmp, path)
+    except BaseException:
+        rec.disconnect()
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _log_all(rec, rr, solution, t_s, x, P, truth, measurements, k, ks, ellipsoid_every,
