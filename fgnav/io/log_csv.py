@@ -21,6 +21,15 @@ ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; 
 second, mapped to elapsed SI seconds by :mod:`fgnav.time`). Numbers
 are decimal (``1``, ``-2.5``, ``6.4e6``).
 
+Central body: a comment line ``# centre: sun`` before the header declares a heliocentric log
+(a cruise): every position and velocity (prior rows, the state the rows observe) is then
+relative to the Sun's centre, axes EME2000/ICRF; without it (or with ``# centre: earth``) the
+log is geocentric, as every v1 log. Another name is an error naming the line (column
+``centre``), and so are two such lines that disagree. Readers that ignore comments read the
+rows unchanged, so the line is an extension of v1, not a new version. A heliocentric log
+holds only the kinds of :data:`HELIOCENTRIC_KINDS` (the others observe the Earth from a
+geocentric state); another kind is an error naming its line.
+
 Kinds (all frames EME2000 = ECI unless "body"; all sigmas 1σ)
 
 ========================  ===============================================  ==============
@@ -140,7 +149,7 @@ __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
     "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
-    "ATT_COV_COLUMNS", "attitude_covariances",
+    "ATT_COV_COLUMNS", "attitude_covariances", "CENTRES", "HELIOCENTRIC_KINDS",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
@@ -158,6 +167,12 @@ in :data:`BODIES` in memory."""
 BODIES = ("sun", "earth", "moon")
 """The near bodies an angle row may name, in the order of their in-memory codes."""
 _LIMB_BODIES = ("earth", "moon")
+CENTRES = ("earth", "sun")
+"""The central bodies a log may declare (``# centre: NAME`` before the header)."""
+HELIOCENTRIC_KINDS = ("prior_position", "prior_velocity", "body_star_angle", "limb_star_angle",
+                      "body_body_angle")
+"""The kinds a heliocentric log (``# centre: sun``) may hold."""
+_CENTRE_LINE = re.compile(r"#\s*centre\s*:\s*(.*?)\s*$", re.IGNORECASE)
 _VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
 _USAGE_COLUMNS = ("x", "y", "z") + EXTRA_COLUMNS           # order of a kind's usage
 
@@ -402,7 +417,8 @@ class MeasurementLog:
     ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
     ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ``star_y``,
     ``star_z``, ``body``, ``body2``: codes, :data:`BODIES`; ``att_c11`` .. ``att_c33``) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
-    ``warnings`` human-readable notes; ``dropped`` rows dropped per reason.
+    ``warnings`` human-readable notes; ``dropped`` rows dropped per reason; ``centre`` the
+    central body of every position (:data:`CENTRES`; the ``# centre:`` line).
     """
 
     path: Any
@@ -415,6 +431,7 @@ class MeasurementLog:
     line: np.ndarray = None
     warnings: list[str] = field(default_factory=list)
     dropped: dict[str, int] = field(default_factory=dict)
+    centre: str = "earth"
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -621,8 +638,10 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         dropped[err.reason] = dropped.get(err.reason, 0) + 1
         first_msg.setdefault(err.reason, str(exc))
 
-    # The header: the first line that is neither blank nor a comment.
+    # The header: the first line that is neither blank nor a comment (a "# centre:" comment
+    # before it declares the central body).
     header = None
+    centre = None
     i_body = n_lines
     for i, raw in enumerate(raw_lines):
         try:
@@ -634,6 +653,14 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         if text.endswith("\r"):
             text = text[:-1]
         stripped = text.strip()
+        declared = _CENTRE_LINE.fullmatch(stripped)
+        if declared:
+            name = declared.group(1).lower()
+            if name not in CENTRES or (centre is not None and name != centre):
+                raise InputFormatError(path, i + 1, "centre", f"one of {', '.join(CENTRES)}"
+                                       + ("" if centre is None else f", once (already {centre})"),
+                                       declared.group(1))
+            centre = name
         if not stripped or stripped.startswith("#"):
             continue
         header = _check_header(path, i + 1, text)
@@ -724,10 +751,22 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     epoch0 = np.datetime64(int(ns[0]), "ns")
     t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
     width = max(int(np.char.str_len(kind_arr.astype(str)).max()), 1)  # as wide as the kinds kept
+    _check_centre_kinds(centre or "earth", kind_arr,
+                        lambda i, what: InputFormatError(path, int(line_arr[i]), "kind", *what))
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(f"<U{width}"), xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
-        line=line_arr, warnings=warnings, dropped=dropped)
+        line=line_arr, warnings=warnings, dropped=dropped, centre=centre or "earth")
+
+
+def _check_centre_kinds(centre, kind_arr, error):
+    """Refuse a kind a log of this centre cannot hold: raise ``error(row, (expected, found))``."""
+    if centre == "earth":
+        return
+    bad = np.flatnonzero(~np.isin(np.asarray(kind_arr).astype(str), HELIOCENTRIC_KINDS))
+    if len(bad):
+        raise error(int(bad[0]), (f"a kind of a heliocentric log (centre: {centre}): "
+                                  f"{', '.join(HELIOCENTRIC_KINDS)}", str(kind_arr[bad[0]])))
 
 
 def _duplicates(ns, kind_arr, V, line_arr):
@@ -999,7 +1038,7 @@ def _sort_rows(ns, V, kind_arr, line_arr, path):
 
 
 def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
-                    path="<arrays>") -> MeasurementLog:
+                    path="<arrays>", centre="earth") -> MeasurementLog:
     """Build a validated :class:`MeasurementLog` from arrays (same rules as :func:`read_log`).
 
     ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
@@ -1007,7 +1046,11 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     of (M,) arrays for the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ...). Rows are stably sorted by epoch and
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
+    ``centre``: the central body of the positions (:data:`CENTRES`).
     """
+    if centre not in CENTRES:
+        raise UserError(f"log_from_arrays: centre: expected one of {', '.join(CENTRES)}, "
+                        f"found {centre!r}")
     if isinstance(epoch0, str):
         epoch0 = parse_utc(epoch0)
     epoch0 = np.datetime64(epoch0, "ns")
@@ -1052,6 +1095,8 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
             raise UserError(f"log_from_arrays: row {i}, column '{err.column}': expected "
                             f"{err.expected}{found}") from None
 
+    _check_centre_kinds(centre, kind_arr, lambda i, what: UserError(
+        f"log_from_arrays: row {i}, column 'kind': expected {what[0]}, found {what[1]!r}"))
     ns = add_seconds(epoch0, t_s).astype(np.int64)
     line = np.zeros(M, dtype=np.int64)
     order = np.argsort(ns, kind="stable")
@@ -1062,7 +1107,7 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s[order], kind=kind_arr[order], xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
-        line=line, warnings=warnings, dropped={})
+        line=line, warnings=warnings, dropped={}, centre=centre)
 
 
 def _fmt(v: float, column: str = "") -> str:
@@ -1094,6 +1139,8 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     ns = add_seconds(log.epoch0, log.t_s).astype(np.int64)
     header = list(BASE_COLUMNS) + used
     out = ["# fgnav measurement log, CSV format v1 (see fgnav.io.log_csv)\n"]
+    if getattr(log, "centre", "earth") != "earth":
+        out.append(f"# centre: {log.centre}\n")
     out += [f"# {c}\n" for c in comments]
     out.append(",".join(header) + "\n")
     for i in range(M):

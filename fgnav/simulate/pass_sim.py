@@ -108,7 +108,8 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
     t_all = np.unique(np.concatenate([[0.0], *t_by_sensor]))
     x_true = integrate_truth(np.array(scn.x0_eci), t_all, j2=scn.truth_j2,
                              third_body=scn.truth_third_body, t0_j2000_s=float(j2000_seconds(epoch0)),
-                             drag=scn.truth_drag or None, srp=scn.truth_srp or None)
+                             drag=scn.truth_drag or None, srp=scn.truth_srp or None,
+                             centre=scn.centre)
     kinds, ts, xyz, sig, extras = [], [], [], [], []
     truth_params = {}
 
@@ -120,12 +121,14 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
         extras.append((len(t), extra))
 
     sp, sv = scn.prior_position_sigma_m, scn.prior_velocity_sigma_mps
-    if scn.prior_mode == "random":
-        err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
-    else:
-        err = np.array([sp] * 3 + [sv] * 3)
-    add(PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
-    add(PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
+    if scn.prior_mode != "none":   # "none": no prior rows (the orbit from the data alone)
+        if scn.prior_mode == "random":
+            err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
+        else:
+            err = np.array([sp] * 3 + [sv] * 3)
+        add(PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp)
+        add(PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv)
+    centre = {} if scn.centre == "earth" else {"centre": scn.centre}
     mounting_rng = np.random.default_rng([seed, MOUNTING_STREAM])
     for spec, t in zip(scn.sensors, t_by_sensor):
         idx = np.searchsorted(t_all, t)
@@ -141,7 +144,8 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                 mount = {"mounting_rotvec": w}
                 truth_params.update({c: np.full(len(t_all), w[i])
                                      for i, c in enumerate(CAMERA_ALIGNMENT.components)})
-        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount)
+        chunks = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount,
+                                            **centre)
         if bias and any(c[0] == spec.kind for c in chunks):
             truth_params[REFRACTION_BIAS.components[0]] = b_all
         for chunk in chunks:
@@ -154,7 +158,8 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                                     else np.asarray(e[c], dtype=float) for n, e in extras])[order]
                  for c in EXTRA_COLUMNS}
     log = log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
-                          np.concatenate(xyz)[order], np.concatenate(sig)[order], extra)
+                          np.concatenate(xyz)[order], np.concatenate(sig)[order], extra,
+                          centre=scn.centre)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
                          truth_params=truth_params)
 
@@ -169,13 +174,13 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
     from pathlib import Path
 
     from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import write_oem
+    from fgnav.io.oem import oem_frame, write_oem
 
     out, scn = Path(out_dir), sim.scenario
     try:
         write_log(out / "measurements.csv", sim.log)
         write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-                  object_name=scn.name.upper(),
+                  object_name=scn.name.upper(), **oem_frame(scn.centre),
                   comments=(f"fgnav truth for scenario {scn.name}, seed {sim.seed}",
                             "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
         written = [out / "measurements.csv", out / "truth.oem"]
