@@ -75,6 +75,7 @@ class SensorSpec:
     body: str = "earth"                    # the near body of an angle sensor
     body2: str = "moon"                    # the second near body of a body-body angle
     stars_per_epoch: float = 3.0           # stars measured against the body at each epoch
+    star_spread: str = "sky"               # "sky": directions spread; "axes": cone axes (s ~ -s)
     # a star camera on its own mount (not the Earth camera's detector): a constant mounting
     # error, 1σ per axis, drawn once per pass (fgnav.simulate.star_camera); 0 = confocal
     mounting_sigma_arcsec: float = 0.0
@@ -162,6 +163,7 @@ SENSOR_KEYS = {
     "body": ("choice", "", BODIES, None, True, True),
     "body2": ("choice", "", BODIES, None, True, True),
     "stars_per_epoch": ("number", "", 1.0, 50.0, True, True),
+    "star_spread": ("choice", "", ("sky", "axes"), None, True, True),
     "mounting_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
 }
 SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}

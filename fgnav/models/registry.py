@@ -558,7 +558,8 @@ def _angle_model(kind, summary, residual, star, limb, keys):
         scenario_keys=keys)
 
 
-_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg")
+_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg",
+              "star_spread")
 BODY_STAR_ANGLE = _angle_model(
     "body_star_angle", "angle between a near body's centre and a star (rad)",
     lambda r, fam: body_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],

@@ -17,7 +17,9 @@ photosphere for the Sun), at least ``spec.min_sun_elongation_deg`` from the Sun 
 light) and its angle to the body's centre within [:data:`MIN_ANGLE_RAD`, pi -
 :data:`MIN_ANGLE_RAD`] (the cone degenerates to a line at 0 and pi). Among the usable stars
 the brightest is taken first, then greedily the star farthest (largest smallest angle) from
-the ones taken: lines of sight spread over the sky give cones that cut at wide angles. An
+the ones taken: lines of sight spread over the sky give cones that cut at wide angles
+(``spec.star_spread = "axes"``: spread as lines, a star and its antipode being one cone
+axis, so that two cones through one body cut at right angles). An
 epoch without enough usable stars gives the ones it has; the body itself must be seen (not
 hidden by the Earth).
 """
@@ -84,17 +86,20 @@ def _seen(name, r, p, e):
     return np.ones(len(r), bool) if name == "earth" else ~occulted_by_earth(r - e, p - e)
 
 
-def _spread(cand_s, vmag, n):
+def _spread(cand_s, vmag, n, axes=False):
     """Indices of up to ``n`` candidate stars: the brightest, then greedily the farthest from
-    the ones taken (module docstring)."""
+    the ones taken (module docstring); ``axes``: the farthest as lines (``|cos|``: a star
+    and its antipode are the same cone axis, and two cones about one body cut best with
+    axes at right angles)."""
     if not len(cand_s):
         return np.zeros(0, dtype=int)
+    fold = np.abs if axes else (lambda c: c)
     take = [int(np.argmin(vmag))]
-    best = cand_s @ cand_s[take[0]]          # cosine to the nearest taken star
+    best = fold(cand_s @ cand_s[take[0]])    # cosine to the nearest taken star
     for _ in range(min(n, len(cand_s)) - 1):
         j = int(np.argmin(best))
         take.append(j)
-        best = np.maximum(best, cand_s @ cand_s[j])
+        best = np.maximum(best, fold(cand_s @ cand_s[j]))
     return np.array(take, dtype=int)
 
 
@@ -160,7 +165,7 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb, centre="e
               & (a >= MIN_ANGLE_RAD) & (a <= np.pi - MIN_ANGLE_RAD)
               & (S @ s_sun < np.cos(spec.min_sun_elongation_deg * DEG)))
         cand = np.flatnonzero(ok)
-        pick = cand[_spread(S[cand], vmag[cand], n_want)]
+        pick = cand[_spread(S[cand], vmag[cand], n_want, spec.star_spread == "axes")]
         rows_t.append(np.full(len(pick), t_s[k]))
         rows_s.append(S[pick])
         rows_k.append(np.full(len(pick), k))
