@@ -43,6 +43,7 @@ from fgnav.analysis.direct_fix import DirectFixes
 from fgnav.analysis.position_surfaces import epoch_residual, intersect_surfaces, surface_models
 from fgnav.errors import UserError
 from fgnav.measurements import Family, Pass
+from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE
 
 __all__ = ["cone_torus_candidates", "epoch_parts", "epoch_roots", "geometric_support",
            "geometric_initial_orbit", "fixes_along", "TRACK_EPOCHS", "MIN_TRACK_MARGIN"]
@@ -53,8 +54,8 @@ MIN_TRACK_MARGIN = 10.0
 """The best track's chi-square must be this many times below the second best's."""
 MIN_FIX_EPOCHS = 4
 """Epochs with a closed-form fix needed for an orbit from geometric fixes."""
-_STAR_KIND = "body_star_angle"
-_BODY_KIND = "body_body_angle"
+_STAR_KIND = BODY_STAR_ANGLE.kind
+_BODY_KIND = BODY_BODY_ANGLE.kind
 
 
 def epoch_parts(p: Pass) -> dict[int, list]:

@@ -82,6 +82,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
+    if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
+        options = replace(options, centre=p.centre)
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     p = prepare_pass(p, options, gap_factor, ignore_prior)
