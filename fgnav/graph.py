@@ -111,7 +111,7 @@ def variable_prior_rows(p, X):
     ``(k (R,), A (R, n), b (R,), tags (R,))``."""
     lay = layout_of(p)
     ks, As, bs, tags = [], [], [], []
-    for v in lay.extra:
+    for v in lay.parameters:   # an orbit's prior is the log's prior rows
         sl = lay.slices[v.name]
         A = np.zeros((v.dim, lay.n))
         if v.manifold == "rot3":

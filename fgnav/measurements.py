@@ -67,6 +67,9 @@ class Pass:
     # body-frame rows at epochs without an attitude row: kind -> their source lines (they
     # enter only with the attitude estimated)
     unconverted: dict[str, np.ndarray] = field(default_factory=dict)
+    # a formation's spacecraft ids, in the log's order (empty: one spacecraft); their orbit
+    # states are the layout's orbit variables (fgnav.formation.joint)
+    spacecraft: tuple[str, ...] = ()
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
 
     @property
@@ -104,6 +107,10 @@ def build_pass(log) -> Pass:
     (star or attitude rows fix it, gyro rows carry it between them; :func:`check_observable`
     refuses the pass otherwise, naming the rows).
     """
+    if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one orbit per spacecraft
+        from fgnav.formation.joint import build_formation_pass
+
+        return build_formation_pass(log)
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
     xyz = np.asarray(log.xyz, dtype=float)

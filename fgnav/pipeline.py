@@ -288,6 +288,13 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     centre = getattr(log, "centre", "earth")   # the log's "# centre:" line: the motion model's
     if centre != options.centre:
         options = replace(options, centre=centre)
+    if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one graph, every spacecraft
+        from fgnav.formation.outputs import smooth_formation
+
+        if truth is not None:
+            raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
+        return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
+                                stage=stage, t0=t0)
     p = build_pass(log)
     if not aberration:
         p = without_aberration(p)
@@ -523,6 +530,10 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
     and latency.csv of an online method, a report's plots) are removed, and so are staging
     folders left by a killed run (:mod:`fgnav.io.outputs`); other files are left alone.
     """
+    if p.spacecraft:   # a formation: trajectory-<id>.oem per spacecraft, relative.csv
+        from fgnav.formation.outputs import write_formation_outputs
+
+        return write_formation_outputs(out_dir, res, p)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(out)

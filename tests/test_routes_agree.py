@@ -79,7 +79,7 @@ def _raw_stars(scenario, **opts):
 
 
 def test_every_model_that_enters_the_graphs_is_covered():
-    covered = {k for _, _, kinds, _ in CASES.values() for k in kinds} | {"gyro"}
+    covered = {k for _, _, kinds, _ in CASES.values() for k in kinds} | {"gyro"} | set(LINKS)
     solved = {k for k, m in MODELS.items() if m.solved}
     assert solved <= covered, f"add a case carrying {sorted(solved - covered)} to CASES"
 
@@ -238,3 +238,41 @@ def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
         np.testing.assert_allclose(A1, A1_b[k - 1][rows], rtol=1e-9,
                                    atol=1e-9 * np.abs(A1_b[k - 1][rows]).max())
         np.testing.assert_allclose(b_i, b_b[k - 1][rows], rtol=1e-9, atol=1e-9)
+
+
+LINKS = ("isl_pseudorange", "isl_carrier_phase")
+"""The formation's links, covered below on a two-spacecraft pass."""
+
+
+@pytest.mark.parametrize("kind", LINKS)
+def test_batch_and_isam2_routes_agree_on_a_formations_links(kind):
+    """A link's rows bind the orbits of its two spacecraft, the pair's clock and (carrier) the
+    link's ambiguity row by row: the batch rows and the factor on those keys agree."""
+    from formation_data import formation_log
+
+    log, truth = formation_log(2, carrier=True, lever_arms=True)
+    p = build_pass(log)
+    lay = p.layout
+    X_eval = lay.initial(truth["A"][1])
+    X_eval[:, lay.slices["orbit_B"]] = truth["B"][1]
+    X_eval += np.random.default_rng(9).normal(0, 1, X_eval.shape) * np.r_[
+        [2e3] * 3, [1.0] * 3, [2e3] * 3, [1.0] * 3, [50.0] * (lay.n - 12)]
+    fam = p.families[kind]
+    k_b, A_b, b_b, _ = linearize_family(p, kind, fam, X_eval)
+    for j in np.unique(np.linspace(0, len(fam) - 1, 6).astype(int)):
+        k = int(fam.k[j])
+        factor, = factors_for_rows(p, kind, np.array([j]), k, None, X_eval[k, :6])
+        values = gtsam.Values()
+        for v in lay.variables:
+            values.insert(v.key(k), X_eval[k, lay.slices[v.name]])
+        lin = factor.linearize(values)
+        A_i, b_i = lin.jacobian()
+        A_layout = np.zeros((A_i.shape[0], lay.n))
+        col = 0
+        for key in lin.keys():
+            v = next(v for v in lay.variables if v.key(k) == key)
+            A_layout[:, lay.slices[v.name]] = A_i[:, col:col + v.dim]
+            col += v.dim
+        assert col == A_i.shape[1]
+        np.testing.assert_allclose(A_layout, A_b[j], rtol=1e-9, atol=1e-12 * np.abs(A_b[j]).max())
+        np.testing.assert_allclose(b_i, b_b[j], rtol=1e-9, atol=1e-9)

@@ -8,6 +8,7 @@ header::
 
     epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z][,body][,body2]
         [,att_c11,att_c12,att_c13,att_c22,att_c23,att_c33]
+        [,spacecraft][,tx_spacecraft][,rx_antenna][,tx_antenna]
 
 The six base columns are required, in this order; the optional extra columns ``gamma`` and
 ``sigma_model_m`` (used by ``refraction`` rows), ``star_x``, ``star_y``, ``star_z`` (used
@@ -81,7 +82,17 @@ kind                      x, y, z (and extra columns)                      sigma
 ``body_body_angle``       x = angle at the spacecraft between the centres  rad
   (fgnav extension)       of ``body`` and ``body2`` (two different near
                           bodies), rad, in [0, pi]; y, z empty
+``isl_pseudorange``       x = pseudorange, m (> 0), received by            m
+  (fgnav extension)       ``spacecraft`` from ``tx_spacecraft`` (both
+                          required), antennas ``rx_antenna``,
+                          ``tx_antenna`` (optional); y, z empty
+``isl_carrier_phase``     x = carrier phase times wavelength, m, on the    m
+  (fgnav extension)       same link (unknown constant ambiguity)
 ========================  ===============================================  ==============
+
+The ``spacecraft`` column may be given on any kind, the other id columns only on the
+inter-satellite kinds; ids, antenna declarations and their checks are defined in
+:mod:`fgnav.io.log_spacecraft`.
 
 ``body`` and ``body2`` hold a body's name in the file; in memory (``MeasurementLog.extra``)
 its index in :data:`BODIES` (a float, NaN where empty), so that every value of a row stays
@@ -117,7 +128,11 @@ Validation (each case is an :class:`~fgnav.errors.InputFormatError` naming the f
   with | 1 - |u| | > 1e-6 (deviations in (1e-12, 1e-6] are renormalized with a warning); ``out_of_range`` limb radius outside (0, pi/2), a radius
   <= 0, altitude below the centre, ``sigma_model_m`` < 0, a ``prior_position`` inside the
   Earth; ``epoch_outlier`` an epoch more
-  than 30 days from the median epoch of the file.
+  than 30 days from the median epoch of the file; ``bad_id`` a malformed spacecraft or
+  antenna name; ``unknown_spacecraft`` an id not in the ``# spacecraft:`` declaration;
+  ``same_spacecraft`` a link whose two ends are one spacecraft; ``unknown_antenna`` an
+  antenna not declared for its spacecraft;
+- declarations (``# spacecraft:``, ``# antenna:``) that are malformed or repeated.
 - With ``on_bad_row="drop"`` the row-level errors do not raise: the row is dropped and
   counted per reason in ``dropped``, with one warning per reason quoting the first case.
   If no row is left, "no measurements" is raised.
@@ -143,6 +158,10 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
+from fgnav.io.log_spacecraft import (
+    ANTENNA_COLUMNS, ID_COLUMNS, ID_EXPECTED, ID_RE, ISL_KINDS, SPACECRAFT_COLUMNS, Declarations,
+    Vocabulary, check_rows, declaration_lines, first_appearance, id_codes, parse_declaration,
+)
 from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
 
 __all__ = [
@@ -158,7 +177,7 @@ ATT_COV_COLUMNS = ("att_c11", "att_c12", "att_c13", "att_c22", "att_c23", "att_c
 body frame, right perturbation ``R_eci_from_body = R_meas exp([d]x)``); empty: the
 isotropic ``sigma``."""
 EXTRA_COLUMNS = ("gamma", "sigma_model_m", "star_x", "star_y", "star_z", "body",
-                 "body2") + ATT_COV_COLUMNS
+                 "body2") + ATT_COV_COLUMNS + ID_COLUMNS
 STAR_COLUMNS = ("star_x", "star_y", "star_z")
 """The extra columns of a star's catalogue unit vector (``star_direction_body`` rows)."""
 BODY_COLUMNS = ("body", "body2")
@@ -346,6 +365,26 @@ class _Kind(NamedTuple):
     row_check: Callable | None = None
 
 
+def _usage(spec) -> tuple[str, ...]:
+    """A kind's usage of every column of ``_USAGE_COLUMNS`` (padded with "" = must be empty);
+    the ``spacecraft`` column is optional on every kind unless the kind requires it."""
+    u = list(spec.usage) + [""] * (len(_USAGE_COLUMNS) - len(spec.usage))
+    j = _USAGE_COLUMNS.index("spacecraft")
+    u[j] = u[j] or "o"
+    return tuple(u)
+
+
+def _check_isl_range(x, y, z, sigma_model):
+    if not 0.0 < x <= MAX_DISTANCE_M:
+        raise _RowError("out_of_range", "x", f"a range in (0, {MAX_DISTANCE_M:g}] m", _fmt_found(x))
+
+
+def _check_isl_phase(x, y, z, sigma_model):
+    if not abs(x) <= MAX_DISTANCE_M:
+        raise _RowError("out_of_range", "x", f"a carrier range within {MAX_DISTANCE_M:g} m",
+                        _fmt_found(x))
+
+
 _XYZ = ("r", "r", "r", "", "")
 _XY = ("r", "r", "", "", "")
 _ANGLE = (1e-9, 1.0, "rad")
@@ -390,6 +429,14 @@ _KIND_SPEC: dict[str, _Kind] = {
     "body_body_angle": _Kind(("r", "", "", "", "", "", "", "", "r", "r"),
                              "x = angle between the centres of body and body2, rad", *_ANGLE,
                              check=_check_angle, row_check=_check_two_bodies),
+    "isl_pseudorange": _Kind(("r",) + ("",) * (9 + len(ATT_COV_COLUMNS)) + ("r", "r", "o", "o"),
+                             "x = pseudorange from tx_spacecraft's antenna tx_antenna to "
+                             "spacecraft's antenna rx_antenna, m", 1e-6, 1e4, "m",
+                             check=_check_isl_range),
+    "isl_carrier_phase": _Kind(("r",) + ("",) * (9 + len(ATT_COV_COLUMNS)) + ("r", "r", "o", "o"),
+                               "x = carrier phase times wavelength on the link, m (with an "
+                               "unknown constant ambiguity)", 1e-9, 1.0, "m",
+                               check=_check_isl_phase),
 }
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""
@@ -405,7 +452,8 @@ _NONFINITE_RE = re.compile(r"^[+-]?(?:nan|inf|infinity)$", re.IGNORECASE)
 _EPOCH_RE = re.compile(r"^\d{4}-\d{2}-\d{2}T\d{2}:\d{2}:\d{2}(?:\.\d{1,9})?Z$")
 _EPOCH_EXPECTED = "an ISO-8601 UTC epoch YYYY-MM-DDTHH:MM:SS[.fffffffff]Z"
 _HEADER_TEXT = ("epoch,kind,x,y,z,sigma[,gamma][,sigma_model_m][,star_x,star_y,star_z]"
-                "[,body][,body2][,att_c11,...,att_c33]")
+                "[,body][,body2][,att_c11,...,att_c33][,spacecraft][,tx_spacecraft]"
+                "[,rx_antenna][,tx_antenna]")
 _NS_PER_DAY = 86400 * 10**9
 
 
@@ -417,8 +465,12 @@ class MeasurementLog:
     ``xyz`` (M, 3) with NaN where a field is empty; ``sigma`` (M,) in the kind's unit;
     ``extra`` maps the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ``star_y``,
     ``star_z``, ``body``, ``body2``: codes, :data:`BODIES`; ``att_c11`` .. ``att_c33``) to (M,) arrays (NaN where empty); ``line`` the 1-based source line of each row (0 when not from a file);
-    ``warnings`` human-readable notes; ``dropped`` rows dropped per reason; ``centre`` the
-    central body of every position (:data:`CENTRES`; the ``# centre:`` line).
+    ``warnings`` human-readable notes; ``dropped`` rows dropped per reason; ``spacecraft``
+    the spacecraft ids (empty for a one-spacecraft log) that the codes of the ``spacecraft``
+    and ``tx_spacecraft`` columns index, ``antenna_names`` the antenna names the antenna
+    columns' codes index, ``antennas`` the lever arms (3,), m, body frame, by
+    (spacecraft id, antenna name) (:mod:`fgnav.io.log_spacecraft`); ``centre`` the central
+    body of every position (:data:`CENTRES`; the ``# centre:`` line).
     """
 
     path: Any
@@ -431,7 +483,15 @@ class MeasurementLog:
     line: np.ndarray = None
     warnings: list[str] = field(default_factory=list)
     dropped: dict[str, int] = field(default_factory=dict)
+    spacecraft: tuple[str, ...] = ()
+    antenna_names: tuple[str, ...] = ()
+    antennas: dict = field(default_factory=dict)
     centre: str = "earth"
+
+    @property
+    def n_spacecraft(self) -> int:
+        """Spacecraft in the log (1 without a ``spacecraft`` column)."""
+        return max(len(self.spacecraft), 1)
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -462,9 +522,16 @@ class _RowError(Exception):
         self.reason, self.column, self.expected, self.found = reason, column, expected, found
 
 
+_WHAT_VALUE = {**{c: "a body name" for c in BODY_COLUMNS},
+               **{c: "a spacecraft id" for c in SPACECRAFT_COLUMNS},
+               **{c: "an antenna name" for c in ANTENNA_COLUMNS}}
+
+
 def _fmt_found(v: float, column: str = "") -> str:
     if column in BODY_COLUMNS and float(v) in range(len(BODIES)):
         return BODIES[int(v)]
+    if column in ID_COLUMNS:
+        return "a name"
     return repr(float(v))
 
 
@@ -483,12 +550,11 @@ def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
     for j, col in enumerate(_VALUE_COLUMNS):
         if np.isinf(v[j]):
             raise _RowError("not_finite", col, "a finite number", _fmt_found(v[j]))
-    usage = tuple(spec.usage) + ("",) * (len(_USAGE_COLUMNS) - len(spec.usage))
-    cols_usage = dict(zip(_USAGE_COLUMNS, usage))
+    cols_usage = dict(zip(_USAGE_COLUMNS, _usage(spec)))
     for col, use in cols_usage.items():
         j = _VALUE_COLUMNS.index(col)
         if use == "r" and np.isnan(v[j]):
-            raise _RowError("missing_value", col, f"{'a body name' if col in BODY_COLUMNS else 'a number'} "
+            raise _RowError("missing_value", col, f"{_WHAT_VALUE.get(col, 'a number')} "
                             f"({kind}: {what})", "empty field")
         if use == "" and not np.isnan(v[j]):
             raise _RowError("unexpected_value", col, f"an empty field ({kind} does not use "
@@ -541,11 +607,19 @@ def _parse_body(text: str, column: str) -> float:
     return float(BODIES.index(text.lower()))
 
 
-def _parse_number(text: str, column: str) -> float:
+def _parse_id(text: str, column: str, vocab: dict) -> float:
+    if not ID_RE.match(text):
+        raise _RowError("bad_id", column, ID_EXPECTED, text)
+    return vocab["spacecraft" if column in SPACECRAFT_COLUMNS else "antenna"].code(text)
+
+
+def _parse_number(text: str, column: str, vocab: dict | None = None) -> float:
     if text == "":
         return math.nan
     if column in BODY_COLUMNS:
         return _parse_body(text, column)
+    if column in ID_COLUMNS:
+        return _parse_id(text, column, vocab)
     if _NUMBER_RE.match(text):
         x = float(text)
         if not math.isfinite(x):
@@ -638,11 +712,13 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         dropped[err.reason] = dropped.get(err.reason, 0) + 1
         first_msg.setdefault(err.reason, str(exc))
 
-    # The header: the first line that is neither blank nor a comment (a "# centre:" comment
-    # before it declares the central body).
+    # The header: the first line that is neither blank nor a comment; the comments above it
+    # may declare spacecraft and antennas (fgnav.io.log_spacecraft) and the central body
+    # ("# centre: sun").
     header = None
     centre = None
     i_body = n_lines
+    decl = Declarations()
     for i, raw in enumerate(raw_lines):
         try:
             text = raw.decode("utf-8")
@@ -661,6 +737,8 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
                                        + ("" if centre is None else f", once (already {centre})"),
                                        declared.group(1))
             centre = name
+        if stripped.startswith("#"):
+            parse_declaration(path, i + 1, stripped, decl)
         if not stripped or stripped.startswith("#"):
             continue
         header = _check_header(path, i + 1, text)
@@ -673,8 +751,11 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     # The rows: column-wise (_fast_rows) where a row is plainly well formed, row by row
     # (_parse_row, the reference reading with its precise messages) for the other lines;
     # both give the same values for a valid row.
+    decl.check_spacecraft_known(path)
+    vocab = {"spacecraft": Vocabulary(decl.spacecraft or ()), "antenna": Vocabulary()}
     if n_lines - i_body >= COLUMN_WISE_MIN_ROWS:
-        fast_i, ns_f, kind_f, V_f, renorm_f, slow_i = _fast_rows(raw_lines, i_body, header)
+        fast_i, ns_f, kind_f, V_f, renorm_f, slow_i = _fast_rows(raw_lines, i_body, header,
+                                                                 vocab)
     else:  # a short log: row by row is quicker than loading Arrow
         fast_i, ns_f, kind_f, V_f, renorm_f = (np.zeros(0, dtype=np.int64),
                                                np.zeros(0, dtype=np.int64),
@@ -689,7 +770,7 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     for i in slow_i:
         lineno = i + 1
         try:
-            row = _parse_row(raw_lines[i], header, (not terminated) and i == n_lines - 1)
+            row = _parse_row(raw_lines[i], header, (not terminated) and i == n_lines - 1, vocab)
         except _RowError as err:
             bad(lineno, err)
             continue
@@ -712,6 +793,15 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     if len(lines) and len(fast_i):  # back into file order
         order = np.argsort(line_arr, kind="stable")
         ns, V, kind_arr, line_arr = ns[order], V[order], kind_arr[order], line_arr[order]
+
+    # Several spacecraft: final codes, then the checks across columns (fgnav.io.log_spacecraft)
+    spacecraft, antenna_names, antennas = (), (), {}
+    if any(c in header for c in ID_COLUMNS):
+        V, spacecraft, antenna_names, antennas, keep = _spacecraft_codes(
+            V, kind_arr, line_arr, vocab, decl, "spacecraft" in header, bad)
+        ns, V, kind_arr, line_arr = ns[keep], V[keep], kind_arr[keep], line_arr[keep]
+        if not len(ns):
+            raise _no_measurements(path, n_lines + 1, f"all {sum(dropped.values())} rows dropped")
 
     # Epochs far from the others (median) are errors (a mistyped date).
     med = int(np.sort(ns)[(len(ns) - 1) // 2])
@@ -756,7 +846,9 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(f"<U{width}"), xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
-        line=line_arr, warnings=warnings, dropped=dropped, centre=centre or "earth")
+        line=line_arr, warnings=warnings, dropped=dropped, spacecraft=spacecraft,
+        antenna_names=antenna_names, antennas=antennas,
+        centre=centre or "earth")
 
 
 def _check_centre_kinds(centre, kind_arr, error):
@@ -767,6 +859,38 @@ def _check_centre_kinds(centre, kind_arr, error):
     if len(bad):
         raise error(int(bad[0]), (f"a kind of a heliocentric log (centre: {centre}): "
                                   f"{', '.join(HELIOCENTRIC_KINDS)}", str(kind_arr[bad[0]])))
+
+
+def _spacecraft_codes(V, kind_arr, line_arr, vocab, decl, has_column, bad):
+    """The id columns' final codes (spacecraft in declared order, or of first appearance),
+    the rows' cross-column checks (``bad(line, _RowError)`` for each bad row): returns
+    ``(V, spacecraft ids, antenna names, antennas, keep mask)``."""
+    j = {c: 4 + EXTRA_COLUMNS.index(c) for c in ID_COLUMNS}
+    V = V.copy()
+    names = vocab["spacecraft"].names
+    if decl.spacecraft is not None:
+        order = np.arange(len(names))      # declared first, in order; others after
+    else:
+        order = first_appearance([V[:, j[c]] for c in SPACECRAFT_COLUMNS], line_arr)
+    new_of = np.full(len(names), np.nan)
+    new_of[order] = np.arange(len(order))
+    for c in SPACECRAFT_COLUMNS:
+        col = V[:, j[c]]
+        ok = ~np.isnan(col)
+        col[ok] = new_of[col[ok].astype(int)]
+    spacecraft = tuple(names[i] for i in order)
+    antenna_names = vocab["antenna"].names
+    ids = {c: V[:, j[c]] for c in ID_COLUMNS}
+    keep = np.ones(len(V), dtype=bool)
+    for i, reason, col, expected, found in check_rows(
+            kind_arr, ids, spacecraft, antenna_names, decl.antennas,
+            None if decl.spacecraft is None else len(decl.spacecraft), has_column):
+        if keep[i]:
+            bad(int(line_arr[i]), _RowError(reason, col, expected, found))
+            keep[i] = False
+    declared = spacecraft[:len(decl.spacecraft)] if decl.spacecraft is not None else spacecraft
+    antennas = {k: a for k, a in decl.antennas.items() if k[0] in declared}
+    return V, declared, antenna_names, antennas, keep
 
 
 def _duplicates(ns, kind_arr, V, line_arr):
@@ -800,7 +924,7 @@ def _duplicates(ns, kind_arr, V, line_arr):
     return dup, (int(line_arr[j]), int(line_arr[first_of[np.searchsorted(idx, j)]]))
 
 
-def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool):
+def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool, vocab: dict):
     """One line after the header, the reference reading: ``None`` for a blank or comment
     line, else ``(epoch, kind, values, renormalized)``; raises :class:`_RowError`."""
     ncol = len(header)
@@ -835,7 +959,7 @@ def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool):
     for j, col in enumerate(_VALUE_COLUMNS):
         k = col_index.get(col)
         if k is not None:
-            v[j] = _parse_number(fields[k], col)
+            v[j] = _parse_number(fields[k], col, vocab)
     v, renorm = _check_values(kind, v)
     return t, kind, v, renorm
 
@@ -886,7 +1010,7 @@ def _arrow_text_table(pa, pcsv, body: bytes, names: list[str]):
                                             strings_can_be_null=False))
 
 
-def _fast_rows(raw_lines, start: int, header: list[str]):
+def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = None):
     """The plainly well-formed rows among ``raw_lines[start:]``, read column-wise.
 
     The regular lines (:func:`_regular_lines`) are parsed by Arrow's CSV reader as text
@@ -901,6 +1025,7 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
     indices left).
     """
     n_val = len(_VALUE_COLUMNS)
+    vocab = vocab or {"spacecraft": Vocabulary(), "antenna": Vocabulary()}
     all_lines = list(range(start, len(raw_lines)))
     none = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype="<U1"),
             np.zeros((0, n_val)), 0, all_lines)
@@ -966,6 +1091,9 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
             continue
         t = text(k, k == ncol - 1)
         filled = as_bool(pc.not_equal(t, ""))
+        if c in ID_COLUMNS:   # names -> codes of the vocabulary (fgnav.io.log_spacecraft)
+            V[:, j] = _fast_ids(t, filled, c, vocab, good)
+            continue
         good &= ~filled | as_bool(pc.match_substring_regex(t, _FAST_NUMBER))
         t = pc.if_else(pa.array(filled & good), t, "nan")
         V[:, j] = np.asarray(pc.cast(t, pa.float64()).to_numpy(zero_copy_only=False))
@@ -976,8 +1104,7 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
         rows = np.flatnonzero((kinds == kind) & good)
         spec = _KIND_SPEC[str(kind)]
         Vk = V[rows]
-        usage = tuple(spec.usage) + ("",) * (len(_USAGE_COLUMNS) - len(spec.usage))
-        for col, use in zip(_USAGE_COLUMNS, usage):
+        for col, use in zip(_USAGE_COLUMNS, _usage(spec)):
             nan = np.isnan(Vk[:, _VALUE_COLUMNS.index(col)])
             good[rows] &= ~nan if use == "r" else (nan if use == "" else True)
         if spec.check is not None:  # on the values as read (before any renormalization)
@@ -1013,6 +1140,22 @@ def _fast_rows(raw_lines, start: int, header: list[str]):
     return kept, ns[good], kinds[good], V[good], int(renorm[good].sum()), slow.tolist()
 
 
+def _fast_ids(t, filled, column, vocab, good):
+    """Codes (n,) of an id column's text ``t`` (Arrow), NaN where empty; rows with a
+    malformed name are marked not ``good`` (read row by row, for the message)."""
+    names = np.asarray(t.to_numpy(zero_copy_only=False)).astype(str)
+    out = np.full(len(names), np.nan)
+    uniq, first, inv = np.unique(names[filled], return_index=True, return_inverse=True)
+    voc = vocab["spacecraft" if column in SPACECRAFT_COLUMNS else "antenna"]
+    codes = np.full(len(uniq), np.nan)
+    for u in np.argsort(first):       # in order of appearance
+        if ID_RE.match(uniq[u]):
+            codes[u] = voc.code(str(uniq[u]))
+    out[filled] = codes[inv.reshape(-1)]
+    good &= ~(filled & np.isnan(out))
+    return out
+
+
 def _era_shift_ns(label_ns: np.ndarray) -> np.ndarray:
     """(TAI - UTC in force at each naive UTC label - 37 s) in ns, as :func:`fgnav.time.parse_utc`
     adds it (outside a leap second)."""
@@ -1038,7 +1181,8 @@ def _sort_rows(ns, V, kind_arr, line_arr, path):
 
 
 def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
-                    path="<arrays>", centre="earth") -> MeasurementLog:
+                    path="<arrays>", spacecraft=(), antennas=None,
+                    centre="earth") -> MeasurementLog:
     """Build a validated :class:`MeasurementLog` from arrays (same rules as :func:`read_log`).
 
     ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
@@ -1047,6 +1191,9 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
     ``centre``: the central body of the positions (:data:`CENTRES`).
+    Several spacecraft (:mod:`fgnav.io.log_spacecraft`): ``extra["spacecraft"]`` etc. as
+    names (or codes into ``spacecraft``, the ids in order), ``antennas`` the lever arms by
+    (spacecraft id, antenna name).
     """
     if centre not in CENTRES:
         raise UserError(f"log_from_arrays: centre: expected one of {', '.join(CENTRES)}, "
@@ -1068,14 +1215,25 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     if not np.all(np.abs(t_s) < 1e9):  # also rejects NaN / inf
         raise UserError("log_from_arrays: t_s must be finite and within 1e9 s of epoch0")
     extra = dict(extra or {})
+    for c in ID_COLUMNS:   # an id column with no value is no column (one spacecraft)
+        if c in extra and all(v is None or v == "" or (isinstance(v, float) and math.isnan(v))
+                              for v in np.asarray(extra[c], dtype=object).reshape(-1)):
+            del extra[c]
     unknown = set(extra) - set(EXTRA_COLUMNS)
     if unknown:
         raise UserError(f"log_from_arrays: unknown extra column(s) {sorted(unknown)}; "
                         f"expected only {EXTRA_COLUMNS}")
     E = np.full((M, len(EXTRA_COLUMNS)), np.nan)
+    names = {"spacecraft": list(spacecraft), "antenna": []}
     for j, c in enumerate(EXTRA_COLUMNS):
         if c in extra:
-            if c in BODY_COLUMNS:
+            if c in ID_COLUMNS:
+                try:
+                    a = id_codes(extra[c], names["spacecraft" if c in SPACECRAFT_COLUMNS
+                                                 else "antenna"], c)
+                except ValueError as exc:
+                    raise UserError(f"log_from_arrays: extra[{c!r}]: {exc}") from None
+            elif c in BODY_COLUMNS:
                 try:
                     a = body_codes(extra[c])
                 except ValueError as exc:
@@ -1097,6 +1255,15 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
 
     _check_centre_kinds(centre, kind_arr, lambda i, what: UserError(
         f"log_from_arrays: row {i}, column 'kind': expected {what[0]}, found {what[1]!r}"))
+    antennas = {(str(a), str(b)): np.asarray(arm, dtype=float).reshape(3)
+                for (a, b), arm in (antennas or {}).items()}
+    if any(c in extra for c in ID_COLUMNS):
+        ids = {c: E[:, EXTRA_COLUMNS.index(c)] for c in ID_COLUMNS}
+        for i, reason, col, expected, found in check_rows(
+                kind_arr, ids, tuple(names["spacecraft"]), tuple(names["antenna"]), antennas,
+                len(spacecraft) if spacecraft else None, "spacecraft" in extra):
+            raise UserError(f"log_from_arrays: row {i}, column '{col}': expected {expected}, "
+                            f"found {found!r}")
     ns = add_seconds(epoch0, t_s).astype(np.int64)
     line = np.zeros(M, dtype=np.int64)
     order = np.argsort(ns, kind="stable")
@@ -1107,12 +1274,16 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s[order], kind=kind_arr[order], xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
-        line=line, warnings=warnings, dropped={}, centre=centre)
+        line=line, warnings=warnings, dropped={},
+        spacecraft=tuple(names["spacecraft"]) if any(c in extra for c in SPACECRAFT_COLUMNS)
+        else (), antenna_names=tuple(names["antenna"]), antennas=antennas, centre=centre)
 
 
-def _fmt(v: float, column: str = "") -> str:
+def _fmt(v: float, column: str = "", names=None) -> str:
     if math.isnan(v):
         return ""
+    if column in ID_COLUMNS:
+        return names["spacecraft" if column in SPACECRAFT_COLUMNS else "antenna"][int(v)]
     return BODIES[int(v)] if column in BODY_COLUMNS else repr(float(v))
 
 
@@ -1131,7 +1302,17 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     xyz = np.asarray(log.xyz, dtype=float)
     sigma = np.asarray(log.sigma, dtype=float)
     extra = {c: body_codes(log.extra[c]) if c in BODY_COLUMNS else
-             np.asarray(log.extra[c], dtype=float) for c in EXTRA_COLUMNS if c in (log.extra or {})}
+             np.asarray(log.extra[c], dtype=float) for c in EXTRA_COLUMNS
+             if c in (log.extra or {}) and c not in ID_COLUMNS}
+    names = {"spacecraft": list(getattr(log, "spacecraft", ()) or ()),
+             "antenna": list(getattr(log, "antenna_names", ()) or ())}
+    for c in ID_COLUMNS:
+        if c in (log.extra or {}):
+            try:
+                extra[c] = id_codes(log.extra[c], names["spacecraft" if c in SPACECRAFT_COLUMNS
+                                                        else "antenna"], c)
+            except ValueError as exc:
+                raise UserError(f"write_log: {exc}") from None
     unknown = set(log.extra or {}) - set(EXTRA_COLUMNS)
     if unknown:
         raise UserError(f"write_log: unknown extra column(s) {sorted(unknown)}")
@@ -1142,6 +1323,9 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     if getattr(log, "centre", "earth") != "earth":
         out.append(f"# centre: {log.centre}\n")
     out += [f"# {c}\n" for c in comments]
+    if any(c in used for c in ID_COLUMNS):
+        out += [f"# {c}\n" for c in declaration_lines(names["spacecraft"],
+                                                       getattr(log, "antennas", {}) or {})]
     out.append(",".join(header) + "\n")
     for i in range(M):
         v = np.array([*xyz[i], sigma[i]] + [extra[c][i] if c in extra else np.nan
@@ -1152,7 +1336,7 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
             raise UserError(f"write_log: row {i}, column '{err.column}': expected "
                             f"{err.expected}, found {err.found!r}") from None
         row = [_fmt_epoch(int(ns[i])), str(kind[i]), _fmt(xyz[i, 0]), _fmt(xyz[i, 1]),
-               _fmt(xyz[i, 2]), _fmt(sigma[i])] + [_fmt(extra[c][i], c) for c in used]
+               _fmt(xyz[i, 2]), _fmt(sigma[i])] + [_fmt(extra[c][i], c, names) for c in used]
         out.append(",".join(row) + "\n")
     with atomic_writer(path, "w") as f:
         f.write("".join(out))

@@ -47,7 +47,13 @@ import numpy as np
 from factors.adapters import whiten
 from fgnav.models.variables import Layout, Variable
 
-__all__ = ["MeasurementModel", "sqrt_information"]
+__all__ = ["MeasurementModel", "sqrt_information", "COLUMN_PREFIX", "ROLE_DIMS"]
+
+COLUMN_PREFIX = "col:"
+"""``fam.values[COLUMN_PREFIX + role]`` (M,): per row, the first block column of the variable
+that plays ``role`` for the row (a formation's rows, :meth:`MeasurementModel.evaluate`)."""
+ROLE_DIMS = {"orbit": 6, "orbit_tx": 6}
+"""Tangent dimension of each per-row variable role (others: 1, a clock or an ambiguity)."""
 
 
 def sqrt_information(C) -> np.ndarray:
@@ -64,6 +70,12 @@ def _touched(mdl, layout: Layout) -> tuple[Variable, ...]:
     online route asks at every epoch)."""
     names = mdl.variables_in(layout)
     return tuple(v for v in layout.variables if v.name in names)
+
+
+@functools.lru_cache(maxsize=64)
+def _variables_by_start(layout: Layout) -> dict:
+    """The layout's variables by their first block column."""
+    return {layout.slices[v.name].start: v for v in layout.variables}
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,6 +135,8 @@ class MeasurementModel:
     def evaluate(self, fam, X: np.ndarray, layout: Layout):
         """Residuals and Jacobians of every row at the block values ``X`` (N, n):
         ``e (M, m)`` unwhitened and ``H (M, m, n)`` in the layout's columns."""
+        if COLUMN_PREFIX + "orbit" in fam.values:
+            return self._evaluate_per_row(fam, X, layout)
         vals_all = layout.values_at(X, fam.k)
         vals = {name: vals_all[name] for name in self.variables_in(layout)}
         e, jac = self.residual(fam, vals)
@@ -131,6 +145,29 @@ class MeasurementModel:
         for name, h in jac.items():
             sl = slice(0, 3) if name == "position" else layout.slices[name]
             H[..., sl] = h
+        return e, H
+
+    def _evaluate_per_row(self, fam, X: np.ndarray, layout: Layout):
+        """:meth:`evaluate` for rows whose variables differ from row to row (a formation: the
+        orbit of the row's spacecraft, a link's two orbits and its clock): ``fam.values``
+        holds, per variable role ``name``, the first column of that row's variable in the
+        block, ``values["col:<name>"]`` (M,) (:func:`fgnav.formation.graph.bind_rows`)."""
+        M, m = len(fam), self.dim
+        k = np.asarray(fam.k)
+        rows = np.arange(M)
+        vals = {}
+        for key, start in fam.values.items():
+            if key.startswith(COLUMN_PREFIX):
+                name = key[len(COLUMN_PREFIX):]
+                d = ROLE_DIMS.get(name, 1)
+                vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
+        e, jac = self.residual(fam, vals)
+        e = np.asarray(e, dtype=float).reshape(M, m)
+        H = np.zeros((M, m, layout.n))
+        for name, h in jac.items():
+            role = "orbit" if name == "position" else name
+            cols = np.asarray(fam.values[COLUMN_PREFIX + role])[:, None] + np.arange(h.shape[-1])
+            H[rows[:, None, None], np.arange(m)[None, :, None], cols[:, None, :]] = h
         return e, H
 
     def evaluate_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
@@ -183,8 +220,13 @@ class MeasurementModel:
             return None
         return full, sqrt_information(C[full])
 
-    def keys(self, layout: Layout, k: int) -> dict[str, int]:
-        """GTSAM keys of the variables this model touches at epoch ``k``."""
+    def keys(self, layout: Layout, k: int, fam=None, j: int | None = None) -> dict[str, int]:
+        """GTSAM keys of the variables this model touches at epoch ``k`` (for a family whose
+        rows bind their own variables, a formation's, those of row ``j``: role -> key)."""
+        if fam is not None and COLUMN_PREFIX + "orbit" in fam.values:
+            by_start = _variables_by_start(layout)
+            return {key[len(COLUMN_PREFIX):]: by_start[int(cols[j])].key(k)
+                    for key, cols in fam.values.items() if key.startswith(COLUMN_PREFIX)}
         return {v.name: v.key(k) for v in _touched(self, layout)}
 
     def _noise(self, sigma: float, robust, W=None):
@@ -226,5 +268,8 @@ class MeasurementModel:
         if full is not None:
             for r, W in zip(*full):
                 Ws[r] = W
+        if COLUMN_PREFIX + "orbit" in fam.values:   # variables bound row by row
+            return [self.factor(fam, j, self.keys(layout, k, fam, j), self._noise(sig, robust, W))
+                    for j, sig, W in zip(rows.tolist(), sigmas.tolist(), Ws)]
         return [self.factor(fam, j, keys, self._noise(sig, robust, W))
                 for j, sig, W in zip(rows.tolist(), sigmas.tolist(), Ws)]

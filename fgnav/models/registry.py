@@ -30,6 +30,8 @@ from factors.direction import (body_direction_residual, earth_direction_residual
                                star_direction_apparent_residual)
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
+from factors.isl import (isl_carrier_residual, isl_range_residual, make_isl_carrier_factor,
+                         make_isl_range_factor)
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
                            prior_velocity_kernel, state_prior_residual)
@@ -56,7 +58,8 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
            "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
-           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "ATTITUDE_RATE", "refraction_ray_eci"]
+           "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "ATTITUDE_RATE", "refraction_ray_eci",
+           "ISL_PSEUDORANGE", "ISL_CARRIER_PHASE"]
 
 
 def _xyz(log, i):
@@ -577,6 +580,46 @@ BODY_BODY_ANGLE = _angle_model(
     star=False, limb=False, keys=("sigma_deg", "body", "body2"))
 
 
+# ---- inter-satellite links (a formation's log) ------------------------------------------------
+# A row ties two spacecraft's orbits and their pair's clock (and a carrier link's ambiguity):
+# variables that differ from row to row, bound per row (MeasurementModel._evaluate_per_row,
+# fgnav.formation.isl_rows).
+
+def _isl_residual(carrier):
+    def residual(fam, v):
+        args = (v["orbit"], v["orbit_tx"], fam.values["R_rx"], fam.values["R_tx"],
+                fam.values["a_rx"], fam.values["a_tx"], v["clock"][:, 0], fam.values["sign"],
+                fam.values["rho_m"])
+        if not carrier:
+            e, H_rx, H_tx, H_c = isl_range_residual(*args)
+            return e, {"orbit": H_rx, "orbit_tx": H_tx, "clock": H_c}
+        e, H_rx, H_tx, H_c, H_a = isl_carrier_residual(*args, v["ambiguity"][:, 0])
+        return e, {"orbit": H_rx, "orbit_tx": H_tx, "clock": H_c, "ambiguity": H_a}
+    return residual
+
+
+def _isl_model(kind, summary, carrier):
+    from fgnav.formation.isl_rows import isl_values
+
+    def factor(fam, j, keys, noise):
+        v = fam.values
+        args = (keys["orbit"], keys["orbit_tx"], keys["clock"]) + (
+            (keys["ambiguity"],) if carrier else ())
+        make = make_isl_carrier_factor if carrier else make_isl_range_factor
+        return make(*args, v["R_rx"][j], v["R_tx"][j], v["a_rx"][j], v["a_tx"][j], v["sign"][j],
+                    v["rho_m"][j], noise)
+
+    return MeasurementModel(kind=kind, dim=1, unit="m", observes_orbit=True, summary=summary,
+                            values=isl_values, residual=_isl_residual(carrier), factor=factor,
+                            variables=(), range_m=lambda fam: fam.values["rho_m"])
+
+
+ISL_PSEUDORANGE = _isl_model("isl_pseudorange", "one-way inter-satellite pseudorange (m) between "
+                             "two spacecraft's antennas, with the pair's clock", carrier=False)
+ISL_CARRIER_PHASE = _isl_model("isl_carrier_phase", "inter-satellite carrier phase times the "
+                               "wavelength (m), with the link's float ambiguity", carrier=True)
+
+
 # ---- attitude motion without a gyro ---------------------------------------------------------
 
 ATTITUDE_RATE = Variable(
@@ -595,7 +638,8 @@ variable of the attitude's process model (:mod:`fgnav.solvers.process`)."""
 MODELS: dict[str, MeasurementModel] = {m.kind: m for m in (
     PRIOR_POSITION, PRIOR_VELOCITY, EARTH_DIRECTION, LIMB_RADIUS, ALTITUDE, REFRACTION,
     ATTITUDE, EARTH_DIRECTION_BODY, SUN_DIRECTION_BODY, MOON_DIRECTION_BODY, GYRO,
-    STAR_DIRECTION_BODY, BODY_STAR_ANGLE, LIMB_STAR_ANGLE, BODY_BODY_ANGLE)}
+    STAR_DIRECTION_BODY, BODY_STAR_ANGLE, LIMB_STAR_ANGLE, BODY_BODY_ANGLE, ISL_PSEUDORANGE,
+    ISL_CARRIER_PHASE)}
 """Every log kind the project reads, by kind."""
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{

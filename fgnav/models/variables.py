@@ -26,7 +26,7 @@ import numpy as np
 
 from factors.geometry import so3_exp, so3_log
 
-__all__ = ["Variable", "Layout", "ORBIT", "CONSTANT_PSD_FLOOR"]
+__all__ = ["Variable", "Layout", "ORBIT", "CONSTANT_PSD_FLOOR", "orbit_variable"]
 
 CONSTANT_PSD_FLOOR = 1e-18
 """A random walk's spectral density (unit^2/s) never goes below this: a "constant" variable is
@@ -47,6 +47,11 @@ class Variable:
     psd : random-walk spectral density (unit^2/s) between epochs (not used by the orbit).
     prior_sigma : 1-sigma of its prior at the first epoch (unit); prior_mean its mean.
     description : one line for help texts and outputs.
+    orbit : an orbit state ``[r_eci_m; v_eci_mps]`` (its process model is the motion model,
+        its priors the log's prior rows): :data:`ORBIT`, and in a formation's graph one per
+        further spacecraft (:func:`orbit_variable`).
+    index : told apart from the other variables of its symbol in the key (a formation's
+        orbits share ``x``).
     """
 
     name: str
@@ -59,14 +64,17 @@ class Variable:
     prior_sigma: float = 1.0
     prior_mean: float = 0.0
     description: str = ""
+    orbit: bool = False
+    index: int = 0
 
     @property
     def cli_name(self) -> str:
         return self.name.replace("_", "-")
 
     def key(self, k: int) -> int:
-        """The GTSAM key of this variable at epoch ``k`` (``gtsam.Symbol(symbol, k)``)."""
-        return (ord(self.symbol) << 56) | int(k)
+        """The GTSAM key of this variable at epoch ``k`` (``gtsam.Symbol(symbol, k)``; with an
+        ``index`` the symbol's index carries it above bit 40: epochs below 2^40)."""
+        return (ord(self.symbol) << 56) | (self.index << 40) | int(k)
 
     def step_sigma(self, dt_s):
         """1-sigma (unit) of the random-walk step over ``dt_s`` (s): ``sqrt(psd |dt|)``."""
@@ -74,7 +82,19 @@ class Variable:
 
 
 ORBIT = Variable("orbit", "x", 6, "m, m/s", components=("x", "y", "z", "vx", "vy", "vz"),
-                 description="orbit state [r_eci_m; v_eci_mps], EME2000")
+                 description="orbit state [r_eci_m; v_eci_mps], EME2000", orbit=True)
+
+
+def orbit_variable(i: int, spacecraft_id: str) -> Variable:
+    """The orbit state of a formation's spacecraft ``i`` (0-based, in the log's order), named
+    ``orbit_<id>``; spacecraft 0's is :data:`ORBIT` itself, so a one-spacecraft graph is
+    unchanged."""
+    if i == 0:
+        return ORBIT
+    return Variable(f"orbit_{spacecraft_id}", "x", 6, "m, m/s",
+                    components=tuple(f"{c}_{spacecraft_id}" for c in ORBIT.components),
+                    description=f"orbit state of spacecraft {spacecraft_id}, EME2000",
+                    orbit=True, index=i)
 
 
 @dataclass(frozen=True)
@@ -103,6 +123,16 @@ class Layout:
     def extra(self) -> tuple[Variable, ...]:
         """The variables after the orbit state."""
         return self.variables[1:]
+
+    @property
+    def orbits(self) -> tuple[Variable, ...]:
+        """The orbit states of the block (one per spacecraft; :data:`ORBIT` first)."""
+        return tuple(v for v in self.variables if v.orbit)
+
+    @property
+    def parameters(self) -> tuple[Variable, ...]:
+        """The variables that are not orbit states (a bias, an attitude, a clock)."""
+        return tuple(v for v in self.variables if not v.orbit)
 
     def with_prior_sigma(self, name: str, sigma: float) -> "Layout":
         """This layout with the variable ``name``'s prior 1-sigma replaced by ``sigma``."""

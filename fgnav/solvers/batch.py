@@ -97,6 +97,13 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     if lay.extra:
         V0, V1, bv = variable_step_rows(lay, Xs[:-1], Xs[1:], dt)
         A0[:, 6:], A1[:, 6:], b[:, 6:] = V0[:, 6:], V1[:, 6:], bv[:, 6:]
+    for v in lay.orbits[1:]:   # a formation's further spacecraft: the same motion model
+        sl = lay.slices[v.name]
+        F, Phi = propagate_many(Xs[:-1, sl], dt, model, t0_j2000_s + p.t_s[:-1])
+        W = process_noise_sqrt_information(dt, q)
+        A0[:, sl, sl] = -np.einsum("kij,kjl->kil", W, Phi)
+        A1[:, sl, sl] = W
+        b[:, sl] = -np.einsum("kij,kj->ki", W, Xs[1:, sl] - F)
     return A0, A1, b
 
 
@@ -312,8 +319,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                 raise NotObservableError(f"{p.source}: the Gauss-Newton update is not finite")
             Xs = lay.retract(Xs, dx)
             iterations += 1
-            step_r = float(np.max(np.abs(dx[:, :3])))
-            step_v = float(np.max(np.abs(dx[:, 3:6])))
+            step_r, step_v = _orbit_steps(lay, dx)
             if progress is not None:
                 progress(q, iterations, step_r)
             if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
@@ -378,6 +384,13 @@ def _as_block(p, x):
     """Block values (N, n) from ``x`` given as (N, n) or as orbit states (N, 6)."""
     x = np.array(x, dtype=float)
     return x if x.shape[-1] == layout_of(p).n else initial_block(p, x)[0]
+
+
+def _orbit_steps(lay, dx: np.ndarray) -> tuple[float, float]:
+    """The largest position (m) and velocity (m/s) update of any orbit state in ``dx``."""
+    cols = np.concatenate([np.arange(lay.slices[v.name].start, lay.slices[v.name].start + 6)
+                           for v in lay.orbits]).reshape(-1, 6)
+    return float(np.max(np.abs(dx[:, cols[:, :3]]))), float(np.max(np.abs(dx[:, cols[:, 3:]])))
 
 
 def _ekf_first_guess(p: Pass, options: SmootherOptions):

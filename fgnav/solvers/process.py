@@ -62,8 +62,8 @@ def variable_step_rows(lay, X0: np.ndarray, X1: np.ndarray, dt_s: np.ndarray):
             A1[:, rows, sw] = Wr @ H_w1
             b[:, rows] = -np.einsum("kij,kj->ki", Wr, e)
     for v in lay.extra:
-        if coupled and v.name in (ATTITUDE_VARIABLE.name, ATTITUDE_RATE.name):
-            continue
+        if v.orbit or (coupled and v.name in (ATTITUDE_VARIABLE.name, ATTITUDE_RATE.name)):
+            continue   # a formation's further orbits follow the motion model (the caller's)
         sl = lay.slices[v.name]
         if v.manifold == "rot3":
             e, H0, H1 = rot3_random_walk_residual(so3_exp(X0[:, sl]), so3_exp(X1[:, sl]))

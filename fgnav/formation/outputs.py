@@ -1,0 +1,297 @@
+"""A formation's smoothing job: solve the log of several spacecraft, check, summarize, write.
+
+Outputs (``fgnav smooth`` on a log with a ``spacecraft`` column):
+
+* ``trajectory-<id>.oem`` per spacecraft (states and marginal covariances);
+* ``relative.csv``: every further spacecraft's state relative to the first (the reference),
+  in the reference's LVLH frame (:mod:`fgnav.formation.relative_state`) with its 1-sigmas and
+  the full 6x6 covariance (upper triangle), and in the reference's body frame where the log
+  gives its attitude at that epoch;
+* ``variables.csv`` (the pairs' clocks, the carrier ambiguities), ``residuals.csv``;
+* ``summary.json`` with ``spacecraft`` (per id: the one-spacecraft keys) and ``relative``
+  (``position_rms_m``, ``velocity_rms_mps``, ``nees_mean`` against truth when given, the
+  sigmas always), and the integrity verdict of the joint solution.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fgnav.errors import UserError
+from fgnav.formation.joint import solve_formation, spacecraft_states
+from fgnav.formation.relative_state import (relative_covariance, relative_state_body,
+                                            relative_state_lvlh)
+from fgnav.integrity import ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test, _family_test, _severity
+from fgnav.io.atomic import atomic_write_text
+from fgnav.io.oem import write_oem
+from fgnav.io.outputs import commit_outputs, make_staging, remove_stale_staging
+from fgnav.io.summary import write_summary
+from fgnav.time import add_seconds, format_utc
+
+__all__ = ["smooth_formation", "formation_summary", "write_formation_outputs",
+           "relative_rows", "read_formation_truth", "truth_path_of"]
+
+_LVLH = ("x", "y", "z", "vx", "vy", "vz")
+
+
+def truth_path_of(truth: str | Path, spacecraft_id: str) -> Path:
+    """``truth-<id>.oem`` in the directory ``truth`` (or beside the file ``truth``)."""
+    d = Path(truth)
+    return (d if d.is_dir() else d.parent) / f"truth-{spacecraft_id}.oem"
+
+
+def read_formation_truth(truth: str | Path, p) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
+    writes them), checked against the pass's epochs before any solving."""
+    from fgnav.pipeline import read_truth
+
+    out = []
+    for sc in p.spacecraft:
+        path = truth_path_of(truth, sc)
+        if not path.exists():
+            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
+                            f"'{sc}') in {path.parent}")
+        out.append(read_truth(path, p))
+    return out
+
+
+def relative_rows(sol, p, s: int):
+    """Spacecraft ``s``'s state relative to the first: LVLH state (N, 6) and covariance
+    (N, 6, 6) from the joint marginals (cross-covariances included)."""
+    lay = p.layout
+    states = spacecraft_states(sol, lay)
+    xc, xd = states[0][0], states[s][0]
+    rel, J_c, J_d = relative_state_lvlh(xc, xd)
+    sl_c, sl_d = lay.slices[lay.orbits[0].name], lay.slices[lay.orbits[s].name]
+    idx = np.r_[np.arange(sl_c.start, sl_c.stop), np.arange(sl_d.start, sl_d.stop)]
+    P_joint = sol.P_block[:, idx[:, None], idx[None, :]]
+    return rel, relative_covariance(J_c, J_d, P_joint), (J_c, J_d, P_joint)
+
+
+def _reference_attitude(p, sol):
+    """R_eci_from_body (N, 3, 3) of the reference spacecraft at the solution's epochs where
+    the log has an attitude row for it (NaN elsewhere)."""
+    from fgnav.models.model import COLUMN_PREFIX
+    from fgnav.models.registry import ATTITUDE
+
+    R = np.full((len(sol.t_s), 3, 3), np.nan)
+    fam = p.deferred.get(ATTITUDE.kind)
+    if fam is not None:
+        own = np.asarray(fam.values[COLUMN_PREFIX + "orbit"]) == 0
+        R[fam.k[own]] = fam.values["R_eci_from_body"][own]
+    return R
+
+
+def _errors(x, P, x_true) -> dict:
+    err = x - x_true
+    er, ev = np.linalg.norm(err[:, :3], axis=1), np.linalg.norm(err[:, 3:], axis=1)
+    nees = np.einsum("ki,ki->k", err, np.linalg.solve(P, err[..., None])[..., 0])
+    return {"position_rms_m": float(np.sqrt(np.mean(er ** 2))),
+            "velocity_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
+            "final_position_error_m": float(er[-1]), "final_velocity_error_mps": float(ev[-1]),
+            "nees_mean": float(np.mean(nees))}
+
+
+def _sigmas(P) -> dict:
+    return {"sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(P[:, :3, :3], axis1=1, axis2=2)))),
+            "sigma_velocity_rms_mps": float(np.sqrt(np.mean(np.trace(P[:, 3:, 3:], axis1=1, axis2=2))))}
+
+
+def spherical_position_nees(r_est, C, r_true) -> float:
+    """Mean NEES (3 dof) of a relative position in spherical coordinates (range, azimuth,
+    elevation; ``factors.pseudorange``), its covariance mapped by the Jacobian at the
+    estimate. Ranges fix the relative position on a sphere: an error of metres along it
+    is, in Cartesian coordinates, also a chord error of ``d^2/2R`` across it, beyond a
+    centimetre sigma there, so the Cartesian NEES overstates the inconsistency of a
+    consistent estimate (Xing et al. 2008's case for the spherical parameterization)."""
+    from factors.pseudorange import cartesian_to_spherical, spherical_to_cartesian
+
+    s_est, s_true = cartesian_to_spherical(r_est), cartesian_to_spherical(r_true)
+    J = np.linalg.inv(spherical_to_cartesian(s_est)[1])
+    Cs = np.einsum("kij,kjl,kml->kim", J, C, J)
+    e = s_est - s_true
+    e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
+    return float(np.mean(np.einsum("ki,ki->k", e, np.linalg.solve(Cs, e[..., None])[..., 0])))
+
+
+def formation_integrity(sol, p) -> dict:
+    """The verdict of a joint solution from its data alone (:mod:`fgnav.integrity`'s
+    chi-square tests): each family's whitened residuals, the process rows (every orbit's
+    motion and the clocks' random walks), convergence and finite numbers."""
+    tests, reasons, advice, status = {}, [], [], "ok"
+    rank = {"ok": 0, "suspect": 1, "failed": 2}
+
+    def worse(s, why, adv):
+        nonlocal status
+        if rank[s] > rank[status]:
+            status = s
+        if s != "ok":
+            reasons.append(why)
+            if adv and ADVICE[adv] not in advice:
+                advice.append(ADVICE[adv])
+
+    weights = sol.extras.get("row_weights") or {}
+    for kind, r in sol.residuals.items():
+        test, _ = _family_test(r, weights.get(kind))
+        test["status"] = _severity(test)
+        tests[kind] = test
+        worse(test["status"], f"{kind}: chi2/dof {test['normalized']:.3g} over {test['dof']} "
+              f"components (p = 1e{test['log10_p']:.0f})", "outliers")
+    lay = p.layout
+    motion = _chi2_test(float(sol.extras.get("chi2_motion", np.nan)),
+                        max(p.n_epochs - 1, 1) * lay.n)
+    motion["status"] = _severity(motion)
+    tests["motion"] = motion
+    worse(motion["status"], f"motion: chi2/dof {motion['normalized']:.3g}", "force")
+    if not sol.extras.get("converged", True):
+        worse("failed", "the solver did not converge", "converge")
+    if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
+        worse("failed", "non-finite states or covariances", None)
+    return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
+            "false_alarm_probability": FALSE_ALARM_PROBABILITY}
+
+
+def formation_summary(sol, p, options, truths=None) -> dict:
+    """summary.json of a formation's solution (module docstring); ``truths``: per spacecraft
+    ``(t_s, x_eci)`` or None."""
+    from fgnav.orbit import truth_at
+
+    s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
+         "wall_s": float(sol.wall_s), "chi2": float(sol.chi2), "measurements": p.counts(),
+         "process_noise_m2_s3": options.q_m2_s3, "third_body": options.third_body,
+         "gravity": options.gravity, "source": p.source, "converged": sol.extras.get("converged"),
+         "reference_spacecraft": p.spacecraft[0], "spacecraft": {}}
+    states = spacecraft_states(sol, p.layout)
+    x_true = [None] * len(states) if truths is None else [truth_at(*t, sol.t_s) for t in truths]
+    for sc, (x, P), xt in zip(p.spacecraft, states, x_true):
+        d = _sigmas(P)
+        if xt is not None:
+            d.update(_errors(x, P, xt))
+        s["spacecraft"][sc] = d
+    rel_all = {}
+    for j in range(1, len(states)):
+        rel, C, _ = relative_rows(sol, p, j)
+        d = _sigmas(C)
+        if x_true[0] is not None:
+            rel_true = relative_state_lvlh(x_true[0], x_true[j])[0]
+            d.update(_errors(rel, C, rel_true))
+            d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
+                                                                        rel_true[:, :3])
+        rel_all[p.spacecraft[j]] = d
+    s["relative"] = rel_all[p.spacecraft[1]]
+    s["relative"]["frame"] = f"LVLH of spacecraft {p.spacecraft[0]}"
+    if len(rel_all) > 1:
+        s["relative_by_spacecraft"] = rel_all
+    s["integrity"] = formation_integrity(sol, p)
+    return s
+
+
+def smooth_formation(log, method: str, options, *, truth_path=None, progress=None,
+                     stage=None, t0=None):
+    """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`."""
+    from contextlib import nullcontext
+
+    from fgnav.measurements import build_pass
+    from fgnav.pipeline import SmoothResult
+
+    stage = stage or (lambda what, size: nullcontext())
+    t0 = time.perf_counter() if t0 is None else t0
+    if options.estimate:
+        raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
+                        "and carrier ambiguities; further variables are not yet supported there")
+    p = build_pass(log)
+    truths = None if truth_path is None else read_formation_truth(truth_path, p)
+    with stage(f"solving {p.n_epochs:,} epochs of {len(p.spacecraft)} spacecraft ({method})",
+               p.n_epochs):
+        sol = solve_formation(p, method, options, progress=progress)
+    sol.wall_s = time.perf_counter() - t0
+    summary = formation_summary(sol, p, options, truths)
+    if truth_path is not None:
+        summary["truth_path"] = str(truth_path)
+    return SmoothResult(sol, summary, None), p
+
+
+def _relative_csv(sol, p) -> str:
+    cols = ["epoch", "t_s", "reference", "spacecraft"]
+    cols += [f"lvlh_{c}_{'mps' if c.startswith('v') else 'm'}" for c in _LVLH]
+    cols += [f"lvlh_{c}_sigma_{'mps' if c.startswith('v') else 'm'}" for c in _LVLH]
+    iu = np.triu_indices(6)
+    cols += [f"lvlh_c{i + 1}{j + 1}" for i, j in zip(*iu)]
+    cols += [f"body_{c}_m" for c in "xyz"] + [f"body_{c}_sigma_m" for c in "xyz"]
+    epochs = add_seconds(sol.epoch0, sol.t_s)
+    R_ref = _reference_attitude(p, sol)
+    lines = [",".join(cols)]
+    states = spacecraft_states(sol, p.layout)
+    for j in range(1, len(states)):
+        rel, C, (J_c, J_d, P_joint) = relative_rows(sol, p, j)
+        sig = np.sqrt(np.diagonal(C, axis1=1, axis2=2))
+        ok = np.all(np.isfinite(R_ref), axis=(1, 2))
+        body = np.full((len(rel), 3), np.nan)
+        body_sig = np.full((len(rel), 3), np.nan)
+        if ok.any():
+            rb, Jb_c, Jb_d = relative_state_body(states[0][0][ok], states[j][0][ok], R_ref[ok])[:3]
+            body[ok] = rb[:, :3]
+            Cb = relative_covariance(Jb_c[:, :3], Jb_d[:, :3], P_joint[ok])
+            body_sig[ok] = np.sqrt(np.diagonal(Cb, axis1=1, axis2=2))
+        for k in range(len(rel)):
+            vals = [*rel[k], *sig[k], *C[k][iu], *body[k], *body_sig[k]]
+            lines.append(",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}", p.spacecraft[0],
+                                   p.spacecraft[j]] + ["" if not np.isfinite(v) else f"{v:.9g}"
+                                                       for v in vals]))
+    return "\n".join(lines) + "\n"
+
+
+def write_formation_outputs(out_dir, res, p) -> list[Path]:
+    """Write a formation's outputs (module docstring) as one set, as
+    :func:`fgnav.pipeline.write_outputs` does for one spacecraft."""
+    from fgnav.pipeline import residual_times, write_residuals_csv
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    remove_stale_staging(out)
+    stage = make_staging(out)
+    try:
+        sol = res.solution
+        names = []
+        for sc, (x, P) in zip(p.spacecraft, spacecraft_states(sol, p.layout)):
+            name = f"trajectory-{sc}.oem"
+            write_oem(stage / name, sol.epoch0, sol.t_s, x, P,
+                      comments=(f"fgnav {sol.method} solution of a formation: spacecraft {sc}",
+                                "states and marginal covariances at every epoch"),
+                      object_name=sc)
+            names.append(name)
+        atomic_write_text(stage / "relative.csv", _relative_csv(sol, p))
+        names.append("relative.csv")
+        write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
+        names.append("residuals.csv")
+        params = {n: v for n, v in sol.variables.items()
+                  if not n.startswith("orbit_")}
+        if params:
+            _write_parameters_csv(stage / "variables.csv", sol, p, params)
+            names.append("variables.csv")
+        write_summary(stage / "summary.json", res.summary)
+        names.append("summary.json")
+        return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def _write_parameters_csv(path, sol, p, params):
+    """``variables.csv``: the clocks and ambiguities at every epoch with 1-sigmas (columns as
+    :func:`fgnav.pipeline.write_variables_csv`)."""
+    by_name = {v.name: v for v in p.layout.variables}
+    cols, data = ["epoch", "t_s"], []
+    for name, (x, P) in params.items():
+        sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
+        for i, c in enumerate(by_name[name].components):
+            cols += [c, f"{c}_sigma"]
+            data += [x[:, i], sig[:, i]]
+    epochs = add_seconds(sol.epoch0, sol.t_s)
+    lines = [",".join(cols)] + [",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}"]
+                                         + [f"{d[k]:.9g}" for d in data])
+                                for k in range(len(sol.t_s))]
+    atomic_write_text(path, "\n".join(lines) + "\n")
