@@ -36,7 +36,7 @@ import warnings
 
 import numpy as np
 
-from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2
+from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
@@ -56,7 +56,6 @@ MU_THIRD_M3_S2 = (3.24858592e14, MU_EARTH_M3_S2 + MU_MOON_M3_S2, 4.282837362e13,
 """GM of :data:`THIRD_BODIES`, m^3/s^2: Venus, the Earth + Moon, and the Mars, Jupiter and
 Saturn systems (Park et al. 2021, "The JPL Planetary and Lunar Ephemerides DE440 and DE441",
 AJ 161, 105, Table 8)."""
-MU_CENTRE_SUN_M3_S2 = MU_SUN_M3_S2
 
 TABLE_START_J2000_S = 0.0
 """First node of the third-body table: J2000.0 (2000-01-01T12:00 TDB)."""

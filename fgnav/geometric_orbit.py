@@ -162,19 +162,6 @@ def _fit_tracks(t, R, P, model, t0_j2000_s, i_ref, max_iterations=20):
     return x, chi2
 
 
-def _trajectory(x_ref, t_ref, t, model, t0_j2000_s):
-    """The orbit ``x_ref`` at ``t_ref`` propagated to the sorted times ``t`` (N, 6)."""
-    X = np.empty((len(t), 6))
-    i0 = int(np.searchsorted(t, t_ref))
-    for idx in (range(i0, len(t)), range(i0 - 1, -1, -1)):
-        x, tp = np.asarray(x_ref, dtype=float), t_ref
-        for i in idx:
-            x = propagate(x, t[i] - tp, model, t0_j2000_s + tp, with_stm=False)[0]
-            tp = t[i]
-            X[i] = x
-    return X
-
-
 def _track_orbit(p, roots_by_k, model, t0_j2000_s):
     """The orbit (x at t_ref, t_ref) of the track of least chi-square (module docstring)."""
     from fgnav.chi2 import chi2_ppf
@@ -261,7 +248,7 @@ def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
     ks = np.array(sorted(parts_by_k))
     k_sub = ks[np.unique(np.linspace(0, len(ks) - 1, min(len(ks), max_epochs)).round().astype(int))]
     k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - (t_ref if near_k is None else p.t_s[near_k])))])
-    x0 = _trajectory(x_ref, t_ref, np.array([p.t_s[k_ref]]), model, t0_j2000_s)[0]
+    x0 = propagate(x_ref, float(p.t_s[k_ref]) - t_ref, model, t0_j2000_s + t_ref, with_stm=False)[0]
     sp = _surface_subpass(p, k_sub)
     fit = _levenberg_marquardt(sp, x0, float(p.t_s[k_ref]), model, t0_j2000_s)
     if fit is None:
