@@ -73,7 +73,7 @@ def make_motion_factor(key0, key1, dt_s, q_m2_s3, model: MotionModel = _DEFAULT_
     if dt == 0.0:
         raise ValueError("make_motion_factor: dt_s must be nonzero (process noise is singular)")
     noise = _motion_noise(dt, float(q_m2_s3))
-    mu, j2, re, third, hmax, mus, mum = model.args()
+    mu, j2, re, third, hmax, mus, mum, eph = model.args()
     t0 = float(t0_j2000_s)
     k0, k1 = int(key0), int(key1)
 
@@ -83,7 +83,7 @@ def make_motion_factor(key0, key1, dt_s, q_m2_s3, model: MotionModel = _DEFAULT_
         f = np.empty(6)
         Phi = np.empty((6, 6))
         want = H is not None
-        propagate_nb(x0, dt, mu, j2, re, third, hmax, mus, mum, t0, want, f, Phi)
+        propagate_nb(x0, dt, mu, j2, re, third, hmax, mus, mum, eph, t0, want, f, Phi)
         if want:
             H[0] = -Phi
             H[1] = np.eye(6)

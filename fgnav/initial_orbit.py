@@ -139,6 +139,11 @@ def iod_support(p: Pass) -> tuple[bool, str]:
         ranges = [k for k in RANGE_KINDS if p.count(k)]
         return True, (f"an initial orbit can be computed from {n_dir} direction epochs"
                       + (f" and the {'/'.join(ranges)} rows" if ranges else ""))
+    from fgnav.geometric_orbit import geometric_support  # cones and tori (the cruise)
+
+    ok, why = geometric_support(p)
+    if ok:
+        return ok, why
     others = sorted(k for k in p.families if k not in prior_kinds())
     return False, (f"no initial orbit from {', '.join(others) or 'no measurements'}"
                    f"{f' ({n_dir} direction epochs)' if n_dir else ''}: it needs "
@@ -471,6 +476,14 @@ def initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
     ok, why = iod_support(p)
     if not ok:
         raise UserError(f"{p.source}: {why}")
+    if len(np.unique(_geocentric_directions(directions_in_eci(p))[0])) < MIN_DIRECTION_EPOCHS:
+        from fgnav.geometric_orbit import geometric_initial_orbit  # angles without directions
+
+        try:
+            return geometric_initial_orbit(p, model, t0_j2000_s, near_k)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            raise UserError(f"{p.source}: the initial orbit fit failed ({exc}); add "
+                            f"{_PRIOR_ROWS}") from exc
     try:   # body-frame directions (--estimate attitude) rotated with the attitude rows
         return _initial_orbit(directions_in_eci(p), model, t0_j2000_s, near_k)
     except UserError:

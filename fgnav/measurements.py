@@ -70,6 +70,7 @@ class Pass:
     # a formation's spacecraft ids, in the log's order (empty: one spacecraft); their orbit
     # states are the layout's orbit variables (fgnav.formation.joint)
     spacecraft: tuple[str, ...] = ()
+    centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
 
     @property
     def n_epochs(self) -> int:
@@ -115,7 +116,8 @@ def build_pass(log) -> Pass:
     xyz = np.asarray(log.xyz, dtype=float)
     sigma = np.asarray(log.sigma, dtype=float)
     lines = np.asarray(log.line)
-    p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings))
+    p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
+             centre=getattr(log, "centre", "earth"))
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
         if mdl.between and len(i) and np.any(k_of_row[i] == 0):

@@ -22,7 +22,7 @@ from fgnav.initial_orbit import (
 from fgnav.integrity import assess, needs_prior_test
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
-from fgnav.io.oem import read_oem, write_oem
+from fgnav.io.oem import oem_frame, read_oem, write_oem
 from fgnav.io.outputs import (
     check_readable_file, commit_outputs, staged,
 )
@@ -82,6 +82,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
+    if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
+        options = replace(options, centre=p.centre)
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_state(options.state, method)
@@ -284,6 +286,9 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
 
     stage = stage or (lambda what, size: nullcontext())
     t0 = time.perf_counter() if t0 is None else t0
+    centre = getattr(log, "centre", "earth")   # the log's "# centre:" line: the motion model's
+    if centre != options.centre:
+        options = replace(options, centre=centre)
     if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one graph, every spacecraft
         from fgnav.formation.outputs import smooth_formation
 
@@ -301,7 +306,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     if not aberration:
         p = without_aberration(p)
     if truth is None and truth_path is not None:
-        truth = read_truth(truth_path, p)  # checked before solving
+        truth = read_truth(truth_path, p, centre)  # checked before solving
     truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
                                                                       options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
@@ -311,6 +316,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
                     ignore_prior=ignore_prior, **solve_kw)
     if ignore_prior:
         p = strip_prior(p)
+    if centre != "earth":   # the outputs' frame (write_outputs)
+        sol.extras["centre"] = centre
     sol.wall_s = time.perf_counter() - t0
     with stage("checking the solution (Cramer-Rao bound, integrity tests)", p.n_epochs):
         summary = summarize(sol, p, options)
@@ -356,11 +363,15 @@ def truth_variables(truth: dict, sol: Solution) -> dict:
             for name, (t, x) in truth.items() if name in sol.variables}
 
 
-def read_truth(path: str | Path, p: Pass) -> tuple[np.ndarray, np.ndarray]:
+def read_truth(path: str | Path, p: Pass, centre: str = "earth") -> tuple[np.ndarray, np.ndarray]:
     """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
-    validated before any solving: readable, finite states, epochs covering the pass."""
+    validated before any solving: readable, finite states, epochs covering the pass, about
+    the log's ``centre``."""
     check_readable_file(path, "--truth")
     oem = read_oem(path)
+    if str(oem.meta.get("CENTER_NAME", "EARTH")).lower() != centre:
+        raise UserError(f"--truth {path}: CENTER_NAME = {oem.meta.get('CENTER_NAME')}, but the "
+                        f"log's positions are about the {centre} (its '# centre:' line)")
     t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
         "timedelta64[ns]")), p.epoch0), dtype=float)
     x = np.asarray(oem.x_eci, dtype=float)
@@ -540,11 +551,13 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
     with staged(out_dir) as (out, stage):
         sol = res.solution
         names = ["trajectory.oem"]
-        write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
+        frame = oem_frame(sol.extras.get("centre", "earth"))
+        write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci, **frame,
                   comments=(f"fgnav {sol.method} solution",
                             "states and marginal covariances at every epoch"))
         if sol.online_x_eci is not None and sol.method != "ekf":
             write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
+                      **frame,
                       comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
             names.append("online.oem")
         write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))

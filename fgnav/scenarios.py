@@ -24,7 +24,7 @@ import numpy as np
 
 from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
-from fgnav.io.log_csv import BODIES
+from fgnav.io.log_csv import BODIES, CENTRES, HELIOCENTRIC_KINDS
 from fgnav.io.log_spacecraft import ID_EXPECTED, ID_RE
 from fgnav.io.text import parse_toml, read_utf8_text
 from fgnav.models.registry import MODELS, simulated_kinds
@@ -76,6 +76,7 @@ class SensorSpec:
     body: str = "earth"                    # the near body of an angle sensor
     body2: str = "moon"                    # the second near body of a body-body angle
     stars_per_epoch: float = 3.0           # stars measured against the body at each epoch
+    star_spread: str = "sky"               # "sky": directions spread; "axes": cone axes (s ~ -s)
     # a star camera on its own mount (not the Earth camera's detector): a constant mounting
     # error, 1σ per axis, drawn once per pass (fgnav.simulate.star_camera); 0 = confocal
     mounting_sigma_arcsec: float = 0.0
@@ -153,12 +154,13 @@ class Scenario:
     truth_srp: bool = False
     prior_position_sigma_m: float = 10000.0
     prior_velocity_sigma_mps: float = 2.0
-    prior_mode: str = "random"         # "random" | "fixed"
+    prior_mode: str = "random"         # "random" | "fixed" | "none" (no prior rows)
     sensors: tuple = field(default_factory=tuple)
     source: str = ""
     formation: "FormationSpec | None" = None
     """Several spacecraft with inter-satellite links (``[[spacecraft]]``, ``[[antenna]]``,
     ``[[link]]``, ``[ranging]``); None: one spacecraft on ``[orbit]``."""
+    centre: str = "earth"              # "earth" | "sun": the centre of x0_eci and of the log
 
     def with_options(self, **kw) -> "Scenario":
         """A copy with the given fields replaced (``None`` keeps a field); ``step_s`` and
@@ -181,6 +183,7 @@ TOP_KEYS = {
     "epoch": ("epoch", "", None, None, True, True),
     "duration_h": ("number", "h", 0.0, _INF, False, False),
     "step_s": ("number", "s", 0.0, _INF, False, False),
+    "centre": ("choice", "", CENTRES, None, True, True),
 }
 TOP_TABLES = ("orbit", "truth", "prior", "sensor", "spacecraft", "antenna", "link", "ranging")
 _ARRAY_TABLES = ("sensor", "spacecraft", "antenna", "link")
@@ -202,7 +205,7 @@ TRUTH_KEYS = {k: ("bool", "", None, None, True, True) for k in ("j2", "third_bod
 PRIOR_KEYS = {
     "position_sigma_m": ("number", "m", 0.0, 1e9, False, True),
     "velocity_sigma_mps": ("number", "m/s", 0.0, 1e5, False, True),
-    "mode": ("choice", "", ("random", "fixed"), None, True, True),
+    "mode": ("choice", "", ("random", "fixed", "none"), None, True, True),
 }
 SENSOR_KEYS = {
     "kind": ("choice", "", SENSOR_KINDS, None, True, True),
@@ -224,6 +227,7 @@ SENSOR_KEYS = {
     "body": ("choice", "", BODIES, None, True, True),
     "body2": ("choice", "", BODIES, None, True, True),
     "stars_per_epoch": ("number", "", 1.0, 50.0, True, True),
+    "star_spread": ("choice", "", ("sky", "axes"), None, True, True),
     "mounting_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
 }
 SPACECRAFT_KEYS = {
@@ -414,10 +418,14 @@ def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
                             k, label=f"{label_prefix}{k}")
 
 
+R_SUN_PHOTOSPHERE_M = 6.957e8
+"""Nominal solar radius, m (IAU 2015 Resolution B3): a heliocentric orbit stays outside it."""
+
+
 def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0,
-                 label: str = "orbit") -> tuple:
+                 label: str = "orbit", centre: str = "earth") -> tuple:
     """The truth state (6,) of an ``[orbit]`` table (or of ``[spacecraft.orbit]``: ``table``,
-    ``index`` and ``label`` name it in errors)."""
+    ``index`` and ``label`` name it in errors), about the scenario's ``centre``."""
     _check_keys(src, table, index, orbit, tuple(ORBIT_KEYS), f"{label}.", f"[{label}]")
     v = {k: _value(src, table, index, k, orbit[k], ORBIT_KEYS[k], f"{label}.{k}") for k in orbit}
     forms = "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg and " \
@@ -432,12 +440,22 @@ def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0
         if missing:
             raise src.error(table, index, None, forms, label=f"{label}.{missing[0]}")
         r_m = math.hypot(*v["r_eci_m"])   # (np.linalg.norm overflows on 1e154 components)
+        if centre == "sun":
+            if not R_SUN_PHOTOSPHERE_M < r_m <= MAX_ORBIT_RADIUS_M:
+                raise src.error(table, index, "r_eci_m", f"a position outside the Sun and within "
+                                f"{MAX_ORBIT_RADIUS_M:g} m ({R_SUN_PHOTOSPHERE_M:.4g} m < |r| <= "
+                                f"{MAX_ORBIT_RADIUS_M:g} m)", f"|r| = {r_m:.6g} m",
+                                label=f"{label}.r_eci_m")
+            return tuple(float(x) for x in v["r_eci_m"] + v["v_eci_mps"])
         if not R_EARTH_M < r_m <= MAX_ORBIT_RADIUS_M:
             raise src.error(table, index, "r_eci_m", f"a position above the Earth's surface and "
                             f"within {MAX_ORBIT_RADIUS_M:g} m ({R_EARTH_M:.0f} m < |r| <= "
                             f"{MAX_ORBIT_RADIUS_M:g} m)", f"|r| = {r_m:.6g} m",
                             label=f"{label}.r_eci_m")
         return tuple(float(x) for x in v["r_eci_m"] + v["v_eci_mps"])
+    if centre == "sun":
+        raise src.error("orbit", 0, elem[0] if elem else None, "r_eci_m + v_eci_mps "
+                        "(a heliocentric orbit is given as a Cartesian state)", label="orbit")
     missing = [k for k in _ELEMENTS if k not in v]
     n_anom = ("true_anomaly_deg" in v) + ("mean_anomaly_deg" in v)
     if missing or n_anom != 1:
@@ -627,6 +645,18 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         raise src.error(None, 0, "sensor", "at least one [[sensor]] table (an array of tables)",
                         sensors if not isinstance(sensors, list) else None, label="sensor")
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
+    centre = top.get("centre", "earth")
+    if centre != "earth":
+        for i, spec in enumerate(specs):
+            if spec.kind not in HELIOCENTRIC_KINDS:
+                raise src.error("sensor", i, "kind", f"a kind a heliocentric pass can hold "
+                                f"(centre = {centre!r}): {', '.join(HELIOCENTRIC_KINDS[2:])}",
+                                spec.kind, label=f"sensor[{i + 1}].kind")
+        for k in ("drag", "srp"):
+            if tv.get(k):
+                raise src.error("truth", 0, k, f"false: the heliocentric truth has the Sun "
+                                f"and the planets only (centre = {centre!r})", True,
+                                label=f"truth.{k}")
     # the pass has one true bias (SimulatedPass.truth_params["refraction_bias_m"])
     biased = [i for i, s in enumerate(sensors) if any(k in s for k in MODEL_BIAS_KEYS)]
     if len(biased) > 1:
@@ -638,13 +668,13 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
     return Scenario(
         name=top.get("name", Path(path).stem), description=top.get("description", ""),
         epoch=top["epoch"], duration_h=top["duration_h"], step_s=top["step_s"],
-        x0_eci=_orbit_state(src, orbit), truth_j2=tv.get("j2", True),
+        x0_eci=_orbit_state(src, orbit, centre=centre), truth_j2=tv.get("j2", True),
         truth_third_body=tv.get("third_body", False), truth_drag=tv.get("drag", False),
         truth_srp=tv.get("srp", False),
         prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
         prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
         prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path),
-        formation=_formation(src, d))
+        formation=_formation(src, d), centre=centre)
 
 
 def sensor_epoch_count(scn: Scenario) -> int:

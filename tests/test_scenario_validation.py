@@ -244,8 +244,8 @@ def test_builtin_scenarios_load_unchanged():
     from fgnav.scenarios import builtin_names, load_scenario
 
     assert builtin_names() == ["constellation-leo", "formation-gto", "geo-limb", "gto-transfer",
-                               "leo-sun-earth-moon", "refraction-leo", "refraction-leo-bias",
-                               "sextant-leo"]
+                               "leo-sun-earth-moon", "mars-cruise", "refraction-leo",
+                               "refraction-leo-bias", "sextant-leo"]
     gto = load_scenario("gto-transfer")
     assert gto.x0_eci == (6509244.371304875, 0.0, 3713244.835519765,
                           -3737.397235776740, 0.0, 8790.602460568101)
@@ -436,3 +436,28 @@ def test_a_pass_ending_after_2261_is_refused(tmp_path, capsys):
     assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--duration-h", "2"]) == 2
     assert "2261" in capsys.readouterr().err
     assert main(["simulate", str(path), "--out", str(tmp_path / "o"), "--quiet"]) == 0
+
+
+def test_a_heliocentric_scenario_is_checked_against_its_centre(tmp_path):
+    from fgnav.scenarios import load_scenario
+
+    from fgnav.paths import data_dir
+
+    text = (data_dir() / "scenarios" / "mars-cruise.toml").read_text()
+    scn = load_scenario("mars-cruise")
+    assert scn.centre == "sun" and scn.prior_mode == "none" and scn.truth_third_body
+    path = tmp_path / "c.toml"
+    cases = [
+        (text.replace('centre = "sun"', 'centre = "mars"'), "centre", "one of 'earth', 'sun'"),
+        (text.replace('kind = "body_body_angle"', 'kind = "altitude"\nsigma_m = 10.0')
+         .replace('body = "sun"\nbody2 = "earth"\nsigma_deg = 0.0031056', ''),
+         "sensor[2].kind", "heliocentric"),
+        (text.replace("third_body = true", "third_body = true\nsrp = true"), "truth.srp", "Sun and"),
+        (text.replace("r_eci_m = [-71411267196.027, 125952896819.755, 54598746250.093]",
+                      "r_eci_m = [1.0e8, 0.0, 0.0]"), "orbit.r_eci_m", "outside the Sun"),
+    ]
+    for bad, column, expected in cases:
+        path.write_text(bad)
+        with pytest.raises(InputFormatError) as exc:
+            load_scenario(str(path))
+        assert exc.value.column == column and expected in str(exc.value), str(exc.value)

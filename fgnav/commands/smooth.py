@@ -15,7 +15,9 @@ def add_solver_options(p):
                    help=f"white-acceleration PSD of the motion prior (m^2/s^3; default {DEFAULT_Q_M2_S3:g}:"
                         " raise it when forces are missing from the model)")
     p.add_argument("--third-body", action="store_true",
-                   help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model")
+                   help="add Sun and Moon point-mass gravity (analytic ephemeris) to the motion model "
+                        "(geocentric logs; a heliocentric log, '# centre: sun', always has the "
+                        "Sun and the planets)")
     p.add_argument("--gravity", choices=["j2", "point-mass"], default="j2",
                    help="the Earth's gravity in the motion model: j2 (default: central term + J2) "
                         "or point-mass (central term alone: Keplerian motion, e.g. test data "

@@ -22,6 +22,15 @@ ending in ``Z``: ``YYYY-MM-DDTHH:MM:SS[.fffffffff]Z`` (up to 9 fraction digits; 
 second, mapped to elapsed SI seconds by :mod:`fgnav.time`). Numbers
 are decimal (``1``, ``-2.5``, ``6.4e6``).
 
+Central body: a comment line ``# centre: sun`` before the header declares a heliocentric log
+(a cruise): every position and velocity (prior rows, the state the rows observe) is then
+relative to the Sun's centre, axes EME2000/ICRF; without it (or with ``# centre: earth``) the
+log is geocentric, as every v1 log. Another name is an error naming the line (column
+``centre``), and so are two such lines that disagree. Readers that ignore comments read the
+rows unchanged, so the line is an extension of v1, not a new version. A heliocentric log
+holds only the kinds of :data:`HELIOCENTRIC_KINDS` (the others observe the Earth from a
+geocentric state); another kind is an error naming its line.
+
 Kinds (all frames EME2000 = ECI unless "body"; all sigmas 1σ)
 
 ========================  ===============================================  ==============
@@ -159,7 +168,7 @@ __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
     "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
-    "ATT_COV_COLUMNS", "attitude_covariances",
+    "ATT_COV_COLUMNS", "attitude_covariances", "CENTRES", "HELIOCENTRIC_KINDS",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
@@ -177,6 +186,12 @@ in :data:`BODIES` in memory."""
 BODIES = ("sun", "earth", "moon")
 """The near bodies an angle row may name, in the order of their in-memory codes."""
 _LIMB_BODIES = ("earth", "moon")
+CENTRES = ("earth", "sun")
+"""The central bodies a log may declare (``# centre: NAME`` before the header)."""
+HELIOCENTRIC_KINDS = ("prior_position", "prior_velocity", "body_star_angle", "limb_star_angle",
+                      "body_body_angle")
+"""The kinds a heliocentric log (``# centre: sun``) may hold."""
+_CENTRE_LINE = re.compile(r"#\s*centre\s*:\s*(.*?)\s*$", re.IGNORECASE)
 _VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
 _USAGE_COLUMNS = ("x", "y", "z") + EXTRA_COLUMNS           # order of a kind's usage
 
@@ -454,7 +469,8 @@ class MeasurementLog:
     the spacecraft ids (empty for a one-spacecraft log) that the codes of the ``spacecraft``
     and ``tx_spacecraft`` columns index, ``antenna_names`` the antenna names the antenna
     columns' codes index, ``antennas`` the lever arms (3,), m, body frame, by
-    (spacecraft id, antenna name) (:mod:`fgnav.io.log_spacecraft`).
+    (spacecraft id, antenna name) (:mod:`fgnav.io.log_spacecraft`); ``centre`` the central
+    body of every position (:data:`CENTRES`; the ``# centre:`` line).
     """
 
     path: Any
@@ -470,6 +486,7 @@ class MeasurementLog:
     spacecraft: tuple[str, ...] = ()
     antenna_names: tuple[str, ...] = ()
     antennas: dict = field(default_factory=dict)
+    centre: str = "earth"
 
     @property
     def n_spacecraft(self) -> int:
@@ -696,8 +713,10 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         first_msg.setdefault(err.reason, str(exc))
 
     # The header: the first line that is neither blank nor a comment; the comments above it
-    # may declare spacecraft and antennas (fgnav.io.log_spacecraft).
+    # may declare spacecraft and antennas (fgnav.io.log_spacecraft) and the central body
+    # ("# centre: sun").
     header = None
+    centre = None
     i_body = n_lines
     decl = Declarations()
     for i, raw in enumerate(raw_lines):
@@ -710,6 +729,14 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         if text.endswith("\r"):
             text = text[:-1]
         stripped = text.strip()
+        declared = _CENTRE_LINE.fullmatch(stripped)
+        if declared:
+            name = declared.group(1).lower()
+            if name not in CENTRES or (centre is not None and name != centre):
+                raise InputFormatError(path, i + 1, "centre", f"one of {', '.join(CENTRES)}"
+                                       + ("" if centre is None else f", once (already {centre})"),
+                                       declared.group(1))
+            centre = name
         if stripped.startswith("#"):
             parse_declaration(path, i + 1, stripped, decl)
         if not stripped or stripped.startswith("#"):
@@ -814,11 +841,24 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     epoch0 = np.datetime64(int(ns[0]), "ns")
     t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
     width = max(int(np.char.str_len(kind_arr.astype(str)).max()), 1)  # as wide as the kinds kept
+    _check_centre_kinds(centre or "earth", kind_arr,
+                        lambda i, what: InputFormatError(path, int(line_arr[i]), "kind", *what))
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(f"<U{width}"), xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
         line=line_arr, warnings=warnings, dropped=dropped, spacecraft=spacecraft,
-        antenna_names=antenna_names, antennas=antennas)
+        antenna_names=antenna_names, antennas=antennas,
+        centre=centre or "earth")
+
+
+def _check_centre_kinds(centre, kind_arr, error):
+    """Refuse a kind a log of this centre cannot hold: raise ``error(row, (expected, found))``."""
+    if centre == "earth":
+        return
+    bad = np.flatnonzero(~np.isin(np.asarray(kind_arr).astype(str), HELIOCENTRIC_KINDS))
+    if len(bad):
+        raise error(int(bad[0]), (f"a kind of a heliocentric log (centre: {centre}): "
+                                  f"{', '.join(HELIOCENTRIC_KINDS)}", str(kind_arr[bad[0]])))
 
 
 def _spacecraft_codes(V, kind_arr, line_arr, vocab, decl, has_column, bad):
@@ -1141,7 +1181,8 @@ def _sort_rows(ns, V, kind_arr, line_arr, path):
 
 
 def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
-                    path="<arrays>", spacecraft=(), antennas=None) -> MeasurementLog:
+                    path="<arrays>", spacecraft=(), antennas=None,
+                    centre="earth") -> MeasurementLog:
     """Build a validated :class:`MeasurementLog` from arrays (same rules as :func:`read_log`).
 
     ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
@@ -1149,10 +1190,14 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     of (M,) arrays for the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ...). Rows are stably sorted by epoch and
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
+    ``centre``: the central body of the positions (:data:`CENTRES`).
     Several spacecraft (:mod:`fgnav.io.log_spacecraft`): ``extra["spacecraft"]`` etc. as
     names (or codes into ``spacecraft``, the ids in order), ``antennas`` the lever arms by
     (spacecraft id, antenna name).
     """
+    if centre not in CENTRES:
+        raise UserError(f"log_from_arrays: centre: expected one of {', '.join(CENTRES)}, "
+                        f"found {centre!r}")
     if isinstance(epoch0, str):
         epoch0 = parse_utc(epoch0)
     epoch0 = np.datetime64(epoch0, "ns")
@@ -1208,6 +1253,8 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
             raise UserError(f"log_from_arrays: row {i}, column '{err.column}': expected "
                             f"{err.expected}{found}") from None
 
+    _check_centre_kinds(centre, kind_arr, lambda i, what: UserError(
+        f"log_from_arrays: row {i}, column 'kind': expected {what[0]}, found {what[1]!r}"))
     antennas = {(str(a), str(b)): np.asarray(arm, dtype=float).reshape(3)
                 for (a, b), arm in (antennas or {}).items()}
     if any(c in extra for c in ID_COLUMNS):
@@ -1229,7 +1276,7 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
         line=line, warnings=warnings, dropped={},
         spacecraft=tuple(names["spacecraft"]) if any(c in extra for c in SPACECRAFT_COLUMNS)
-        else (), antenna_names=tuple(names["antenna"]), antennas=antennas)
+        else (), antenna_names=tuple(names["antenna"]), antennas=antennas, centre=centre)
 
 
 def _fmt(v: float, column: str = "", names=None) -> str:
@@ -1273,6 +1320,8 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
     ns = add_seconds(log.epoch0, log.t_s).astype(np.int64)
     header = list(BASE_COLUMNS) + used
     out = ["# fgnav measurement log, CSV format v1 (see fgnav.io.log_csv)\n"]
+    if getattr(log, "centre", "earth") != "earth":
+        out.append(f"# centre: {log.centre}\n")
     out += [f"# {c}\n" for c in comments]
     if any(c in used for c in ID_COLUMNS):
         out += [f"# {c}\n" for c in declaration_lines(names["spacecraft"],

@@ -37,7 +37,8 @@ finite gets no block.
 Read (``read_oem``): versions 1.0-3.0; calendar (``YYYY-MM-DD``) or day-of-year
 (``YYYY-DDD``) epochs with or without ``Z``; ephemeris lines of 7 fields (or 10, with
 accelerations, which are ignored); several segments are concatenated in file order.
-Supported: ``TIME_SYSTEM = UTC``, ``CENTER_NAME = EARTH``, ``REF_FRAME`` EME2000 / GCRF /
+Supported: ``TIME_SYSTEM = UTC``, ``CENTER_NAME = EARTH`` or ``SUN`` (a heliocentric cruise;
+the same centre in every segment, ``meta["CENTER_NAME"]``), ``REF_FRAME`` EME2000 / GCRF /
 ICRF (treated as the same inertial frame, as in the rest of fgnav) and a ``COV_REF_FRAME``
 equal to the segment's ``REF_FRAME``; anything else is an
 :class:`~fgnav.errors.InputFormatError` naming the line, as is any malformed line, a missing
@@ -63,10 +64,18 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
 
-__all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch"]
+__all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch", "oem_frame"]
 
 _M_PER_KM = 1000.0
 _INERTIAL_FRAMES = ("EME2000", "GCRF", "ICRF")
+_CENTERS = ("EARTH", "SUN")
+
+
+def oem_frame(centre: str) -> dict:
+    """``write_oem``'s centre and frame keywords for a pass's central body (``"earth"``:
+    the defaults, EARTH / EME2000; ``"sun"``: SUN / ICRF, the heliocentric frame of a cruise,
+    whose axes fgnav takes equal to EME2000's)."""
+    return {} if centre == "earth" else {"center_name": "SUN", "ref_frame": "ICRF"}
 _META_REQUIRED = ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM",
                   "START_TIME", "STOP_TIME")
 _META_OPTIONAL = ("REF_FRAME_EPOCH", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
@@ -278,8 +287,10 @@ def read_oem(path) -> OemData:
             if key == "TIME_SYSTEM" and val != "UTC":
                 raise InputFormatError(path, lineno, key, "TIME_SYSTEM = UTC (the only time "
                                        "system fgnav reads)", val)
-            if key == "CENTER_NAME" and val.upper() != "EARTH":
-                raise InputFormatError(path, lineno, key, "CENTER_NAME = EARTH", val)
+            if key == "CENTER_NAME" and (val.upper() not in _CENTERS or any(
+                    sg.get("CENTER_NAME", val).upper() != val.upper() for sg in meta["segments"])):
+                raise InputFormatError(path, lineno, key, "CENTER_NAME = EARTH or SUN, the "
+                                       "same in every segment", val)
             if key == "REF_FRAME" and val not in _INERTIAL_FRAMES:
                 raise InputFormatError(path, lineno, key, "REF_FRAME = EME2000 (or GCRF, ICRF)",
                                        val)

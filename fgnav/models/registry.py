@@ -508,12 +508,13 @@ STAR_DIRECTION_BODY = MeasurementModel(
 # residual, and a reader that ignored a flag would take a limb angle for a centre angle
 # silently (wrong by the apparent radius, ~60 deg in LEO), where an unknown kind is refused.
 
-def _bodies_at(codes, t_j2000_s):
-    """Centres (M, 3), ECI, m, of the bodies with log codes ``codes`` (M,) at the rows' epochs."""
+def _bodies_at(codes, t_j2000_s, centre="earth"):
+    """Centres (M, 3), m, of the bodies with log codes ``codes`` (M,) at the rows' epochs,
+    relative to the log's ``centre`` (EME2000 axes)."""
     out = np.zeros((len(codes), 3))
     for c in np.unique(codes):
         i = np.flatnonzero(codes == c)
-        out[i] = body_position_eci_m(BODIES[int(c)], t_j2000_s[i])
+        out[i] = body_position_eci_m(BODIES[int(c)], t_j2000_s[i], centre)
     return out
 
 
@@ -525,8 +526,9 @@ def _angle_values(star, limb):
     def values(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
+        centre = getattr(log, "centre", "earth")
         out = {"a_rad": xyz[:, 0],
-               "p_body_eci_m": _bodies_at(np.asarray(log.extra["body"], float)[i], tj)}
+               "p_body_eci_m": _bodies_at(np.asarray(log.extra["body"], float)[i], tj, centre)}
         data = np.zeros((len(tj), 3))
         data[:, 0] = out["a_rad"]
         if star:
@@ -538,7 +540,8 @@ def _angle_values(star, limb):
                 out["r_limb_m"] = xyz[:, 1]
                 data[:, 1] = out["r_limb_m"]
         else:
-            out["p_body2_eci_m"] = _bodies_at(np.asarray(log.extra["body2"], float)[i], tj)
+            out["p_body2_eci_m"] = _bodies_at(np.asarray(log.extra["body2"], float)[i], tj,
+                                              centre)
             other = out["p_body2_eci_m"]
             data[:, 2] = BODY_BODY
         out["data"], out["B"] = data, np.stack([out["p_body_eci_m"], other], axis=1)
@@ -558,7 +561,8 @@ def _angle_model(kind, summary, residual, star, limb, keys):
         scenario_keys=keys)
 
 
-_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg")
+_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg",
+              "star_spread")
 BODY_STAR_ANGLE = _angle_model(
     "body_star_angle", "angle between a near body's centre and a star (rad)",
     lambda r, fam: body_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],

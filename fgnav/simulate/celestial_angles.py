@@ -17,7 +17,9 @@ photosphere for the Sun), at least ``spec.min_sun_elongation_deg`` from the Sun 
 light) and its angle to the body's centre within [:data:`MIN_ANGLE_RAD`, pi -
 :data:`MIN_ANGLE_RAD`] (the cone degenerates to a line at 0 and pi). Among the usable stars
 the brightest is taken first, then greedily the star farthest (largest smallest angle) from
-the ones taken: lines of sight spread over the sky give cones that cut at wide angles. An
+the ones taken: lines of sight spread over the sky give cones that cut at wide angles
+(``spec.star_spread = "axes"``: spread as lines, a star and its antipode being one cone
+axis, so that two cones through one body cut at right angles). An
 epoch without enough usable stars gives the ones it has; the body itself must be seen (not
 hidden by the Earth).
 """
@@ -29,6 +31,7 @@ import numpy as np
 from factors.celestial_angles import BODY_BODY, BODY_STAR, predicted_angle
 from factors.constants import DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import earth_position_helio_m, moon_position_helio_m
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES
 from fgnav.simulate.body_directions import occulted_by_earth
@@ -48,11 +51,19 @@ LIMB_MARGIN_RAD = 2.0 * DEG
 """A star closer than this to a body's disc is not measured (limb glare)."""
 
 
-def body_position_eci_m(name: str, t_j2000_s) -> np.ndarray:
-    """Centre of a near body (one of ``fgnav.io.log_csv.BODIES``), ECI, m, (N, 3) at the
-    epochs ``t_j2000_s`` (N,): the Earth at the origin, the Sun and the Moon from
-    ``factors.ephemeris``."""
+def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarray:
+    """Centre of a near body (one of ``fgnav.io.log_csv.BODIES``), m, (N, 3) at the epochs
+    ``t_j2000_s`` (N,), relative to the pass's ``centre`` (EME2000 axes): geocentric, the
+    Earth at the origin, the Sun and the Moon from ``factors.ephemeris``; heliocentric
+    (``centre="sun"``), the Sun at the origin, the Earth and the Moon from pyerfa
+    (``factors.planets``)."""
     t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
+    if centre == "sun":
+        if name == "earth":
+            return earth_position_helio_m(t)
+        if name == "moon":
+            return moon_position_helio_m(t)
+        return np.zeros((len(t), 3))
     if name == "sun":
         return sun_position_eci_m(t)
     if name == "moon":
@@ -70,32 +81,37 @@ def _disc_radius_m(name, spec):
     return {"sun": R_SUN_M, "moon": R_MOON_M}.get(name, spec.r_limb_km * 1e3)
 
 
-def _seen(name, r, p):
-    return np.ones(len(r), bool) if name == "earth" else ~occulted_by_earth(r, p)
+def _seen(name, r, p, e):
+    """Whether the body at ``p`` is not hidden by the Earth (at ``e``) from ``r``."""
+    return np.ones(len(r), bool) if name == "earth" else ~occulted_by_earth(r - e, p - e)
 
 
-def _spread(cand_s, vmag, n):
+def _spread(cand_s, vmag, n, axes=False):
     """Indices of up to ``n`` candidate stars: the brightest, then greedily the farthest from
-    the ones taken (module docstring)."""
+    the ones taken (module docstring); ``axes``: the farthest as lines (``|cos|``: a star
+    and its antipode are the same cone axis, and two cones about one body cut best with
+    axes at right angles)."""
     if not len(cand_s):
         return np.zeros(0, dtype=int)
+    fold = np.abs if axes else (lambda c: c)
     take = [int(np.argmin(vmag))]
-    best = cand_s @ cand_s[take[0]]          # cosine to the nearest taken star
+    best = fold(cand_s @ cand_s[take[0]])    # cosine to the nearest taken star
     for _ in range(min(n, len(cand_s)) - 1):
         j = int(np.argmin(best))
         take.append(j)
-        best = np.maximum(best, cand_s @ cand_s[j])
+        best = np.maximum(best, fold(cand_s @ cand_s[j]))
     return np.array(take, dtype=int)
 
 
-def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb):
+def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb, centre="earth"):
     """Rows of one angle sensor (``fgnav.simulate.pass_sim`` protocol): one chunk
     ``(spec.kind, t, xyz, sigma_rad, extra)`` with x the measured angle (rad), y the limb
     radius (m, limb form) and the extra columns ``body`` (and ``body2``, or the star's
     ``star_x, star_y, star_z``) as codes of ``fgnav.io.log_csv.BODIES``.
 
     ``star``: body-star angles (else body-body); ``limb``: to the body's near limb.
-    ``x_true`` (N, 6) truth at ``t_s`` (s from ``epoch0``); ``rng`` a numpy Generator.
+    ``x_true`` (N, 6) truth at ``t_s`` (s from ``epoch0``), relative to ``centre``
+    (:func:`body_position_eci_m`); ``rng`` a numpy Generator.
     """
     if limb and spec.body not in ("earth", "moon"):
         raise UserError(f"sensor {spec.kind}: body = {spec.body!r}: expected a body with a "
@@ -106,16 +122,17 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb):
     t_s = np.asarray(t_s, dtype=float)
     r = np.asarray(x_true, dtype=float)[:, :3]
     tj = float(j2000_seconds(epoch0)) + t_s
-    p = body_position_eci_m(spec.body, tj)
-    seen = _seen(spec.body, r, p)
+    p = body_position_eci_m(spec.body, tj, centre)
+    e = body_position_eci_m("earth", tj, centre)
+    seen = _seen(spec.body, r, p, e)
     code = float(BODIES.index(spec.body))
     sig = spec.sigma_deg * DEG
     if not star:
-        p2 = body_position_eci_m(spec.body2, tj)
+        p2 = body_position_eci_m(spec.body2, tj, centre)
         data = np.zeros((len(t_s), 3))
         data[:, 2] = BODY_BODY
         B = np.stack([p, p2], axis=1)
-        ok = seen & _seen(spec.body2, r, p2)
+        ok = seen & _seen(spec.body2, r, p2, e)
         i = np.flatnonzero(ok)
         a = predicted_angle(r[i], data[i], B[i])
         keep = (a >= MIN_ANGLE_RAD) & (a <= np.pi - MIN_ANGLE_RAD)
@@ -128,7 +145,7 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb):
 
     cat = load_catalogue(epoch_year=decimal_year(epoch0), vmag_max=spec.vmag_max)
     S, vmag = cat.u_eci, cat.vmag
-    sun = sun_position_eci_m(tj)
+    sun = body_position_eci_m("sun", tj, centre)
     R_limb = limb_radius_m(spec) if limb else 0.0
     rad_body = _disc_radius_m(spec.body, spec)
     n_want = int(spec.stars_per_epoch)
@@ -139,15 +156,16 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb):
         u = w / d
         c = S @ u
         a = np.arccos(np.clip(c, -1.0, 1.0))
-        rn = np.linalg.norm(r[k])
+        re_k = r[k] - e[k]   # from the Earth's centre
+        rn = np.linalg.norm(re_k)
         earth_rho = np.arcsin(min(R_EARTH_M / rn, 1.0))
         s_sun = (sun[k] - r[k]) / np.linalg.norm(sun[k] - r[k])
-        ok = ((np.arccos(np.clip(S @ (-r[k] / rn), -1, 1)) > earth_rho + LIMB_MARGIN_RAD)
+        ok = ((np.arccos(np.clip(S @ (-re_k / rn), -1, 1)) > earth_rho + LIMB_MARGIN_RAD)
               & (a > np.arcsin(min(rad_body / d, 1.0)) + LIMB_MARGIN_RAD)
               & (a >= MIN_ANGLE_RAD) & (a <= np.pi - MIN_ANGLE_RAD)
               & (S @ s_sun < np.cos(spec.min_sun_elongation_deg * DEG)))
         cand = np.flatnonzero(ok)
-        pick = cand[_spread(S[cand], vmag[cand], n_want)]
+        pick = cand[_spread(S[cand], vmag[cand], n_want, spec.star_spread == "axes")]
         rows_t.append(np.full(len(pick), t_s[k]))
         rows_s.append(S[pick])
         rows_k.append(np.full(len(pick), k))

@@ -111,7 +111,7 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
     t_all = truth_epochs(scn)
     x_true = integrate_scenario_truth(scn, np.array(scn.x0_eci), t_all)
     chunks, truth_params = sensor_chunks(scn, t_all, x_true, epoch0, (seed,))
-    log = chunks_to_log(epoch0, chunks)
+    log = chunks_to_log(epoch0, chunks, centre=scn.centre)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
                          truth_params=truth_params)
 
@@ -134,7 +134,8 @@ def integrate_scenario_truth(scn: Scenario, x0_eci, t_s) -> np.ndarray:
     return integrate_truth(np.asarray(x0_eci, dtype=float), t_s, j2=scn.truth_j2,
                            third_body=scn.truth_third_body,
                            t0_j2000_s=float(j2000_seconds(parse_utc(scn.epoch))),
-                           drag=scn.truth_drag or None, srp=scn.truth_srp or None)
+                           drag=scn.truth_drag or None, srp=scn.truth_srp or None,
+                           centre=scn.centre)
 
 
 def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
@@ -148,12 +149,14 @@ def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
     rng = np.random.default_rng(list(words))
     chunks, truth_params = [], {}
     sp, sv = scn.prior_position_sigma_m, scn.prior_velocity_sigma_mps
-    if scn.prior_mode == "random":
-        err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
-    else:
-        err = np.array([sp] * 3 + [sv] * 3)
-    chunks.append((PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp))
-    chunks.append((PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv))
+    if scn.prior_mode != "none":   # "none": no prior rows (the orbit from the data alone)
+        if scn.prior_mode == "random":
+            err = rng.standard_normal(6) * np.array([sp] * 3 + [sv] * 3)
+        else:
+            err = np.array([sp] * 3 + [sv] * 3)
+        chunks.append((PRIOR_POSITION.kind, np.array([0.0]), (x_true[0, :3] + err[:3])[None], sp))
+        chunks.append((PRIOR_VELOCITY.kind, np.array([0.0]), (x_true[0, 3:] + err[3:])[None], sv))
+    centre = {} if scn.centre == "earth" else {"centre": scn.centre}
     mounting_rng = np.random.default_rng([*words, MOUNTING_STREAM])
     for spec in scn.sensors:
         t = sensor_epochs(scn, spec.period_s)
@@ -170,14 +173,16 @@ def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
                 mount = {"mounting_rotvec": w}
                 truth_params.update({c: np.full(len(t_all), w[i])
                                      for i, c in enumerate(CAMERA_ALIGNMENT.components)})
-        got = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount)
+        got = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount,
+                                          **centre)
         if bias and any(c[0] == spec.kind for c in got):
             truth_params[REFRACTION_BIAS.components[0]] = b_all
         chunks.extend(got)
     return chunks, truth_params
 
 
-def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None) -> MeasurementLog:
+def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None,
+                  centre: str = "earth") -> MeasurementLog:
     """One log of chunks ``(kind, t_s, values (n, 3), sigma, extra dict or None)``, rows
     stably sorted by epoch (chunk order within an epoch). Id columns (``spacecraft``, ...)
     hold names (:func:`fgnav.io.log_csv.log_from_arrays`)."""
@@ -206,7 +211,7 @@ def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None) -> Measuremen
                                        else np.asarray(e[c], dtype=float) for n, e in extras])[order]
     return log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
                            np.concatenate(xyz)[order], np.concatenate(sig)[order], extra,
-                           spacecraft=spacecraft, antennas=antennas)
+                           spacecraft=spacecraft, antennas=antennas, centre=centre)
 
 
 def write_pass_files(out_dir, sim: SimulatedPass) -> list:
@@ -219,13 +224,13 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
     from pathlib import Path
 
     from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import write_oem
+    from fgnav.io.oem import oem_frame, write_oem
 
     out, scn = Path(out_dir), sim.scenario
     try:
         write_log(out / "measurements.csv", sim.log)
         write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
-                  object_name=scn.name.upper(),
+                  object_name=scn.name.upper(), **oem_frame(scn.centre),
                   comments=(f"fgnav truth for scenario {scn.name}, seed {sim.seed}",
                             "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
         written = [out / "measurements.csv", out / "truth.oem"]

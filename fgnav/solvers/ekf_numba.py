@@ -163,7 +163,7 @@ def _sandwich(M, P, T, out):
 
 
 @njit(cache=True)
-def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, q,
+def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, q,
                g_ptr, g_code, g_row0, g_nmeas, g_dim, g_prior, m_data, m_B, m_sigma, x, P, xs,
                Ps, innov):
     """Filter epochs ``k_begin <= k < k_end`` in place; returns -1, or the failing measurement.
@@ -187,7 +187,7 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
     for k in range(k_begin, k_end):
         if k > 0:
             dt = t_s[k] - t_s[k - 1]
-            propagate_nb(x, dt, mu, j2, re, third, max_step, mu_sun, mu_moon,
+            propagate_nb(x, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph,
                          t0_j2000 + t_s[k - 1], True, x1, Phi)
             for i in range(6):
                 x[i] = x1[i]
@@ -356,12 +356,12 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     xs = np.empty((N, 6))
     Ps = np.empty((N, 6, 6))
     innov = np.full((len(pk.m_sigma), 3), np.nan)
-    mu, j2, re, third, hmax, mus, mum = model.args()
+    mu, j2, re, third, hmax, mus, mum, eph = model.args()
     t_s = np.ascontiguousarray(p.t_s, dtype=float)
     q = float(options.q_m2_s3)
     if not q > 0.0:
         raise ValueError(f"q_m2_s3 must be positive (m^2/s^3), got {q!r}")
-    args = (t_s, t0_j2000, mu, j2, re, third, hmax, mus, mum, q, pk.g_ptr, pk.g_code,
+    args = (t_s, t0_j2000, mu, j2, re, third, hmax, mus, mum, eph, q, pk.g_ptr, pk.g_code,
             pk.g_row0, pk.g_nmeas, pk.g_dim, pk.g_prior, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov)
     latency = np.empty(N)
     t_load = time.perf_counter()

@@ -12,6 +12,7 @@ from factors.dynamics import MotionModel
 from fgnav.defaults import DEFAULT_Q_M2_S3
 from fgnav.errors import UserError
 from fgnav.solvers.state_elements import check_state
+from fgnav.io.log_csv import CENTRES  # "earth" (geocentric) | "sun" (heliocentric: Sun + planets)
 
 GRAVITY_MODELS = ("j2", "point-mass")
 """Earth gravity fields of the motion model: ``j2`` (central term + J2, Vallado 2013,
@@ -41,14 +42,20 @@ class SmootherOptions:
     prior_sigma: tuple = ()  # ((variable name, 1-sigma in its unit), ...): its prior instead of the registry's
     gravity: str = "j2"  # Earth's field in the motion model, one of GRAVITY_MODELS
     state: str = "cartesian"  # the orbit's coordinates: "cartesian" | "elements" (state_elements)
+    centre: str = "earth"  # the pass's central body (the log's "# centre:" line), one of CENTRES
 
     def __post_init__(self):
         if self.gravity not in GRAVITY_MODELS:
             raise UserError(f"gravity (--gravity): expected one of {', '.join(GRAVITY_MODELS)}, "
                             f"found {self.gravity!r}")
         check_state(self.state)
+        if self.centre not in CENTRES:
+            raise UserError(f"centre: expected one of {', '.join(CENTRES)}, found {self.centre!r}")
 
     def motion_model(self) -> MotionModel:
+        if self.centre == "sun":  # a cruise: the Sun and the planets, whatever the options
+            kw = {} if self.max_step_s is None else {"max_step_s": self.max_step_s}
+            return MotionModel.heliocentric(**kw)
         kw = {"third_body": self.third_body}
         if self.gravity == "point-mass":
             kw["j2"] = 0.0  # the kernels' J2 term vanishes: -mu r/|r|^3 alone

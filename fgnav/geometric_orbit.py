@@ -1,0 +1,265 @@
+"""The orbit from geometric fixes: position surfaces intersected epoch by epoch, the spurious
+roots removed with the orbit, and that orbit refined on the rows (a first guess without a
+prior, and the geometric baseline of the cruise).
+
+The INS/CNS lecture ("Chapter 6: INS/CNS integrated navigation", sec. 6.3, the Mars-transfer
+example) fixes the spacecraft from two Sun-star angles (cones ``r . i_j = -r cos A_j``) and
+one Sun-Earth angle (the torus ``r . r_p = r^2 - r |r - r_p| cos A_3``) and removes "the
+redundant points with the previous orbit". Here:
+
+1. **Candidates in closed form.** Two cones about star directions ``s_1, s_2`` through the
+   same body B fix the unit vector ``w`` from B to the spacecraft by ``w . s_j = -cos A_j``:
+   ``w = a s_1 + b s_2 + c (s_1 x s_2)`` with ``a = (c_1 - g c_2)/(1 - g^2)``,
+   ``b = (c_2 - g c_1)/(1 - g^2)`` (``c_j = -cos A_j``, ``g = s_1 . s_2``) and
+   ``c = +-sqrt(1 - |a s_1 + b s_2|^2) / |s_1 x s_2|``: two mirror directions, the two roots
+   of the lecture's figure. An angle ``A`` between B and a second body C (vector
+   ``d = p_C - p_B``) then gives the distance by the sine rule in the triangle B,
+   spacecraft, C: ``rho = |d| sin(A + beta) / sin A`` with ``beta`` the angle at B between
+   ``w`` and ``d`` (valid when ``A + beta < pi``). Each candidate is refined on all the
+   epoch's rows by Gauss-Newton (:func:`fgnav.analysis.position_surfaces.intersect_surfaces`),
+   which keeps it only if its chi-square is consistent with the noise; its covariance is
+   ``(J^T W J)^-1`` from the surfaces' gradients.
+2. **Which root is real.** With a previous orbit, the root nearest it (the lecture). Without
+   one (no prior rows), the roots of up to :data:`TRACK_EPOCHS` epochs spread over the pass
+   are combined in every way (2^M tracks at most) and a 6-state orbit of the motion model
+   is fitted to each track's positions, weighted by their covariances; the track of least
+   chi-square is the orbit (a spurious root does not move under gravity). It must pass a
+   chi-square test (``1 - 1e-6``) and beat the second best by a factor
+   :data:`MIN_TRACK_MARGIN`, else the pass is refused with the two figures.
+3. **Refinement.** Levenberg-Marquardt on the 6-state at a middle epoch over the rows
+   themselves (:func:`fgnav.initial_orbit._levenberg_marquardt`, the smoothers' own
+   linearizers and propagator); its covariance ``(A^T A)^-1``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from factors.dynamics import MotionModel, propagate, propagate_many
+from fgnav.analysis.direct_fix import DirectFixes
+from fgnav.analysis.position_surfaces import epoch_residual, intersect_surfaces, surface_models
+from fgnav.errors import UserError
+from fgnav.measurements import Family, Pass
+from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE
+
+__all__ = ["cone_torus_candidates", "epoch_parts", "epoch_roots", "geometric_support",
+           "geometric_initial_orbit", "fixes_along", "TRACK_EPOCHS", "MIN_TRACK_MARGIN"]
+
+TRACK_EPOCHS = 6
+"""Epochs whose roots are combined to find the orbit without a prior (2^6 = 64 tracks)."""
+MIN_TRACK_MARGIN = 10.0
+"""The best track's chi-square must be this many times below the second best's."""
+MIN_FIX_EPOCHS = 4
+"""Epochs with a closed-form fix needed for an orbit from geometric fixes."""
+_STAR_KIND = BODY_STAR_ANGLE.kind
+_BODY_KIND = BODY_BODY_ANGLE.kind
+
+
+def epoch_parts(p: Pass) -> dict[int, list]:
+    """The position-surface rows of each epoch: ``k -> [(model, family of its rows)]``."""
+    by_epoch: dict[int, list] = {}
+    for mdl, fam in surface_models(p):
+        order = np.argsort(fam.k, kind="stable")
+        ks = fam.k[order]
+        for grp in np.split(order, np.flatnonzero(np.diff(ks)) + 1):
+            if len(grp):
+                by_epoch.setdefault(int(fam.k[grp[0]]), []).append((mdl, fam.subset(grp)))
+    return by_epoch
+
+
+def cone_torus_candidates(parts) -> np.ndarray:
+    """Closed-form positions (K, 3), m, from two body-star cones through one body and a
+    body-body angle with that body among ``parts`` (one epoch's rows), module docstring;
+    (0, 3) when the epoch has no such set."""
+    fams = {m.kind: f for m, f in parts}
+    cones, tori = fams.get(_STAR_KIND), fams.get(_BODY_KIND)
+    if cones is None or tori is None or len(cones) < 2:
+        return np.zeros((0, 3))
+    out = []
+    pb = cones.values["p_body_eci_m"]
+    for i, j in itertools.combinations(range(len(cones)), 2):
+        if np.linalg.norm(pb[i] - pb[j]) > 1.0:   # the two cones' vertex: one body
+            continue
+        s1, s2 = cones.values["s_eci"][i], cones.values["s_eci"][j]
+        c1, c2 = -math.cos(cones.values["a_rad"][i]), -math.cos(cones.values["a_rad"][j])
+        g = float(s1 @ s2)
+        n = np.cross(s1, s2)
+        nn = float(np.linalg.norm(n))
+        if nn < 1e-3:
+            continue
+        a = (c1 - g * c2) / (1.0 - g * g)
+        b = (c2 - g * c1) / (1.0 - g * g)
+        base = a * s1 + b * s2
+        c = math.sqrt(max(1.0 - float(base @ base), 0.0)) / nn
+        for sign in (1.0, -1.0):
+            w = base + sign * c * n
+            w = w / np.linalg.norm(w)
+            for t in range(len(tori)):
+                p1, p2 = tori.values["p_body_eci_m"][t], tori.values["p_body2_eci_m"][t]
+                if np.linalg.norm(p1 - pb[i]) <= 1.0:
+                    d = p2 - p1
+                elif np.linalg.norm(p2 - pb[i]) <= 1.0:
+                    d = p1 - p2
+                else:
+                    continue
+                A = float(tori.values["a_rad"][t])
+                dn = float(np.linalg.norm(d))
+                beta = math.acos(max(-1.0, min(1.0, float(w @ d) / dn)))
+                if A + beta < math.pi and math.sin(A) > 1e-9:
+                    out.append(pb[i] + dn * math.sin(A + beta) / math.sin(A) * w)
+        break   # the first usable pair of cones; the refinement uses every row
+    return np.array(out).reshape(-1, 3)
+
+
+def epoch_roots(parts, v_guess=None, alpha: float = 1e-3):
+    """The consistent roots of one epoch: a list of ``SurfaceFix`` (one per distinct root of
+    the closed-form candidates, each refined on all of ``parts``)."""
+    roots = []
+    residual = epoch_residual(parts, v_guess)
+    for r0 in cone_torus_candidates(parts):
+        fix = intersect_surfaces(residual, r0, starts=np.zeros((0, 3)), alpha=alpha)
+        if fix is not None and not any(np.linalg.norm(fix.r_eci_m - q.r_eci_m) < 1.0
+                                       for q in roots):
+            roots.append(fix)
+    return roots
+
+
+def geometric_support(p: Pass) -> tuple[bool, str]:
+    """Whether the pass has closed-form geometric fixes at enough epochs for an orbit."""
+    n = sum(len(cone_torus_candidates(parts)) > 0 for parts in epoch_parts(p).values())
+    if n >= MIN_FIX_EPOCHS:
+        return True, (f"an initial orbit can be computed from geometric fixes (two "
+                      f"{_STAR_KIND} cones and a {_BODY_KIND} torus) at {n} epochs")
+    return False, (f"geometric fixes need two {_STAR_KIND} rows of one body and a {_BODY_KIND} "
+                   f"row with it at {MIN_FIX_EPOCHS} or more epochs ({n} found)")
+
+
+def _fit_tracks(t, R, P, model, t0_j2000_s, i_ref, max_iterations=20):
+    """Gauss-Newton fits, all at once, of one 6-state at ``t[i_ref]`` per track to its
+    positions ``R`` (C, M, 3) with covariances ``P`` (C, M, 3, 3) at times ``t`` (M,), s:
+    ``(x (C, 6), chi2 (C,))`` (one ``propagate_many`` call per iteration for every track)."""
+    C, M = R.shape[:2]
+    L = np.linalg.cholesky(np.linalg.inv(P))   # W = L L^T: whitened residual L^T e
+    i0, i1 = max(i_ref - 1, 0), min(i_ref + 1, M - 1)
+    x = np.concatenate([R[:, i_ref], (R[:, i1] - R[:, i0]) / (t[i1] - t[i0])], axis=1)
+    dt = np.tile(t - t[i_ref], C)
+    chi2 = np.full(C, np.inf)
+    for _ in range(max_iterations):
+        Xi, Phi = propagate_many(np.repeat(x, M, axis=0), dt, model, t0_j2000_s + t[i_ref])
+        e = (Xi[:, :3].reshape(C, M, 3) - R)
+        b = np.einsum("cmji,cmj->cmi", L, e).reshape(C, 3 * M)
+        A = np.einsum("cmji,cmjk->cmik", L, Phi[:, :3].reshape(C, M, 3, 6)).reshape(C, 3 * M, 6)
+        new = np.einsum("ci,ci->c", b, b)
+        dx = np.linalg.solve(np.einsum("cri,crj->cij", A, A), -np.einsum("cri,cr->ci", A, b)[..., None])[..., 0]
+        x = x + dx
+        done = np.all(np.abs(chi2 - new) <= 1e-6 * np.maximum(new, 1.0))
+        chi2 = new
+        if done:
+            break
+    return x, chi2
+
+
+def _track_orbit(p, roots_by_k, model, t0_j2000_s):
+    """The orbit (x at t_ref, t_ref) of the track of least chi-square (module docstring)."""
+    from fgnav.chi2 import chi2_ppf
+
+    ks = np.array(sorted(roots_by_k))
+    pick = ks[np.unique(np.linspace(0, len(ks) - 1, min(len(ks), TRACK_EPOCHS)).round().astype(int))]
+    t = p.t_s[pick]
+    i_ref = len(pick) // 2
+    combos = list(itertools.product(*[range(len(roots_by_k[int(k)])) for k in pick]))
+    R = np.array([[roots_by_k[int(k)][c].r_eci_m for k, c in zip(pick, cb)] for cb in combos])
+    P = np.array([[roots_by_k[int(k)][c].P_m2 for k, c in zip(pick, cb)] for cb in combos])
+    x, chi2 = _fit_tracks(t, R, P, model, t0_j2000_s, i_ref)
+    fits = [(float(c), xx) for c, xx in zip(chi2, x) if np.isfinite(c)]
+    fits.sort(key=lambda f: f[0])
+    dof = 3 * len(pick) - 6
+    if not fits or dof <= 0:
+        raise UserError(f"{p.source}: no orbit fits the geometric fixes of {len(pick)} epochs")
+    gate = chi2_ppf(1.0 - 1e-6, dof)
+    if fits[0][0] > gate:
+        raise UserError(f"{p.source}: no track of geometric fixes fits one orbit (best "
+                        f"chi-square {fits[0][0]:.3g} over {dof} dof, gate {gate:.3g}): the "
+                        f"angles are inconsistent, or add prior rows")
+    if len(fits) > 1 and fits[1][0] < MIN_TRACK_MARGIN * max(fits[0][0], 1.0):
+        raise UserError(f"{p.source}: two tracks of geometric fixes fit an orbit (chi-square "
+                        f"{fits[0][0]:.3g} and {fits[1][0]:.3g}): the spurious roots cannot be "
+                        f"told apart over {t[-1] - t[0]:.0f} s; add prior rows or a longer pass")
+    return fits[0][1], float(t[i_ref])
+
+
+def fixes_along(p: Pass, X_ref: np.ndarray, parts_by_k=None):
+    """Geometric fixes at every epoch with a closed-form candidate, the root nearest the
+    orbit ``X_ref`` (N, 6) kept: ``(DirectFixes, roots (M,))`` as
+    :func:`fgnav.analysis.position_surfaces.position_surface_fixes` gives them."""
+    parts_by_k = epoch_parts(p) if parts_by_k is None else parts_by_k
+    ks, rs, Ps, nroots = [], [], [], []
+    for k in sorted(parts_by_k):
+        roots = epoch_roots(parts_by_k[k], X_ref[k, 3:])
+        if not roots:
+            continue
+        best = min(roots, key=lambda f: np.linalg.norm(f.r_eci_m - X_ref[k, :3]))
+        ks.append(k)
+        rs.append(best.r_eci_m)
+        Ps.append(best.P_m2)
+        nroots.append(len(roots))
+    k = np.array(ks, dtype=int)
+    return (DirectFixes(k, p.t_s[k] if len(k) else np.zeros(0), np.array(rs).reshape(-1, 3),
+                        np.array(Ps).reshape(-1, 3, 3)), np.array(nroots, dtype=int))
+
+
+def _surface_subpass(p: Pass, k_sub: np.ndarray) -> Pass:
+    """The position-surface rows at the epochs ``k_sub`` only, re-indexed 0..len-1."""
+    remap = -np.ones(p.n_epochs, dtype=int)
+    remap[k_sub] = np.arange(len(k_sub))
+    fams = {}
+    for mdl, f in surface_models(p):
+        rows = np.flatnonzero(remap[f.k] >= 0)
+        if len(rows):
+            g = f.subset(rows)
+            fams[mdl.kind] = Family(k=remap[g.k], values=g.values, sigma=g.sigma, line=g.line)
+    return Pass(epoch0=p.epoch0, t_s=p.t_s[k_sub], families=fams, source=p.source)
+
+
+def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
+                            near_k: int | None = None, max_epochs: int = 400):
+    """The orbit from geometric fixes (module docstring) as an
+    :class:`fgnav.initial_orbit.InitialOrbit` (method ``"geometric-fixes+lm"``). Raises
+    :class:`UserError` when the pass has too few fixes or no track fits one orbit."""
+    from fgnav.initial_orbit import InitialOrbit, _levenberg_marquardt
+
+    ok, why = geometric_support(p)
+    if not ok:
+        raise UserError(f"{p.source}: {why}")
+    parts_by_k = epoch_parts(p)
+    roots_by_k = {}
+    for k, parts in parts_by_k.items():
+        roots = epoch_roots(parts)
+        if roots:
+            roots_by_k[k] = roots
+    if len(roots_by_k) < MIN_FIX_EPOCHS:
+        raise UserError(f"{p.source}: geometric fixes at {len(roots_by_k)} epochs only (the "
+                        f"angles' surfaces do not cut consistently at the others)")
+    x_ref, t_ref = _track_orbit(p, roots_by_k, model, t0_j2000_s)
+    # every epoch's root nearest that orbit, then the rows themselves
+    ks = np.array(sorted(parts_by_k))
+    k_sub = ks[np.unique(np.linspace(0, len(ks) - 1, min(len(ks), max_epochs)).round().astype(int))]
+    k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - (t_ref if near_k is None else p.t_s[near_k])))])
+    x0 = propagate(x_ref, float(p.t_s[k_ref]) - t_ref, model, t0_j2000_s + t_ref, with_stm=False)[0]
+    sp = _surface_subpass(p, k_sub)
+    fit = _levenberg_marquardt(sp, x0, float(p.t_s[k_ref]), model, t0_j2000_s)
+    if fit is None:
+        raise UserError(f"{p.source}: the orbit of the geometric fixes could not be refined on "
+                        f"the rows")
+    x, r, A, cost = fit
+    rms = math.sqrt(cost / len(r))
+    N = A.T @ A
+    d = np.sqrt(np.maximum(np.diag(N), 1e-300))
+    P = np.linalg.inv(N / np.outer(d, d)) / np.outer(d, d)
+    P = 0.5 * (P + P.T) * max(1.0, rms ** 2)
+    return InitialOrbit(k_ref=k_ref, x_eci=x, P_eci=P, method="geometric-fixes+lm",
+                        n_used=len(k_sub), rms_whitened=rms,
+                        t_span_s=(float(p.t_s[k_sub[0]]), float(p.t_s[k_sub[-1]])))
