@@ -204,6 +204,9 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
     if options.estimate:
         raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
                         "and carrier ambiguities; further variables are not yet supported there")
+    if getattr(options, "centre", "earth") != "earth":
+        raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
+                        "the Earth in this version")
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
                         "Cartesian states")
