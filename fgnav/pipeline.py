@@ -289,6 +289,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     centre = getattr(log, "centre", "earth")   # the log's "# centre:" line: the motion model's
     if centre != options.centre:
         options = replace(options, centre=centre)
+    relative = solve_kw.pop("relative", None)
     if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one graph, every spacecraft
         from fgnav.formation.outputs import smooth_formation
 
@@ -301,7 +302,11 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
             raise UserError(f"{', '.join(given)}: not yet available for a log of several "
                             "spacecraft")
         return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
-                                stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0))
+                                stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0),
+                                relative=relative or "cartesian")
+    if relative is not None:
+        raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
+                        "one)")
     p = build_pass(log)
     if not aberration:
         p = without_aberration(p)

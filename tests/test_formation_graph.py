@@ -247,3 +247,34 @@ def test_simulated_formation_scenarios_end_to_end(tmp_path, scenario, ratio):
         assert d["nees_mean"] < 3 * 6, (sc, d)
     worst_abs = min(d["position_rms_m"] for d in s["spacecraft"].values())
     assert s["relative"]["position_rms_m"] < ratio * worst_abs, s["relative"]
+
+
+def test_relative_spherical_adds_range_azimuth_elevation(tmp_path):
+    """``--relative spherical``: relative.csv gains range, azimuth, elevation and their sigmas
+    (the LVLH columns stay), summary.json's relative object their RMS sigmas and errors; the
+    range is the LVLH position's norm; a one-spacecraft log refuses the option."""
+    log, truth = formation_log(10)
+    write_log(tmp_path / "pass.csv", log)
+    for sc in "AB":
+        write_oem(tmp_path / f"truth-{sc}.oem", parse_utc("2025-03-01T00:00:00Z"), truth[sc][0],
+                  truth[sc][1])
+    out = tmp_path / "out"
+    assert main(["smooth", str(tmp_path / "pass.csv"), "--out", str(out), "--quiet",
+                 "--truth", str(tmp_path), "--relative", "spherical"]) == 0
+    lines = (out / "relative.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    row = np.array([float(x or "nan") for x in lines[5].split(",")[4:]])
+    col = {c: i - 4 for i, c in enumerate(head)}
+    r = row[[col["lvlh_x_m"], col["lvlh_y_m"], col["lvlh_z_m"]]]
+    assert row[col["range_m"]] == pytest.approx(np.linalg.norm(r), rel=1e-9)
+    s = json.loads((out / "summary.json").read_text())["relative"]
+    assert s["range_rms_m"] < 0.1 and s["sigma_range_rms_m"] < 0.1   # 1 cm ranges
+    assert s["sigma_azimuth_rms_rad"] > 10 * s["sigma_range_rms_m"] / 1000.0
+    one, _ = formation_log(10, links=False)
+    keep = one.extra["spacecraft"] == 0
+    from fgnav.io.log_csv import log_from_arrays
+    single = log_from_arrays(one.epoch0, one.t_s[keep], one.kind[keep], one.xyz[keep],
+                             one.sigma[keep])
+    write_log(tmp_path / "one.csv", single)
+    assert main(["smooth", str(tmp_path / "one.csv"), "--out", str(tmp_path / "o1"), "--quiet",
+                 "--relative", "spherical"]) == 2

@@ -157,7 +157,12 @@ def register(sub):
     p.add_argument("log", help="measurement log (.csv, v1 format; or .tdm)")
     p.add_argument("--method", default="batch", choices=["batch", "isam2", "fixed-lag", "ekf"])
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--truth", help="truth OEM: adds errors and NEES to summary.json")
+    p.add_argument("--truth", help="truth OEM: adds errors and NEES to summary.json (a "
+                   "formation: the folder of truth-<id>.oem files)")
+    p.add_argument("--relative", choices=("cartesian", "spherical"), default=None,
+                   help="a formation's relative position in relative.csv and summary.json: "
+                        "LVLH x, y, z (cartesian, the default) or range, azimuth, elevation "
+                        "beside them (spherical)")
     p.add_argument("--rerun", metavar="FILE.rrd", help="also write a Rerun recording")
     p.add_argument("--quiet", action="store_true", help="print nothing but errors and the "
                                                          "integrity warning")
@@ -271,7 +276,8 @@ def run(args) -> int:
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
                              ignore_prior=args.ignore_prior, progress=bar,
                              aberration=not args.no_aberration,
-                             stage=StageLines(args.quiet))
+                             stage=StageLines(args.quiet),
+                             **({"relative": args.relative} if args.relative else {}))
     finally:
         bar.close()
     with StageLines(args.quiet)(f"writing {len(res.solution.t_s):,} epochs to {args.out}",

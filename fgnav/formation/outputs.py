@@ -101,6 +101,35 @@ def _sigmas(P) -> dict:
             "sigma_velocity_rms_mps": float(np.sqrt(np.mean(np.trace(P[:, 3:, 3:], axis1=1, axis2=2))))}
 
 
+def spherical_position(r_lvlh, C_lvlh):
+    """Range (m), azimuth and elevation (rad) of relative positions (N, 3) in LVLH
+    (``factors.pseudorange.cartesian_to_spherical``: azimuth about z from x, elevation from
+    the x-y plane) and their covariances (N, 3, 3) by the Jacobian at the estimate."""
+    from factors.pseudorange import cartesian_to_spherical, spherical_to_cartesian
+
+    s = cartesian_to_spherical(r_lvlh)
+    J = np.linalg.inv(spherical_to_cartesian(s)[1])
+    return s, np.einsum("kij,kjl,kml->kim", J, C_lvlh, J)
+
+
+def _spherical_summary(rel, C, rel_true) -> dict:
+    s, Cs = spherical_position(rel[:, :3], C[:, :3, :3])
+    sig = np.sqrt(np.diagonal(Cs, axis1=1, axis2=2))
+    out = {"parameterization": "spherical (range, azimuth, elevation in LVLH)",
+           "sigma_range_rms_m": float(np.sqrt(np.mean(sig[:, 0] ** 2))),
+           "sigma_azimuth_rms_rad": float(np.sqrt(np.mean(sig[:, 1] ** 2))),
+           "sigma_elevation_rms_rad": float(np.sqrt(np.mean(sig[:, 2] ** 2)))}
+    if rel_true is not None:
+        from factors.pseudorange import cartesian_to_spherical
+
+        e = s - cartesian_to_spherical(rel_true[:, :3])
+        e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
+        out.update({"range_rms_m": float(np.sqrt(np.mean(e[:, 0] ** 2))),
+                    "azimuth_rms_rad": float(np.sqrt(np.mean(e[:, 1] ** 2))),
+                    "elevation_rms_rad": float(np.sqrt(np.mean(e[:, 2] ** 2)))})
+    return out
+
+
 def spherical_position_nees(r_est, C, r_true) -> float:
     """Mean NEES (3 dof) of a relative position in spherical coordinates (range, azimuth,
     elevation; ``factors.pseudorange``), its covariance mapped by the Jacobian at the
@@ -108,12 +137,10 @@ def spherical_position_nees(r_est, C, r_true) -> float:
     is, in Cartesian coordinates, also a chord error of ``d^2/2R`` across it, beyond a
     centimetre sigma there, so the Cartesian NEES overstates the inconsistency of a
     consistent estimate (Xing et al. 2008's case for the spherical parameterization)."""
-    from factors.pseudorange import cartesian_to_spherical, spherical_to_cartesian
+    from factors.pseudorange import cartesian_to_spherical
 
-    s_est, s_true = cartesian_to_spherical(r_est), cartesian_to_spherical(r_true)
-    J = np.linalg.inv(spherical_to_cartesian(s_est)[1])
-    Cs = np.einsum("kij,kjl,kml->kim", J, C, J)
-    e = s_est - s_true
+    s_est, Cs = spherical_position(r_est, C)
+    e = s_est - cartesian_to_spherical(r_true)
     e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
     return float(np.mean(np.einsum("ki,ki->k", e, np.linalg.solve(Cs, e[..., None])[..., 0])))
 
@@ -156,9 +183,10 @@ def formation_integrity(sol, p) -> dict:
             "false_alarm_probability": FALSE_ALARM_PROBABILITY}
 
 
-def formation_summary(sol, p, options, truths=None) -> dict:
+def formation_summary(sol, p, options, truths=None, relative: str = "cartesian") -> dict:
     """summary.json of a formation's solution (module docstring); ``truths``: per spacecraft
-    ``(t_s, x_eci)`` or None."""
+    ``(t_s, x_eci)`` or None; ``relative="spherical"`` adds the relative position's range,
+    azimuth and elevation sigmas (and errors)."""
     from fgnav.orbit import truth_at
 
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
@@ -177,11 +205,13 @@ def formation_summary(sol, p, options, truths=None) -> dict:
     for j in range(1, len(states)):
         rel, C, _ = relative_rows(sol, p, j)
         d = _sigmas(C)
-        if x_true[0] is not None:
-            rel_true = relative_state_lvlh(x_true[0], x_true[j])[0]
+        rel_true = None if x_true[0] is None else relative_state_lvlh(x_true[0], x_true[j])[0]
+        if rel_true is not None:
             d.update(_errors(rel, C, rel_true))
             d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
                                                                         rel_true[:, :3])
+        if relative == "spherical":
+            d.update(_spherical_summary(rel, C, rel_true))
         rel_all[p.spacecraft[j]] = d
     s["relative"] = rel_all[p.spacecraft[1]]
     s["relative"]["frame"] = f"LVLH of spacecraft {p.spacecraft[0]}"
@@ -192,7 +222,8 @@ def formation_summary(sol, p, options, truths=None) -> dict:
 
 
 def smooth_formation(log, method: str, options, *, truth_path=None, progress=None,
-                     stage=None, t0=None, gap_factor: float | None = 10.0):
+                     stage=None, t0=None, gap_factor: float | None = 10.0,
+                     relative: str = "cartesian"):
     """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`."""
     from contextlib import nullcontext
 
@@ -223,19 +254,24 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
                p.n_epochs):
         sol = solve_formation(p, method, options, progress=progress)
     sol.wall_s = time.perf_counter() - t0
-    summary = formation_summary(sol, p, options, truths)
+    summary = formation_summary(sol, p, options, truths, relative)
+    sol.extras["relative_parameterization"] = relative
     if truth_path is not None:
         summary["truth_path"] = str(truth_path)
     return SmoothResult(sol, summary, None), p
 
 
 def _relative_csv(sol, p) -> str:
+    spherical = sol.extras.get("relative_parameterization") == "spherical"
     cols = ["epoch", "t_s", "reference", "spacecraft"]
     cols += [f"lvlh_{c}_{'mps' if c.startswith('v') else 'm'}" for c in _LVLH]
     cols += [f"lvlh_{c}_sigma_{'mps' if c.startswith('v') else 'm'}" for c in _LVLH]
     iu = np.triu_indices(6)
     cols += [f"lvlh_c{i + 1}{j + 1}" for i, j in zip(*iu)]
     cols += [f"body_{c}_m" for c in "xyz"] + [f"body_{c}_sigma_m" for c in "xyz"]
+    if spherical:
+        cols += ["range_m", "azimuth_rad", "elevation_rad", "range_sigma_m", "azimuth_sigma_rad",
+                 "elevation_sigma_rad"]
     epochs = add_seconds(sol.epoch0, sol.t_s)
     R_ref = _reference_attitude(p, sol)
     lines = [",".join(cols)]
@@ -251,8 +287,13 @@ def _relative_csv(sol, p) -> str:
             body[ok] = rb[:, :3]
             Cb = relative_covariance(Jb_c[:, :3], Jb_d[:, :3], P_joint[ok])
             body_sig[ok] = np.sqrt(np.diagonal(Cb, axis1=1, axis2=2))
+        if spherical:
+            sph, Cs = spherical_position(rel[:, :3], C[:, :3, :3])
+            sph_sig = np.sqrt(np.diagonal(Cs, axis1=1, axis2=2))
         for k in range(len(rel)):
             vals = [*rel[k], *sig[k], *C[k][iu], *body[k], *body_sig[k]]
+            if spherical:
+                vals += [*sph[k], *sph_sig[k]]
             lines.append(",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}", p.spacecraft[0],
                                    p.spacecraft[j]] + ["" if not np.isfinite(v) else f"{v:.9g}"
                                                        for v in vals]))
