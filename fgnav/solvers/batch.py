@@ -229,11 +229,15 @@ def _conditionals(bn, k0: int, k1: int, N: int, R, S, d) -> None:
             S[k] = c.S()
 
 
+def _time_order(k0: int, k1: int):
+    """The elimination ordering X_k0, ..., X_{k1-1}, made from the key list in one call."""
+    x0 = X(0)   # a Symbol key: the character in the top byte, the index below it
+    return gtsam.Ordering(range(x0 + k0, x0 + k1))
+
+
 def eliminate_chain(graph, N: int, source: str = "", n: int = 6):
     """Eliminate X0..X_{N-1} (blocks of n) in time order with QR; the conditionals (R, S, d)."""
-    ordering = gtsam.Ordering()
-    for k in range(N):
-        ordering.push_back(X(k))
+    ordering = _time_order(0, N)
     try:
         bn = graph.eliminateSequential(ordering, gtsam.EliminateQR)
     except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
@@ -270,9 +274,7 @@ def eliminate_in_chunks(fs: _Factors, source: str = "", chunk: int | None = None
                 graph.push_back(f)
         if carried is not None:
             graph.push_back(carried)
-        ordering = gtsam.Ordering()
-        for k in range(k0, k1):
-            ordering.push_back(X(k))
+        ordering = _time_order(k0, k1)
         try:
             bn, rest = graph.eliminatePartialSequential(ordering, gtsam.EliminateQR)
         except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
