@@ -81,7 +81,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from factors.jit import njit
 
-from factors.dynamics import MotionModel, propagate
+from factors.dynamics import MotionModel, propagate, propagate_through
 from fgnav.errors import UserError
 from fgnav.graph import linearize_all
 from fgnav.measurements import (Family, Pass, covering_sigmas, directions_in_eci,
@@ -576,15 +576,7 @@ def propagate_orbit(iod: InitialOrbit, p: Pass, model: MotionModel, t0_j2000_s: 
 
 def trajectory(iod: InitialOrbit, p: Pass, model: MotionModel, t0_j2000_s: float) -> np.ndarray:
     """The initial orbit propagated to every epoch of the pass (N, 6): a first guess."""
-    X = np.empty((p.n_epochs, 6))
-    X[iod.k_ref] = iod.x_eci
-    for k in range(iod.k_ref + 1, p.n_epochs):
-        X[k] = propagate(X[k - 1], p.t_s[k] - p.t_s[k - 1], model, t0_j2000_s + p.t_s[k - 1],
-                         with_stm=False)[0]
-    for k in range(iod.k_ref - 1, -1, -1):
-        X[k] = propagate(X[k + 1], p.t_s[k] - p.t_s[k + 1], model, t0_j2000_s + p.t_s[k + 1],
-                         with_stm=False)[0]
-    return X
+    return propagate_through(iod.x_eci, p.t_s, iod.k_ref, model, t0_j2000_s)
 
 
 def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s: float,

@@ -164,3 +164,38 @@ def test_elimination_in_chunks_is_the_whole_chain_bit_for_bit():
         R2, S2, d2 = eliminate_in_chunks(fs, chunk=chunk)
         for a, b in ((R, R2), (S, S2), (d, d2)):
             np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+
+
+@pytest.mark.parametrize("uneven", [False, True])
+def test_motion_rows_in_chunks_are_the_whole_pass_bit_for_bit(monkeypatch, uneven):
+    """The motion rows formed a few steps at a time (bounded memory on long passes) are those
+    formed at once, for any chunk length; with steps of one length the rows on X_{k+1} are one
+    shared W, with uneven steps each step's own."""
+    from factors.dynamics import process_noise_sqrt_information
+    from fgnav.solvers import batch
+    from fgnav.solvers.batch import _Factors, process_blocks
+
+    sim, p = gto(step_s=120.0, duration_h=1.0)
+    if uneven:   # drop a few epochs: steps of 120, 240 and 360 s
+        from fgnav.io.log_csv import log_from_arrays
+
+        log = sim.log
+        keep = ~np.isin(log.t_s, p.t_s[[5, 6, 20]])
+        p = build_pass(log_from_arrays(log.epoch0, log.t_s[keep], log.kind[keep], log.xyz[keep],
+                                       log.sigma[keep], {k: v[keep] for k, v in log.extra.items()}))
+    opt = SmootherOptions()
+    model = opt.motion_model()
+    t0 = float(j2000_seconds(p.epoch0))
+    Xs = sim.x_true[np.searchsorted(sim.t_s, p.t_s)] + np.array([300.0, -200.0, 100.0, 0.1, 0.05, -0.02])
+    monkeypatch.setattr(batch, "PROCESS_CHUNK", 10 * p.n_epochs)
+    whole = process_blocks(p, Xs, opt.q_m2_s3, model, t0)
+    fs = _Factors(p, Xs, opt.q_m2_s3, model, t0)
+    np.testing.assert_array_equal(whole[1], process_noise_sqrt_information(np.diff(p.t_s), opt.q_m2_s3))
+    assert (len(np.unique(np.diff(p.t_s))) > 1) == uneven
+    for chunk in (1, 7, p.n_epochs - 2):
+        monkeypatch.setattr(batch, "PROCESS_CHUNK", chunk)
+        for a, b in zip(whole, process_blocks(p, Xs, opt.q_m2_s3, model, t0)):
+            np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+        fs2 = _Factors(p, Xs, opt.q_m2_s3, model, t0)
+        np.testing.assert_array_equal(fs.col_norm.view(np.int64), fs2.col_norm.view(np.int64))
+        assert fs.chi2_motion == fs2.chi2_motion

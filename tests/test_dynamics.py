@@ -217,3 +217,27 @@ def test_bench_propagate():
     propagate_many(X, np.ones(N))
     el = time.perf_counter() - t
     print(f"propagate_many N={N}: {el * 1e3:.2f} ms, {el / N * 1e6:.3f} us/epoch")
+
+
+def test_propagate_through_is_a_call_of_propagate_per_epoch_bit_for_bit():
+    """The compiled chain (the first guess of every epoch) steps as one call of ``propagate``
+    per epoch does, forward and back from a middle epoch, uneven steps, Sun and Moon on,
+    compiled and as Python."""
+    from factors.dynamics import MotionModel, propagate, propagate_through
+    from factors.interpret import interpreted
+
+    model = MotionModel(third_body=True)
+    t_s = np.cumsum(np.r_[0.0, np.tile([30.0, 45.5, 600.0], 20)])
+    t0, k = 8.0e8, 25
+    x_k = np.array([6.9e6, 1.2e5, -3.0e4, -150.0, 7.4e3, 1.1e3])
+    Y = np.empty((len(t_s), 6))
+    Y[k] = x_k
+    for j in range(k + 1, len(t_s)):
+        Y[j] = propagate(Y[j - 1], t_s[j] - t_s[j - 1], model, t0 + t_s[j - 1], with_stm=False)[0]
+    for j in range(k - 1, -1, -1):
+        Y[j] = propagate(Y[j + 1], t_s[j] - t_s[j + 1], model, t0 + t_s[j + 1], with_stm=False)[0]
+    for as_python in (False, True):
+        with interpreted(as_python):
+            X = propagate_through(x_k, t_s, k, model, t0)
+        np.testing.assert_array_equal(X.view(np.int64), Y.view(np.int64))
+    np.testing.assert_array_equal(propagate_through(x_k, t_s[:1], 0, model, t0), x_k[None])

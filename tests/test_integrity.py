@@ -233,3 +233,43 @@ def test_assess_reports_non_finite_solution():
     sol = solve(p, "batch")
     sol.x_eci[3, 0] = np.nan
     assert assess(sol, p)["status"] == "failed"
+
+
+def test_prior_test_decisions_without_the_tail_function_are_the_same():
+    """``needs_prior_test`` decides a chi-square at most its dimension without the tail
+    probability: the same decision as the full test, and the bound it rests on holds."""
+    import math
+
+    from scipy.stats import chi2 as chi2_dist
+
+    from fgnav.integrity import (CHI2_TAIL_AT_MEAN_MIN, FALSE_ALARM_PROBABILITY,
+                                 _beyond_quantile, _chi2_test)
+
+    ks = np.unique(np.concatenate([np.arange(1, 2001), np.geomspace(2000, 1e7, 300).astype(int)]))
+    assert float(chi2_dist.sf(ks, ks).min()) >= CHI2_TAIL_AT_MEAN_MIN
+    assert float(chi2_dist.sf(1, 1)) < CHI2_TAIL_AT_MEAN_MIN + 1e-4   # the bound is tight
+    lim = math.log10(FALSE_ALARM_PROBABILITY)
+    for dof in (0, 1, 2, 3, 6, 13, 480, 86400, 3_000_000):
+        d = max(dof, 1)
+        for x in np.concatenate([[0.0, math.inf, math.nan, d, 1.5 * d, 4.0 * d],
+                                 d * np.geomspace(1e-3, 1e3, 61)]):
+            assert _beyond_quantile(float(x), dof) == (_chi2_test(float(x), dof)["log10_p"] < lim), (x, dof)
+
+
+def test_prior_test_of_a_fitting_solution_loads_no_scipy_special():
+    """A solution that fits its data is told so without ``scipy.special`` (its import is most
+    of a short pass's fixed cost); a misfit still gets the exact test."""
+    import subprocess
+    import sys
+
+    code = ("import sys, types, numpy as np\n"
+            "from fgnav.integrity import needs_prior_test\n"
+            "rng = np.random.default_rng(1)\n"
+            "sol = types.SimpleNamespace(extras={'converged': True}, x_eci=np.zeros((5, 6)),\n"
+            "    P_eci=np.tile(np.eye(6), (5, 1, 1)), residuals={'earth_direction': 0.9 * rng.standard_normal((500, 2)),\n"
+            "    'prior_position': np.full((1, 3), 0.5), 'prior_velocity': np.full((1, 3), 0.5)})\n"
+            "print(needs_prior_test(sol, None), 'scipy.special' in sys.modules)\n"
+            "sol.residuals['prior_position'] = np.full((1, 3), 30.0)\n"
+            "print(needs_prior_test(sol, None), 'scipy.special' in sys.modules)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert r.stdout.splitlines() == ["None False", "the prior is far from the solution True"]

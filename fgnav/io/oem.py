@@ -457,6 +457,11 @@ def _ccsds_epochs(t64) -> list[str]:
     return out
 
 
+def _symmetric(P: np.ndarray) -> np.ndarray:
+    """0.5 (P + P^T) of (K, 6, 6) covariances."""
+    return 0.5 * (P + np.swapaxes(P, 1, 2))
+
+
 def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
               object_id="UNKNOWN", originator="FGNAV", center_name="EARTH",
               ref_frame="EME2000", time_system="UTC", comments=(), creation_date=None) -> None:
@@ -485,7 +490,6 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
         P = np.asarray(P_eci, dtype=float)
         if P.shape != (N, 6, 6):
             raise UserError(f"write_oem: P_eci must have shape ({N}, 6, 6), found {P.shape}")
-        P = 0.5 * (P + np.swapaxes(P, 1, 2))
     if time_system != "UTC":
         raise UserError(f"write_oem: only TIME_SYSTEM = UTC is supported, found {time_system!r}")
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
@@ -498,7 +502,11 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
         out.append(f"{k} = {names[k]}\n")
     out.append(f"START_TIME = {ep[0]}\nSTOP_TIME = {ep[-1]}\nMETA_STOP\n\n")
-    has_cov = [] if P is None else np.flatnonzero(np.all(np.isfinite(P), axis=(1, 2)))
+    # covariances written symmetrized, 0.5 (P + P^T), formed per chunk of epochs (not two
+    # more (N, 6, 6) arrays: 0.6 GB at 1,000,000 epochs)
+    has_cov = [] if P is None else np.flatnonzero(np.concatenate(
+        [np.all(np.isfinite(_symmetric(P[i0:i0 + _CHUNK])), axis=(1, 2))
+         for i0 in range(0, N, _CHUNK)]))
     with atomic_writer(path, "w") as f:
         f.write("".join(out))
         # streamed in chunks (a 1,000,000-epoch solution is ~0.6 GB of text); "%" formats
@@ -515,7 +523,7 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
             lower = np.tril_indices(6)
             for i0 in range(0, len(has_cov), _CHUNK):
                 idx = has_cov[i0:i0 + _CHUNK]
-                low = (P[idx] / _M_PER_KM**2)[:, lower[0], lower[1]].tolist()
+                low = (_symmetric(P[idx]) / _M_PER_KM**2)[:, lower[0], lower[1]].tolist()
                 f.write("".join(block % (ep[i], *v) for i, v in zip(idx.tolist(), low)))
             f.write("COVARIANCE_STOP\n")
 

@@ -67,6 +67,12 @@ class Linearization:
     col_norm: np.ndarray | None = None  # (N,n) column norms of the whitened system
 
 
+PROCESS_CHUNK = 65_536
+"""Steps whose motion rows :func:`process_blocks` forms at a time: the state transition matrices
+and the products with them live per chunk (30 MB), not for the whole pass (3 x 288 MB at
+1,000,000 epochs). Each step's rows depend on that step alone: any chunk gives the same bits."""
+
+
 def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float):
     """The whitened process rows of every step k -> k + 1 on the block ``(X_k, X_{k+1})``:
     ``A0, A1`` (N-1, n, n) and ``b`` (N-1, n), so that step k's rows are
@@ -74,7 +80,8 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
 
     Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
     motion factor, ``factors.motion``); each further variable its random walk
-    (:func:`fgnav.solvers.process.variable_step_rows`).
+    (:func:`fgnav.solvers.process.variable_step_rows`). With the orbit alone and steps of one
+    length, ``A1`` is that step's ``W`` broadcast (read-only, no memory per step).
     """
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
@@ -83,12 +90,9 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     if N < 2:
         return A0, np.zeros_like(A0), b
     dt = np.diff(p.t_s)
-    F, Phi = propagate_many(Xs[:-1, :6], dt, model, t0_j2000_s + p.t_s[:-1])
-    W = process_noise_sqrt_information(dt, q)
-    A0[:, :6, :6] = -np.einsum("kij,kjl->kil", W, Phi)
-    del Phi   # (N, 6, 6) arrays are 288 MB each at 1,000,000 epochs: free them early
-    b[:, :6] = -np.einsum("kij,kj->ki", W, Xs[1:, :6] - F)
-    del F
+    W = _step_sqrt_information(dt, q)
+    _orbit_rows(Xs[:-1, :6], Xs[1:, :6], dt, t0_j2000_s + p.t_s[:-1], W, model,
+                A0[:, :6, :6], b[:, :6])
     if n == 6:
         A1 = W   # the orbit alone: its rows on X_{k+1} are W itself
     else:
@@ -106,6 +110,31 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
         A1[:, sl, sl] = W
         b[:, sl] = -np.einsum("kij,kj->ki", W, Xs[1:, sl] - F)
     return A0, A1, b
+
+
+def _step_sqrt_information(dt: np.ndarray, q: float) -> np.ndarray:
+    """``process_noise_sqrt_information(dt, q)`` (K, 6, 6); when every step has the same length,
+    that one block broadcast to (K, 6, 6) (read-only; 288 MB less at 1,000,000 epochs)."""
+    if len(dt) and np.all(dt == dt[0]):
+        return np.broadcast_to(process_noise_sqrt_information(dt[:1], q), (len(dt), 6, 6))
+    return process_noise_sqrt_information(dt, q)
+
+
+def _orbit_rows(x_from: np.ndarray, x_to: np.ndarray, dt: np.ndarray, t_j2000_s: np.ndarray,
+                W: np.ndarray, model: MotionModel, A0_out: np.ndarray, b_out: np.ndarray) -> None:
+    """The whitened motion rows of the orbit steps ``x_from[k] -> x_to[k]`` (K, 6) of ``dt[k]``
+    seconds from ``t_j2000_s[k]``: ``A0_out[k] = -W_k Phi_k`` (K, 6, 6) and
+    ``b_out[k] = -W_k (x_to[k] - f(x_from[k]))`` (K, 6), written in place,
+    :data:`PROCESS_CHUNK` steps at a time into one reused STM buffer."""
+    K = len(dt)
+    Phi = np.empty((min(PROCESS_CHUNK, K), 6, 6))
+    for c0 in range(0, K, PROCESS_CHUNK):
+        c1 = min(K, c0 + PROCESS_CHUNK)
+        F, Ph = propagate_many(x_from[c0:c1], dt[c0:c1], model, t_j2000_s[c0:c1],
+                               stm_out=Phi[:c1 - c0])
+        Wc = np.ascontiguousarray(W[c0:c1])   # the layout einsum had before: the same sums
+        A0_out[c0:c1] = -np.einsum("kij,kjl->kil", Wc, Ph)
+        b_out[c0:c1] = -np.einsum("kij,kj->ki", Wc, x_to[c0:c1] - F)
 
 
 class _Factors:
@@ -145,9 +174,12 @@ class _Factors:
         np.add.at(col2, rows.k, A_rows * A_rows)
         np.add.at(col2, s_k, self.s_A0 * self.s_A0)
         np.add.at(col2, s_k + 1, self.s_A1 * self.s_A1)
-        if N > 1:
-            col2[:-1] += np.sum(self.A0_mot * self.A0_mot, axis=1)
-            col2[1:] += np.sum(self.W * self.W, axis=1)
+        # per chunk of steps (no (N, n, n) temporaries), the A0 terms first, as one sum would
+        for A, shift in ((self.A0_mot, 0), (self.W, 1)):
+            for c0 in range(0, N - 1, PROCESS_CHUNK):
+                c1 = min(N - 1, c0 + PROCESS_CHUNK)
+                Ac = np.ascontiguousarray(A[c0:c1])
+                col2[c0 + shift:c1 + shift] += np.sum(Ac * Ac, axis=1)
         self.col_norm = np.sqrt(col2)
 
     def make(self, k0: int, k1: int) -> list:
@@ -213,11 +245,15 @@ def _conditionals(bn, k0: int, k1: int, N: int, R, S, d) -> None:
             S[k] = c.S()
 
 
+def _time_order(k0: int, k1: int):
+    """The elimination ordering X_k0, ..., X_{k1-1}, made from the key list in one call."""
+    x0 = X(0)   # a Symbol key: the character in the top byte, the index below it
+    return gtsam.Ordering(range(x0 + k0, x0 + k1))
+
+
 def eliminate_chain(graph, N: int, source: str = "", n: int = 6):
     """Eliminate X0..X_{N-1} (blocks of n) in time order with QR; the conditionals (R, S, d)."""
-    ordering = gtsam.Ordering()
-    for k in range(N):
-        ordering.push_back(X(k))
+    ordering = _time_order(0, N)
     try:
         bn = graph.eliminateSequential(ordering, gtsam.EliminateQR)
     except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
@@ -254,9 +290,7 @@ def eliminate_in_chunks(fs: _Factors, source: str = "", chunk: int | None = None
                 graph.push_back(f)
         if carried is not None:
             graph.push_back(carried)
-        ordering = gtsam.Ordering()
-        for k in range(k0, k1):
-            ordering.push_back(X(k))
+        ordering = _time_order(k0, k1)
         try:
             bn, rest = graph.eliminatePartialSequential(ordering, gtsam.EliminateQR)
         except RuntimeError as exc:  # IndeterminantLinearSystemException and kin
