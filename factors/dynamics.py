@@ -467,13 +467,13 @@ def propagate_many(X, dt_s, model: MotionModel = _DEFAULT_MODEL, t0_j2000_s=0.0,
 
 
 @njit(cache=True)
-def _propagate_chain_nb(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, t0):
+def _propagate_chain_nb(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, t0):
     """``X[k + 1]`` = ``X[k]`` propagated by ``dt[k]`` from ``t0[k]`` (``propagate_nb`` without
     the STM), k = 0 .. len(dt) - 1, in turn; ``X[0]`` given."""
     Phi = np.empty((1, 1))
     for k in range(dt.shape[0]):
-        propagate_nb(X[k], dt[k], mu, j2, re, third, max_step, mu_sun, mu_moon, t0[k], False,
-                     X[k + 1], Phi)
+        propagate_nb(X[k], dt[k], mu, j2, re, third, max_step, mu_sun, mu_moon, eph, t0[k],
+                     False, X[k + 1], Phi)
 
 
 def propagate_through(x_ref, t_s, k_ref: int, model: MotionModel = _DEFAULT_MODEL,

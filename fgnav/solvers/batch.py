@@ -98,17 +98,17 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     else:
         A1 = np.zeros_like(A0)
         A1[:, :6, :6] = W
+    for v in lay.orbits[1:]:   # a formation's further spacecraft: the same motion model
+        sl = lay.slices[v.name]
+        _orbit_rows(Xs[:-1, sl], Xs[1:, sl], dt, t0_j2000_s + p.t_s[:-1], W, model,
+                    A0[:, sl, sl], b[:, sl])
+        A1[:, sl, sl] = W
     del W
     if lay.extra:
         V0, V1, bv = variable_step_rows(lay, Xs[:-1], Xs[1:], dt)
-        A0[:, 6:], A1[:, 6:], b[:, 6:] = V0[:, 6:], V1[:, 6:], bv[:, 6:]
-    for v in lay.orbits[1:]:   # a formation's further spacecraft: the same motion model
-        sl = lay.slices[v.name]
-        F, Phi = propagate_many(Xs[:-1, sl], dt, model, t0_j2000_s + p.t_s[:-1])
-        W = process_noise_sqrt_information(dt, q)
-        A0[:, sl, sl] = -np.einsum("kij,kjl->kil", W, Phi)
-        A1[:, sl, sl] = W
-        b[:, sl] = -np.einsum("kij,kj->ki", W, Xs[1:, sl] - F)
+        extra = np.concatenate([np.arange(lay.slices[v.name].start, lay.slices[v.name].stop)
+                                for v in lay.parameters] or [np.zeros(0, int)])
+        A0[:, extra], A1[:, extra], b[:, extra] = V0[:, extra], V1[:, extra], bv[:, extra]
     return A0, A1, b
 
 
