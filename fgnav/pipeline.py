@@ -82,11 +82,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
-    if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
-        options = replace(options, centre=p.centre)
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_state(options.state, method)
+    if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
+        options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
     from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
