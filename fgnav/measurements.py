@@ -70,6 +70,9 @@ class Pass:
     # a formation's spacecraft ids, in the log's order (empty: one spacecraft); their orbit
     # states are the layout's orbit variables (fgnav.formation.joint)
     spacecraft: tuple[str, ...] = ()
+    # a formation's relative positions fixed from one epoch's links alone (t_s (F,), the
+    # second spacecraft's position minus the first's, ECI (F, 3), m): its first guess
+    link_fixes: tuple | None = None
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
 
     @property
