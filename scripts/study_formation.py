@@ -201,7 +201,7 @@ def run_seed(name, scn, seed, methods, options) -> dict:
             wall = time.perf_counter() - t
             s = formation_summary(res.solution, p, options, truths)
             d = {"wall_s": wall, "iterations": s["iterations"],
-                 "integrity": s["integrity"]["status"],
+                 "integrity": s["integrity"]["status"], "reasons": s["integrity"]["reasons"],
                  "spacecraft": {i: {k: s["spacecraft"][i][k] for k in
                                     ("position_rms_m", "nees_mean", "sigma_position_rms_m")}
                                 for i in sim.ids}}
@@ -416,7 +416,36 @@ def findings(result, agg) -> list:
                              f"position {rel['nees_position_spherical_mean']:.2f} (3 dof, "
                              f"{_band_word(rel['nees_position_spherical_mean'], agg['nees_band_3'])}).")
                 out.append(line)
+                if "relative" in d:
+                    out.append(_wrong_minima(name, method, c, r, S))
     return out
+
+
+def _wrong_minima(name, method, case, r, S) -> str:
+    """How many passes ended far from the truth (relative RMS > 10x its bound), whether the
+    verdict flagged them, and the figures of the passes whose verdict is ok."""
+    bound = r["bounds"][case]["qr"]["relative"]
+    runs = [run[f"{case}/{method}"] for run in r["runs"]]
+    rms = np.sqrt([x["relative"]["position_ms_m2"] for x in runs])
+    wrong = rms > 10 * bound
+    flagged = sum(1 for x, w in zip(runs, wrong) if w and x["integrity"] != "ok")
+    ok = [x for x in runs if x["integrity"] == "ok"]
+    text = (f"{name}, {method}, {LABEL[case]}: {int(wrong.sum())}/{S} passes ended far from the "
+            f"truth (relative RMS > 10x its bound, up to {_m(float(rms.max()))}), "
+            f"{flagged} of them flagged by the verdict")
+    if ok:
+        ok_rms = float(np.sqrt(np.mean([x["relative"]["position_ms_m2"] for x in ok])))
+        text += (f"; the {len(ok)} passes with an ok verdict: relative RMS {_m(ok_rms)}, NEES "
+                 f"{np.mean([x['relative']['nees_mean'] for x in ok]):.2f} (6 dof), "
+                 f"{np.mean([x['relative']['nees_position_spherical_mean'] for x in ok]):.2f} "
+                 "(spherical, 3 dof)")
+    near = [x for x, w in zip(runs, wrong) if not w and x["integrity"] != "ok"]
+    if near:
+        near_rms = float(np.sqrt(np.mean([x["relative"]["position_ms_m2"] for x in near])))
+        why = sorted({w.split(" (")[0] for x in near for w in x.get("reasons", ())})
+        text += (f"; {len(near)} passes near the truth (relative RMS {_m(near_rms)}) with a "
+                 f"verdict not ok{(': ' + '; '.join(why)) if why else ''}")
+    return text + "."
 
 
 def main(argv=None) -> int:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -120,7 +121,8 @@ def test_formation_study_quick_conclusions(tmp_path):
     out = tmp_path / "f.json"
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "study_formation.py"), "--quick",
                         "--out", str(tmp_path / "f.md"), "--json", str(out)],
-                       capture_output=True, text=True, cwd=str(ROOT), timeout=3600)
+                       capture_output=True, text=True, cwd=str(ROOT), timeout=3600,
+                       env=dict(os.environ, PYTHONPATH=str(ROOT)))
     assert r.returncode == 0, r.stderr[-2000:]
     d = json.loads(out.read_text())
     agg, res = d["aggregate"], d["result"]["scenarios"]
