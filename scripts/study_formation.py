@@ -312,7 +312,10 @@ def markdown(result, agg, command) -> str:
              "(dense information of every whitened row, one for all seeds), as the RMS of "
              "the 3-D position sigma over the pass; `dense_bound / QR` compares "
              "`fgnav.formation.dense_bound` (inverse of the normal equations) with the dense "
-             "QR factorization of the same rows.", ""]
+             "QR factorization of the same rows."
+             + (" `isam2` rows: the final trajectory of `--method isam2` (its chain polished "
+                "at the end, so batch's figures wherever both reach the same minimum)."
+                if "isam2" in methods else ""), ""]
     for name, r in result["scenarios"].items():
         a = agg[name]
         lines += [f"## {name} ({r['duration_h']:g} h at {r['step_s']:g} s)", "",
@@ -352,6 +355,9 @@ def markdown(result, agg, command) -> str:
               f"6 dof [{b6[0]:.2f}, {b6[1]:.2f}], 3 dof [{b3[0]:.2f}, {b3[1]:.2f}].", "",
               "## What the numbers say (generated from the tables above)", ""]
     lines += [f"- {x}" for x in findings(result, agg)]
+    if "wall_s" in result:
+        lines += ["", f"Wall time of the study: {result['wall_s']:.0f} s (2 cores shared with "
+                  "other jobs)."]
     return "\n".join(lines) + "\n"
 
 
@@ -476,9 +482,8 @@ def main(argv=None) -> int:
     cmd = "PYTHONPATH=$PWD python scripts/study_formation.py" + (" --quick" if args.quick else "") \
         + (f" --seeds {n}" if args.seeds is not None else "") + (" --isam2" if args.isam2 else "") \
         + (f" --out {args.out}" if args.out else "")
-    text = markdown(result, agg, cmd)
-    text += f"\nWall time of the study: {time.perf_counter() - t:.0f} s (2 shared cores).\n"
     result["wall_s"] = time.perf_counter() - t
+    text = markdown(result, agg, cmd)
     if args.out:
         Path(args.out).write_text(text)
     else:
