@@ -42,6 +42,11 @@ the image pass was sized. The time target is on the CPU seconds: the renderer is
 so they are the wall time of an idle machine, and stay meaningful on a shared one. ``--quick`` renders a 30 min pass instead. Skip it
 with ``--cases`` (any list without ``images``).
 
+Formation (``formation_4h``): two spacecraft of ``formation-gto`` (an Earth direction each,
+six inter-satellite pseudoranges per epoch) at 1 Hz over the pass length of ``batch_4h``,
+solved by batch as ``fgnav smooth`` solves a log of several spacecraft; ``formation_ratio``
+is its solver time over ``batch_4h``'s in the same run (target: at most 4).
+
 ``--quick`` (CI smoke, < 60 s): short passes, one run per case.
 """
 
@@ -469,6 +474,78 @@ def images_case(quick: bool, tmp: Path) -> dict:
     return out
 
 
+# ----------------------------------------------------------------------------- formation
+# Two spacecraft in one graph (``formation_4h``): formation-gto (two spacecraft 1 km apart on
+# the same transfer orbit, an Earth direction each and six 1 cm inter-satellite pseudoranges
+# per epoch, antenna lever arms and attitude rows) at 1 Hz, solved by batch as ``fgnav smooth``
+# solves a log of several spacecraft (fgnav.formation.joint.solve_formation), in a fresh
+# subprocess; ``formation_ratio`` is its solver time over the one-spacecraft ``batch_4h``
+# case's of the same run (the same pass length; the first spacecraft's Earth directions are
+# gto-transfer's rows of the same seed).
+FORMATION_CASES = {"formation_4h": "batch_4h"}   # name -> one-spacecraft case compared with
+FORMATION_TARGETS = {"formation_4h": {"formation_ratio_max": 4.0}}
+
+
+def make_formation_pass(duration_h: float, seed: int, tmp: Path) -> Path:
+    """Simulate formation-gto at 1 Hz for ``duration_h`` and pickle (Pass, the first
+    spacecraft's truth at its epochs, None) as :func:`make_pass` does."""
+    from fgnav.measurements import build_pass
+    from fgnav.scenarios import load_scenario
+    from fgnav.simulate.formation_sim import simulate_formation_pass
+
+    scn = load_scenario("formation-gto").with_options(step_s=STEP_S, duration_h=duration_h)
+    sim = simulate_formation_pass(scn, seed)
+    p = build_pass(sim.log)
+    x_true = sim.x_true[sim.ids[0]][sim.t_s.searchsorted(p.t_s)]
+    f = tmp / f"formation_{duration_h:g}h_seed{seed}.pkl"
+    with open(f, "wb") as fh:
+        pickle.dump((p, x_true, None), fh, protocol=pickle.HIGHEST_PROTOCOL)
+    return f
+
+
+def formation_worker(pass_file: str) -> dict:
+    """Solve the pickled formation pass by batch; the figures as :func:`worker` gives them."""
+    import numpy as np
+
+    t_imp = time.perf_counter()
+    with open(pass_file, "rb") as fh:
+        p, x_true, _ = pickle.load(fh)
+    from factors.jit import load_numba
+    from fgnav.formation.joint import solve_formation
+    from fgnav.solvers.options import SmootherOptions
+    load_numba()
+    t0 = time.perf_counter()
+    sol = solve_formation(p, "batch", SmootherOptions())
+    out = {"method": "batch", "epochs": int(p.n_epochs), "spacecraft": len(p.spacecraft),
+           "solver_s": time.perf_counter() - t0, "iterations": int(sol.iterations),
+           "converged": bool(sol.extras.get("converged")),
+           "marginals": bool(np.all(np.isfinite(sol.P_block)))}
+    err = np.linalg.norm(sol.x_eci[:, :3] - x_true[:, :3], axis=1)
+    out["position_rms_m"] = float(np.sqrt(np.mean(err ** 2)))
+    out["final_position_error_m"] = float(err[-1])
+    out["load_s"] = t0 - t_imp
+    out["peak_rss_mb"] = _peak_rss_mb()
+    return out
+
+
+def formation_case(name: str, hours: float, seed: int, repeat: int, tmp: Path,
+                   timeout_s: float, cases: dict) -> dict:
+    """One formation case (``repeat`` fresh subprocesses), its ratio to the one-spacecraft
+    case of the same run when that ran."""
+    f = make_formation_pass(hours, seed, tmp)
+    runs = [run_worker("formation-batch", f, timeout_s) for _ in range(repeat)]
+    c = summarize_case(name, "batch", hours, runs)
+    base = cases.get(FORMATION_CASES[name])
+    if base and "error" not in base and "error" not in c and base.get("duration_h") == hours:
+        c["formation_ratio"] = c["solver_s"] / base["solver_s"]
+        c["formation_base_case"] = FORMATION_CASES[name]
+    t = FORMATION_TARGETS.get(name)
+    if t and "formation_ratio" in c:
+        c["targets"] = t
+        c["meets_targets"] = bool(c["formation_ratio"] <= t["formation_ratio_max"])
+    return c
+
+
 def machine() -> dict:
     import importlib.metadata as md
 
@@ -496,6 +573,9 @@ def main(argv=None) -> int:
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--pass-file", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.worker == "formation-batch":
+        print(json.dumps(formation_worker(args.pass_file)))
+        return 0
     if args.worker:
         print(json.dumps(worker(args.worker, args.pass_file)))
         return 0
@@ -505,7 +585,7 @@ def main(argv=None) -> int:
     if args.isam2_hours is not None:
         cases["isam2_4h"] = ("isam2", args.isam2_hours)
         cases["isam2_att_4h"] = ("isam2", args.isam2_hours, "att")
-    special = {"cold_start", "images"} | set(PROCESS_CASES)   # their own functions below
+    special = {"cold_start", "images"} | set(PROCESS_CASES) | set(FORMATION_CASES)
     wanted = set(args.cases.split(",")) if args.cases else set(cases) | special
     unknown = wanted - set(cases) - special
     if unknown:
@@ -550,6 +630,10 @@ def main(argv=None) -> int:
         if b4 and b24 and "error" not in b4 and "error" not in b24:
             # 1.0 = exactly linear cost in the number of epochs
             result["batch_cost_growth"] = (b24["solver_s"] / b24["epochs"]) / (b4["solver_s"] / b4["epochs"])
+        for name, base in FORMATION_CASES.items():   # the pass length of its base case
+            if name in wanted:
+                result["cases"][name] = formation_case(name, cases[base][1], args.seed, repeat,
+                                                       tmp, args.timeout_s, result["cases"])
         before = Path(args.before_tree).resolve() if args.before_tree else None
         for name in PROCESS_CASES:
             if name in wanted:
