@@ -57,21 +57,18 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg as sla
 from scipy.stats import chi2
 
 from factors.pseudorange import cartesian_to_spherical
 from fgnav.formation.dense_bound import dense_bound
 from fgnav.formation.outputs import formation_summary, relative_rows
 from fgnav.formation.relative_state import relative_covariance, relative_state_lvlh
-from fgnav.graph import linearize_all
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import build_pass
 from fgnav.pipeline import smooth_log
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.formation_sim import simulate_formation_pass
 from fgnav.solvers.options import SmootherOptions
-from fgnav.time import j2000_seconds
 
 CARRIER_SIGMA_M = 1e-5
 """Carrier-phase noise (m) switched on for formation-gto (Xing et al.'s ref. [1], 10 um)."""
@@ -114,31 +111,8 @@ def truth_blocks(p, sim) -> np.ndarray:
 
 def qr_bound(p, X_true: np.ndarray, options) -> np.ndarray:
     """Per-epoch bound (N, n, n) from a dense QR factorization of every whitened row of the
-    pass at ``X_true`` (the same rows as :func:`fgnav.formation.dense_bound.dense_bound`),
-    columns scaled to unit norm first."""
-    from fgnav.solvers.batch import process_blocks
-
-    N, n = X_true.shape
-    rows = linearize_all(p, X_true)
-    A0, A1, _ = process_blocks(p, X_true, options.q_m2_s3, options.motion_model(),
-                               float(j2000_seconds(p.epoch0)))
-    m = len(rows.A) + sum(len(a) for a in A0)
-    A = np.zeros((m, N * n))
-    i = 0
-    for k in range(N):
-        a = rows.A[rows.k == k]
-        A[i:i + len(a), k * n:(k + 1) * n] = a
-        i += len(a)
-    for k in range(N - 1):
-        r = len(A0[k])
-        A[i:i + r, k * n:(k + 1) * n] = A0[k]
-        A[i:i + r, (k + 1) * n:(k + 2) * n] = A1[k]
-        i += r
-    s = 1.0 / np.linalg.norm(A, axis=0)
-    R = sla.qr(A * s, mode="r", overwrite_a=True)[0][:N * n]
-    Ri = sla.solve_triangular(R, np.eye(N * n))
-    return np.stack([(Ri[k * n:(k + 1) * n] @ Ri[k * n:(k + 1) * n].T)
-                     * np.outer(s[k * n:(k + 1) * n], s[k * n:(k + 1) * n]) for k in range(N)])
+    pass at ``X_true`` (:func:`fgnav.formation.dense_bound.dense_bound`)."""
+    return dense_bound(p, X_true, options)
 
 
 def _pos_rms_sigma(C, sl) -> float:

@@ -296,6 +296,12 @@ def relinearizing_links(p: Pass):
                    wildfire_threshold=min(inc.wildfire_threshold, min(d)))
 
 
+CHI2_TOLERANCE = 1e-8
+"""A formation's Gauss-Newton also stops when the cost changed by at most this fraction in an
+iteration (its steps on km-sigma absolute orbits keep a jitter above a carrier's microns:
+with the step tests alone every carrier pass of 2 h or more ran to the iteration limit)."""
+
+
 def converging_to_links(p: Pass, options):
     """``options`` with the Gauss-Newton step tolerances below a tenth of the finest link's
     sigma (and the relative one on the marginal sigmas scaled alike: the absolute sigmas are
@@ -308,4 +314,4 @@ def converging_to_links(p: Pass, options):
     scale = 0.1 * min(sig) / options.tol_position_m
     return replace(options, tol_position_m=options.tol_position_m * scale,
                    tol_velocity_mps=options.tol_velocity_mps * scale,
-                   tol_sigma=options.tol_sigma * scale)
+                   tol_sigma=options.tol_sigma * scale, tol_chi2_relative=CHI2_TOLERANCE)

@@ -356,6 +356,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
         lin = None
+        chi2_prev = None
         for _ in range(max_iterations):
             lin = None   # the previous linearization is not needed: free it first (memory)
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected,
@@ -381,6 +382,14 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             sigma = np.sqrt(np.diagonal(chain_marginals(lin.R, lin.S), axis1=1, axis2=2))
             if np.max(np.abs(dx) / sigma) < options.tol_sigma * tol_scale:
                 return lin, True
+            # ... or the cost no longer moves (a formation's carrier phase: relative states
+            # known to microns beside absolute ones known to kilometres, whose steps keep a
+            # numerical jitter far above the microns)
+            chi2 = lin.chi2_meas + lin.chi2_motion
+            if (options.tol_chi2_relative is not None and chi2_prev is not None
+                    and abs(chi2_prev - chi2) <= options.tol_chi2_relative * chi2):
+                return lin, True
+            chi2_prev = chi2
         return lin, False
 
     converged = False

@@ -32,6 +32,7 @@ class SmootherOptions:
     tol_position_m: float = 1e-3
     tol_velocity_mps: float = 1e-6
     tol_sigma: float = 1e-4  # ... or every update below this fraction of its marginal sigma
+    tol_chi2_relative: float | None = None  # ... or chi2 changed by at most this fraction (None: not used)
     max_step_s: float | None = None
     robust: str | None = None          # None | "huber" | "cauchy" (measurements, not priors)
     robust_k: float | None = None      # kernel threshold in sigmas (default: 95% efficiency)
