@@ -278,3 +278,16 @@ def test_relative_spherical_adds_range_azimuth_elevation(tmp_path):
     write_log(tmp_path / "one.csv", single)
     assert main(["smooth", str(tmp_path / "one.csv"), "--out", str(tmp_path / "o1"), "--quiet",
                  "--relative", "spherical"]) == 2
+
+
+def test_check_reports_each_spacecraft(tmp_path, capsys):
+    """``fgnav check`` on a formation's log: rows and antennas per spacecraft, and whether each
+    spacecraft's own rows can start its orbit (the links are not a range for one orbit)."""
+    log, _ = formation_log(12, lever_arms=True)
+    write_log(tmp_path / "pass.csv", log)
+    assert main(["check", str(tmp_path / "pass.csv"), "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert set(d["spacecraft"]) == {"A", "B"}
+    assert d["spacecraft"]["A"]["antennas"] == ["a1"]
+    assert d["spacecraft"]["B"]["counts"]["earth_direction"] == 31
+    assert d["no_prior"]["reason"].startswith("A: ")

@@ -59,7 +59,25 @@ def _report(log) -> dict:
         "span_s": float(t.max() - t.min()),
         "warnings": list(log.warnings),
         "dropped": dict(log.dropped),
+        **({"spacecraft": _per_spacecraft(log)} if getattr(log, "n_spacecraft", 1) > 1 else {}),
     }
+
+
+def _per_spacecraft(log) -> dict:
+    """A formation's log: per spacecraft id its rows per kind (an inter-satellite row counts
+    for its receiver) and its declared antennas."""
+    import numpy as np
+
+    from fgnav.io.log_spacecraft import spacecraft_index
+
+    sc = spacecraft_index(log)
+    kinds = np.asarray(log.kind).astype(str)
+    out = {}
+    for i, name in enumerate(log.spacecraft):
+        k, n = np.unique(kinds[sc == i], return_counts=True)
+        out[name] = {"counts": {str(a): int(b) for a, b in zip(k, n)},
+                     "antennas": sorted(ant for s, ant in log.antennas if s == name)}
+    return out
 
 
 def _no_prior(log) -> dict:
@@ -78,6 +96,14 @@ def _no_prior(log) -> dict:
         p = build_pass(log)
     except UserError as exc:
         return {"possible": False, "has_prior": False, "reason": str(exc)}
+    if p.spacecraft:   # a formation: each spacecraft's own rows must start its orbit
+        from fgnav.formation.joint import spacecraft_pass
+
+        subs = [spacecraft_pass(p, s) for s in range(len(p.spacecraft))]
+        each = [(name, iod_support(q), has_prior(q)) for name, q in zip(p.spacecraft, subs)]
+        return {"possible": all(ok for _, (ok, _), _ in each),
+                "has_prior": all(pr for _, _, pr in each),
+                "reason": "; ".join(f"{name}: {why}" for name, (_, why), _ in each)}
     ok, why = iod_support(p)
     return {"possible": bool(ok), "has_prior": has_prior(p), "reason": why}
 
@@ -121,6 +147,10 @@ def run(args) -> int:
     print(f"  span: {rep['start_utc']} .. {rep['stop_utc']} ({rep['span_s']:.3f} s)")
     for kind, n in sorted(rep["counts"].items()):
         print(f"  {kind:<22s} {n:>8d}")
+    for name, d in rep.get("spacecraft", {}).items():
+        rows = ", ".join(f"{k} {n}" for k, n in sorted(d["counts"].items()))
+        ants = f"; antennas {', '.join(d['antennas'])}" if d["antennas"] else ""
+        print(f"  spacecraft {name}: {rows}{ants}")
     for reason, n in sorted(rep["dropped"].items()):
         print(f"  dropped ({reason}): {n}")
     for w in rep["warnings"]:
