@@ -151,8 +151,8 @@ def link_fixes(log, max_epochs: int = LINK_FIX_EPOCHS):
             x0 = far_field_guess(ep.rho_m, ep.links, ep.face_m)
             sol = solve_single_epoch(ep.rho_m, ep.M21, "cartesian", x0, sigma_m=1.0,
                                      links=ep.links)
-        except (UserError, np.linalg.LinAlgError):
-            continue
+        except (UserError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            continue   # (an epoch the links alone do not fix: the others may)
         j = np.flatnonzero(t_att == t)
         if not sol.converged or len(j) != 1:
             continue
