@@ -207,6 +207,8 @@ def first_guess(p: Pass, model, t0_j2000_s: float, options=None):
         if not sub.families:
             raise UserError(f"{p.source}: spacecraft '{p.spacecraft[s]}' has no rows of its own "
                             "(priors or celestial measurements): its orbit cannot be started")
+        if s == 1 and p.link_fixes is not None:
+            continue   # placed from the first spacecraft by the links (below)
         x = _ekf_first_guess(sub, options) if options is not None and has_prior(sub) else None
         filtered &= x is not None
         if x is None:
