@@ -211,14 +211,20 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
 
 def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
     """RMS / final errors and NEES of a solution against truth at its epochs (SI)."""
-    err = sol.x_eci - x_true
+    return state_errors(sol.x_eci, sol.P_eci, x_true)
+
+
+def state_errors(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> dict:
+    """RMS / final errors and mean NEES of states ``x`` (N, 6) with covariances ``P``
+    (N, 6, 6) against ``x_true`` (N, 6), and the RMS position sigma (SI)."""
+    err = x - x_true
     er, ev = np.linalg.norm(err[:, :3], axis=1), np.linalg.norm(err[:, 3:], axis=1)
-    nees = np.einsum("ki,ki->k", err, np.linalg.solve(sol.P_eci, err[..., None])[..., 0])
+    nees = np.einsum("ki,ki->k", err, np.linalg.solve(P, err[..., None])[..., 0])
     return {"position_rms_m": float(np.sqrt(np.mean(er ** 2))),
             "velocity_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
             "final_position_error_m": float(er[-1]), "final_velocity_error_mps": float(ev[-1]),
             "nees_mean": float(np.mean(nees)),
-            "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(sol.P_eci[:, :3, :3], axis1=1, axis2=2))))}
+            "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(P[:, :3, :3], axis1=1, axis2=2))))}
 
 
 def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,

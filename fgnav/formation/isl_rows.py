@@ -56,13 +56,12 @@ def isl_values(log, i, k_of_row=None) -> dict:
     out = {"rho_m": np.asarray(log.xyz, dtype=float)[i, 0], "sign": np.empty(M),
            "R_rx": np.tile(np.eye(3), (M, 1, 1)), "R_tx": np.tile(np.eye(3), (M, 1, 1)),
            "a_rx": np.zeros((M, 3)), "a_tx": np.zeros((M, 3))}
-    names = {"orbit": [], "orbit_tx": [], "clock": [], "ambiguity": []}
+    names = {"clock": [], "ambiguity": []}
+    orbit_names = np.array([orbit_variable(s, name).name for s, name in enumerate(ids)])
     carrier = np.asarray(log.kind)[i] == ISL_KINDS[1]
     for j, row in enumerate(i.tolist()):
         a, b, s = clock_pair(int(rx[j]), int(tx[j]))
         out["sign"][j] = s
-        names["orbit"].append(orbit_variable(int(rx[j]), ids[rx[j]]).name)
-        names["orbit_tx"].append(orbit_variable(int(tx[j]), ids[tx[j]]).name)
         names["clock"].append(f"clock_{ids[a]}_{ids[b]}")
         ends = []
         for end, s_idx, col in (("rx", int(rx[j]), "rx_antenna"), ("tx", int(tx[j]), "tx_antenna")):
@@ -83,8 +82,8 @@ def isl_values(log, i, k_of_row=None) -> dict:
                 continue
             out[f"R_{end}"][j] = R
         names["ambiguity"].append(f"{ends[1]}_to_{ends[0]}" if carrier[j] else "")
-    out["var:orbit"] = np.array(names["orbit"])
-    out["var:orbit_tx"] = np.array(names["orbit_tx"])
+    out["var:orbit"] = orbit_names[rx]
+    out["var:orbit_tx"] = orbit_names[tx]
     out["var:clock"] = np.array(names["clock"])
     if carrier.all():
         out["var:ambiguity"] = np.array([f"ambiguity_{n}" for n in names["ambiguity"]])

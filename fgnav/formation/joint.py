@@ -92,8 +92,9 @@ def build_formation_pass(log) -> Pass:
              layout=lay, spacecraft=ids)
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
-        if not len(i) or not mdl.solved or (mdl.requires is not None and mdl is not ATTITUDE):
-            continue
+        if (not len(i) or not mdl.solved or kind in isl
+                or (mdl.requires is not None and mdl is not ATTITUDE)):
+            continue   # (the links' families: isl_families above)
         values = dict(mdl.values(log, i))
         values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
         fam = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])

@@ -86,16 +86,6 @@ def _reference_attitude(p, sol):
     return R
 
 
-def _errors(x, P, x_true) -> dict:
-    err = x - x_true
-    er, ev = np.linalg.norm(err[:, :3], axis=1), np.linalg.norm(err[:, 3:], axis=1)
-    nees = np.einsum("ki,ki->k", err, np.linalg.solve(P, err[..., None])[..., 0])
-    return {"position_rms_m": float(np.sqrt(np.mean(er ** 2))),
-            "velocity_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
-            "final_position_error_m": float(er[-1]), "final_velocity_error_mps": float(ev[-1]),
-            "nees_mean": float(np.mean(nees))}
-
-
 def _sigmas(P) -> dict:
     return {"sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(P[:, :3, :3], axis1=1, axis2=2)))),
             "sigma_velocity_rms_mps": float(np.sqrt(np.mean(np.trace(P[:, 3:, 3:], axis1=1, axis2=2))))}
@@ -112,6 +102,16 @@ def spherical_position(r_lvlh, C_lvlh):
     return s, np.einsum("kij,kjl,kml->kim", J, C_lvlh, J)
 
 
+def _spherical_error(s_est, r_true):
+    """``s_est`` (N, 3: range, azimuth, elevation) minus the spherical coordinates of the
+    true positions ``r_true`` (N, 3), the azimuth difference wrapped to [-pi, pi)."""
+    from factors.pseudorange import cartesian_to_spherical
+
+    e = s_est - cartesian_to_spherical(r_true)
+    e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
+    return e
+
+
 def _spherical_summary(rel, C, rel_true) -> dict:
     s, Cs = spherical_position(rel[:, :3], C[:, :3, :3])
     sig = np.sqrt(np.diagonal(Cs, axis1=1, axis2=2))
@@ -120,10 +120,7 @@ def _spherical_summary(rel, C, rel_true) -> dict:
            "sigma_azimuth_rms_rad": float(np.sqrt(np.mean(sig[:, 1] ** 2))),
            "sigma_elevation_rms_rad": float(np.sqrt(np.mean(sig[:, 2] ** 2)))}
     if rel_true is not None:
-        from factors.pseudorange import cartesian_to_spherical
-
-        e = s - cartesian_to_spherical(rel_true[:, :3])
-        e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
+        e = _spherical_error(s, rel_true[:, :3])
         out.update({"range_rms_m": float(np.sqrt(np.mean(e[:, 0] ** 2))),
                     "azimuth_rms_rad": float(np.sqrt(np.mean(e[:, 1] ** 2))),
                     "elevation_rms_rad": float(np.sqrt(np.mean(e[:, 2] ** 2)))})
@@ -137,11 +134,8 @@ def spherical_position_nees(r_est, C, r_true) -> float:
     is, in Cartesian coordinates, also a chord error of ``d^2/2R`` across it, beyond a
     centimetre sigma there, so the Cartesian NEES overstates the inconsistency of a
     consistent estimate (Xing et al. 2008's case for the spherical parameterization)."""
-    from factors.pseudorange import cartesian_to_spherical
-
     s_est, Cs = spherical_position(r_est, C)
-    e = s_est - cartesian_to_spherical(r_true)
-    e[:, 1] = (e[:, 1] + np.pi) % (2 * np.pi) - np.pi
+    e = _spherical_error(s_est, r_true)
     return float(np.mean(np.einsum("ki,ki->k", e, np.linalg.solve(Cs, e[..., None])[..., 0])))
 
 
@@ -188,6 +182,7 @@ def formation_summary(sol, p, options, truths=None, relative: str = "cartesian")
     ``(t_s, x_eci)`` or None; ``relative="spherical"`` adds the relative position's range,
     azimuth and elevation sigmas (and errors)."""
     from fgnav.orbit import truth_at
+    from fgnav.pipeline import state_errors
 
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2), "measurements": p.counts(),
@@ -199,7 +194,7 @@ def formation_summary(sol, p, options, truths=None, relative: str = "cartesian")
     for sc, (x, P), xt in zip(p.spacecraft, states, x_true):
         d = _sigmas(P)
         if xt is not None:
-            d.update(_errors(x, P, xt))
+            d.update(state_errors(x, P, xt))
         s["spacecraft"][sc] = d
     rel_all = {}
     for j in range(1, len(states)):
@@ -207,7 +202,7 @@ def formation_summary(sol, p, options, truths=None, relative: str = "cartesian")
         d = _sigmas(C)
         rel_true = None if x_true[0] is None else relative_state_lvlh(x_true[0], x_true[j])[0]
         if rel_true is not None:
-            d.update(_errors(rel, C, rel_true))
+            d.update(state_errors(rel, C, rel_true))
             d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
                                                                         rel_true[:, :3])
         if relative == "spherical":
