@@ -147,14 +147,6 @@ def spacecraft_index(log) -> np.ndarray:
     return np.where(np.isnan(c), 0, c).astype(int)
 
 
-def is_isl(kind) -> bool:
-    return str(kind) in ISL_KINDS
-
-
-def _nan_to_minus(a):
-    return np.where(np.isnan(a), -1, a).astype(int)
-
-
 def check_rows(log_kind, V_ids: dict, spacecraft: tuple[str, ...], antenna_names, antennas,
                n_declared: int | None, has_column: bool):
     """Cross-row checks of the id columns (after the codes are final): yields
