@@ -40,7 +40,7 @@ from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
-           "TABLE_STEP_S", "earth_position_helio_m", "moon_position_helio_m",
+           "TABLE_STEP_S", "origin_state_bcrs", "earth_position_helio_m", "moon_position_helio_m",
            "planet_state_helio", "third_body_positions_m", "third_body_table",
            "table_positions_nb", "NO_TABLE", "check_table_span"]
 
@@ -95,6 +95,18 @@ def earth_position_helio_m(t_j2000_s) -> np.ndarray:
     erfa = _erfa()
     pvh, _ = _quiet(erfa.epv00, _J2000_JD, _jd2(t_j2000_s))
     return np.asarray(pvh["p"]) * AU_M
+
+
+def origin_state_bcrs(t_j2000_s, centre: str) -> tuple[np.ndarray, np.ndarray]:
+    """Barycentric (BCRS, ICRF axes) position (m) and velocity (m/s) of a pass's frame origin,
+    the Earth's centre (``centre="earth"``) or the Sun's (``"sun"``), at ``t_j2000_s`` (N,):
+    ``erfa.epv00``'s barycentric Earth, less its heliocentric Earth for the Sun. (N, 3) each."""
+    erfa = _erfa()
+    pvh, pvb = _quiet(erfa.epv00, _J2000_JD, _jd2(np.atleast_1d(t_j2000_s)))
+    p, v = np.asarray(pvb["p"]), np.asarray(pvb["v"])
+    if centre == "sun":
+        p, v = p - np.asarray(pvh["p"]), v - np.asarray(pvh["v"])
+    return p * AU_M, v * _AU_PER_DAY_TO_MPS
 
 
 def moon_position_helio_m(t_j2000_s) -> np.ndarray:

@@ -2,8 +2,10 @@
 
 The star models (``star_direction_body``, ``refraction``) compare their rows with the
 apparent direction of the star, the catalogue direction aberrated by the observer's velocity
-(``factors.aberration``; Urban & Seidelmann 2013, eq. 7.40). :func:`without_aberration` gives
-the same pass with every such row taking the catalogue direction as seen, as a model
+(``factors.aberration``; Urban & Seidelmann 2013, eq. 7.40); the angle models
+(``body_star_angle``, ``limb_star_angle``, ``body_body_angle``) measure between apparent
+lines of sight (``factors.celestial_angles``). :func:`without_aberration` gives the same
+pass with every such row taking the catalogue and geometric directions as seen, as a model
 without the correction would: ``fgnav smooth --no-aberration`` and the tests that measure
 what the correction is worth (README, "Apparent star directions").
 """

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 
 from factors.adapters import pad_position_jacobian, whiten
-from factors.celestial_angles import (body_body_angle_residual, body_star_angle_residual,
+from factors.celestial_angles import (BODY_BODY, BODY_STAR, apparent_angle_residual,
+                                      body_body_angle_residual, body_star_angle_residual,
                                       celestial_angle_kernel, limb_star_angle_residual,
-                                      make_celestial_angle_factor)
+                                      make_celestial_angle_factor, pack_angle_rows)
 from factors.constants import DEG
 from factors.errors import ModelDomainError
 from factors.testing import check_jacobians, check_linearization, random_positions_m
@@ -189,3 +190,95 @@ def test_parallel_lines_of_sight_and_inside_the_limb_are_outside_the_domain():
     e, H = np.empty(1), np.empty((1, 6))
     assert celestial_angle_kernel(np.array([7e6, 0, 0, 0, 0, 0.0]), np.array([0.1, 8e6, 0.0]),
                                   np.array([[0.0, 0, 0], [0.0, 1, 0]]), e, H) == -1
+
+
+# ---- apparent lines of sight (stellar and planetary aberration) ----------------------------
+
+C_MPS = 299_792_458.0
+
+
+def _apparent_cases(rng):
+    """Packed rows with aberration on: orbit states (N, 6) with LEO-to-cruise speeds, the
+    Earth's barycentric velocity as the frame's, the Moon moving."""
+    r = random_positions_m(rng, N)
+    v = rng.normal(size=(N, 3)) * 6e3
+    s = _units(rng, N)
+    moon = np.tile([1e8, R_MOON_ORBIT_M, 2e7], (N, 1))
+    v_moon = np.tile([-1.0e3, 0.3e3, 0.05e3], (N, 1))
+    v_frame = np.tile([2.9e4, -5e3, 1e3], (N, 1))
+    a = rng.uniform(0.2, 2.9, N)
+    pack = {
+        "body_star_moon": (0.0, BODY_STAR, moon, v_moon, s, 0.0),
+        "limb_star_earth": (6.375e6, BODY_STAR, np.zeros((N, 3)), 0.0, s, 0.0),
+        "limb_star_moon": (1.7374e6, BODY_STAR, moon, v_moon, s, 0.0),
+        "body_body_earth_moon": (0.0, BODY_BODY, np.zeros((N, 3)), 0.0, moon, v_moon),
+    }
+    out = {}
+    for name, (R, mode, p, vb, other, vo) in pack.items():
+        data, B = pack_angle_rows(a, R, mode, p, other, v_body_mps=vb, v_body2_mps=vo,
+                                  v_frame_bcrs_mps=v_frame, aberration=True)
+        out[name] = (np.hstack([r, v]), data, B, (p, vb, other, vo, v_frame, R, mode))
+    return out
+
+
+@pytest.mark.parametrize("case", ["body_star_moon", "limb_star_earth", "limb_star_moon",
+                                  "body_body_earth_moon"])
+def test_apparent_angle_jacobians_against_central_differences(rng, case):
+    """Position and velocity columns; the velocity ones (~1/c ~ 3e-9 rad per m/s) also on
+    their own, at their own scale (the default floor is 1e-7 of the largest entry)."""
+    x, data, B, _ = _apparent_cases(rng)[case]
+    e, H = apparent_angle_residual(x, data, B)
+    assert H.shape == (N, 1, 6) and np.all(np.isfinite(H))
+    assert np.abs(H[:, 0, 3:]).max() > 1e-10           # the velocity enters
+    f = lambda xx: apparent_angle_residual(xx, data, B)  # noqa: E731
+    check_jacobians(f, (x,), (H,), ("vector",))
+    # 100 m/s steps: the angle is linear in v to ~|v|/c, and round-off stays ~1e-18 rad/(m/s)
+    check_jacobians(lambda vv: f(np.hstack([x[:, :3], vv])), (x[:, 3:],), (H[:, :, 3:],),
+                    ("vector",), atol=1e-16, eps=(100.0,))
+
+
+@pytest.mark.parametrize("case", ["body_star_moon", "body_body_earth_moon", "limb_star_earth"])
+def test_apparent_angles_are_erfas_proper_directions(rng, case):
+    """Independent values: the lines of sight aberrated by ERFA ``ab`` (Urban & Seidelmann
+    2013, eq. 7.40): the star by the observer's barycentric velocity, a body by the velocity
+    relative to it (the light time of a uniformly moving body, to first order)."""
+    import erfa
+
+    x, data, B, (p, vb, other, vo, v_frame, R, mode) = _apparent_cases(rng)[case]
+    e, _ = apparent_angle_residual(x, data, B)
+    r, v = x[:, :3], x[:, 3:]
+
+    def ab(u, vel):
+        u = u / np.linalg.norm(u, axis=1, keepdims=True)
+        beta = vel / C_MPS
+        return erfa.ab(u, beta, 1e12, np.sqrt(1 - np.sum(beta * beta, axis=1)))
+
+    def ang(a, b):
+        return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+
+    u = (p - r) / np.linalg.norm(p - r, axis=1, keepdims=True)
+    a_u = ab(u, v - vb)
+    a_o = ab(other, v + v_frame) if mode == BODY_STAR else ab(other - r, v - vo)
+    want = ang(a_u, a_o)
+    if R:
+        d = np.linalg.norm(p - r, axis=1)
+        rho = np.arcsin(R / d)
+        s = other / np.linalg.norm(other, axis=1, keepdims=True)
+        c = np.sum(u * s, axis=1)
+        t = (s - c[:, None] * u) / np.sqrt(1 - c * c)[:, None]
+        limb = np.cos(rho)[:, None] * u + np.sin(rho)[:, None] * t
+        want = want - ang(a_u, ab(limb, v - vb))
+    np.testing.assert_allclose(e[:, 0] + data[:, 0], want, atol=1e-12)
+    geometric = apparent_angle_residual(x, np.column_stack([data[:, :3], np.zeros(N)]), B)[0]
+    assert np.abs(geometric - e).max() > 2e-5          # the correction is arcseconds here
+
+
+def test_with_the_correction_off_the_apparent_rows_are_the_lectures_geometry(rng):
+    x, data, B, (p, vb, other, vo, v_frame, R, mode) = _apparent_cases(rng)["limb_star_moon"]
+    off = data.copy()
+    off[:, 3] = 0.0
+    e, H = apparent_angle_residual(x, off, B)
+    e_geo, H_geo = limb_star_angle_residual(x[:, :3], p, other, data[:, 0], R)
+    np.testing.assert_allclose(e, e_geo, atol=1e-14)
+    np.testing.assert_allclose(H[:, :, :3], H_geo, rtol=1e-12)
+    assert np.all(H[:, :, 3:] == 0.0)

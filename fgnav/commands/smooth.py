@@ -184,9 +184,10 @@ def register(sub):
                         "variable per epoch (the same as --estimate attitude), written to "
                         "DIR/attitude.aem (CCSDS AEM) and DIR/attitude_covariance.csv")
     p.add_argument("--no-aberration", action="store_true",
-                   help="take the star rows' catalogue directions (star_direction_body, "
-                        "refraction) as seen, without the stellar-aberration correction "
-                        "(~20-27 arcsec); for comparison only")
+                   help="take the catalogue and geometric directions as seen, without the "
+                        "aberration correction (star_direction_body, refraction and the angle "
+                        "kinds body_star_angle, limb_star_angle, body_body_angle; ~20-27 "
+                        "arcsec); for comparison only")
     p.add_argument("--attitude-motion", choices=["random-walk", "constant-rate"], default=None,
                    help="how the estimated attitude moves between epochs (with --attitude "
                         "estimate): random-walk (default): a random walk on SO(3) of spectral "

@@ -18,9 +18,9 @@ from factors.aberration import apparent_direction, earth_velocity_bcrs_mps
 from factors.alignment import (aligned_star_direction_apparent_residual,
                                make_aligned_star_direction_apparent_factor)
 from factors.altimeter import altitude_kernel, altitude_residual, make_altitude_factor
-from factors.celestial_angles import (BODY_BODY, BODY_STAR, body_body_angle_residual,
-                                      body_star_angle_residual, celestial_angle_kernel,
-                                      limb_star_angle_residual, make_celestial_angle_factor)
+from factors.celestial_angles import (BODY_BODY, BODY_STAR, apparent_angle_residual,
+                                      celestial_angle_kernel, make_celestial_angle_factor,
+                                      pack_angle_rows)
 from factors.attitude import attitude_residual, make_attitude_prior_factor, triad
 from factors.gyro import gyro_residual, make_gyro_factor, make_gyro_factor_without_bias
 from factors.direction import (body_direction_residual, earth_direction_residual,
@@ -43,7 +43,8 @@ from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
-from fgnav.simulate.celestial_angles import body_position_eci_m, simulate_angle_rows
+from fgnav.simulate.celestial_angles import (body_position_eci_m, body_velocity_mps,
+                                             frame_velocity_bcrs_mps, simulate_angle_rows)
 from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
                                             simulate_body_direction_rows, sun_target)
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
@@ -508,55 +509,69 @@ STAR_DIRECTION_BODY = MeasurementModel(
 # residual, and a reader that ignored a flag would take a limb angle for a centre angle
 # silently (wrong by the apparent radius, ~60 deg in LEO), where an unknown kind is refused.
 
-def _bodies_at(codes, t_j2000_s, centre="earth"):
+def _bodies_at(codes, t_j2000_s, centre="earth", of=body_position_eci_m):
     """Centres (M, 3), m, of the bodies with log codes ``codes`` (M,) at the rows' epochs,
-    relative to the log's ``centre`` (EME2000 axes)."""
+    relative to the log's ``centre`` (EME2000 axes); ``of=body_velocity_mps``: their
+    velocities, m/s."""
     out = np.zeros((len(codes), 3))
     for c in np.unique(codes):
         i = np.flatnonzero(codes == c)
-        out[i] = body_position_eci_m(BODIES[int(c)], t_j2000_s[i], centre)
+        out[i] = of(BODIES[int(c)], t_j2000_s[i], centre)
     return out
 
 
 def _angle_values(star, limb):
     """``values(log, rows)`` of an angle kind: ``a_rad`` (M,) the measured angle; the body's
-    centre ``p_body_eci_m`` (M, 3) at the row's epoch; the star ``s_eci`` (M, 3) or the second
-    body ``p_body2_eci_m``; ``r_limb_m`` (limb form); and the rows packed for the kernel,
-    ``data`` (M, 3) and ``B`` (M, 2, 3) (``factors.celestial_angles.celestial_angle_kernel``)."""
+    centre ``p_body_eci_m`` (M, 3) and velocity ``v_body_mps`` at the row's epoch; the star
+    ``s_eci`` (M, 3) or the second body ``p_body2_eci_m``, ``v_body2_mps``; ``r_limb_m``
+    (limb form); the frame's barycentric velocity ``v_frame_bcrs_mps``; ``aberration`` (M,)
+    bool, apparent lines of sight (``fgnav smooth --no-aberration`` turns it off)."""
     def values(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
         centre = getattr(log, "centre", "earth")
-        out = {"a_rad": xyz[:, 0],
-               "p_body_eci_m": _bodies_at(np.asarray(log.extra["body"], float)[i], tj, centre)}
-        data = np.zeros((len(tj), 3))
-        data[:, 0] = out["a_rad"]
+        codes = np.asarray(log.extra["body"], float)[i]
+        out = {"a_rad": xyz[:, 0], "p_body_eci_m": _bodies_at(codes, tj, centre),
+               "v_body_mps": _bodies_at(codes, tj, centre, body_velocity_mps),
+               "v_frame_bcrs_mps": frame_velocity_bcrs_mps(tj, centre),
+               "aberration": np.ones(len(tj), bool)}
         if star:
             out["s_eci"] = np.column_stack([np.asarray(log.extra[c], dtype=float)[i]
                                             for c in STAR_COLUMNS])
-            other = out["s_eci"]
-            data[:, 2] = BODY_STAR
-            if limb:
-                out["r_limb_m"] = xyz[:, 1]
-                data[:, 1] = out["r_limb_m"]
+            out["r_limb_m"] = xyz[:, 1] if limb else np.zeros(len(tj))
         else:
-            out["p_body2_eci_m"] = _bodies_at(np.asarray(log.extra["body2"], float)[i], tj,
-                                              centre)
-            other = out["p_body2_eci_m"]
-            data[:, 2] = BODY_BODY
-        out["data"], out["B"] = data, np.stack([out["p_body_eci_m"], other], axis=1)
+            codes2 = np.asarray(log.extra["body2"], float)[i]
+            out["p_body2_eci_m"] = _bodies_at(codes2, tj, centre)
+            out["v_body2_mps"] = _bodies_at(codes2, tj, centre, body_velocity_mps)
         return out
     return values
 
 
-def _angle_model(kind, summary, residual, star, limb, keys):
+def _angle_packed(fam, rows=slice(None)):
+    """The family's rows ``rows`` packed for ``factors.celestial_angles`` (``data``, ``B``),
+    with the aberration flag as the family holds it now."""
+    v = fam.values
+    star = "s_eci" in v
+    return pack_angle_rows(
+        v["a_rad"][rows], v["r_limb_m"][rows] if star else 0.0, BODY_STAR if star else BODY_BODY,
+        v["p_body_eci_m"][rows], (v["s_eci"] if star else v["p_body2_eci_m"])[rows],
+        v_body_mps=v["v_body_mps"][rows], v_body2_mps=0.0 if star else v["v_body2_mps"][rows],
+        v_frame_bcrs_mps=v["v_frame_bcrs_mps"][rows], aberration=v["aberration"][rows])
+
+
+def _angle_residual(fam, v):
+    data, B = _angle_packed(fam)
+    e, H = apparent_angle_residual(v["orbit"], data, B)
+    return e, {"orbit": H}
+
+
+def _angle_model(kind, summary, star, limb, keys):
     return MeasurementModel(
         kind=kind, dim=1, unit="rad", observes_orbit=True, summary=summary,
-        values=_angle_values(star, limb), residual=_position_model(residual),
+        values=_angle_values(star, limb), residual=_angle_residual,
         factor=lambda fam, j, keys_, noise: make_celestial_angle_factor(
-            keys_["orbit"], fam.values["data"][j], fam.values["B"][j], noise),
-        numba_kernel=celestial_angle_kernel,
-        numba_data=lambda fam: (fam.values["data"], fam.values["B"]),
+            keys_["orbit"], *(a[0] for a in _angle_packed(fam, slice(j, j + 1))), noise),
+        numba_kernel=celestial_angle_kernel, numba_data=_angle_packed,
         simulate=functools.partial(simulate_angle_rows, star=star, limb=limb),
         scenario_keys=keys)
 
@@ -565,18 +580,12 @@ _STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elong
               "star_spread")
 BODY_STAR_ANGLE = _angle_model(
     "body_star_angle", "angle between a near body's centre and a star (rad)",
-    lambda r, fam: body_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],
-                                            fam.values["a_rad"]),
     star=True, limb=False, keys=_STAR_KEYS)
 LIMB_STAR_ANGLE = _angle_model(
     "limb_star_angle", "angle between a near body's limb and a star (rad): the sextant",
-    lambda r, fam: limb_star_angle_residual(r, fam.values["p_body_eci_m"], fam.values["s_eci"],
-                                            fam.values["a_rad"], fam.values["r_limb_m"]),
     star=True, limb=True, keys=_STAR_KEYS + ("r_limb_km",))
 BODY_BODY_ANGLE = _angle_model(
     "body_body_angle", "angle between two near bodies' centres (rad)",
-    lambda r, fam: body_body_angle_residual(r, fam.values["p_body_eci_m"],
-                                            fam.values["p_body2_eci_m"], fam.values["a_rad"]),
     star=False, limb=False, keys=("sigma_deg", "body", "body2"))
 
 

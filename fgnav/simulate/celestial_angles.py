@@ -1,13 +1,17 @@
 """Simulated attitude-free angles: near body - star, near body's limb - star, body - body.
 
 The instrument (a sextant: the INS/CNS lecture's "near body / spacecraft / far body" and "near
-body / spacecraft / near body" angle measurements) measures the angle between two lines of
-sight; its readings are the geometric angle from the truth plus Gaussian noise of 1σ
-``spec.sigma_deg``: ``A = A_true + sigma n`` (the predicted angle of
-``factors.celestial_angles``, so model and simulator share one definition of the geometry;
-the ephemeris error of ``factors.ephemeris`` is not simulated, and neither is aberration:
-the angle between two apparent directions differs from the geometric one by up to
-~|v|/c ~ 20 arcsec).
+body / spacecraft / near body" angle measurements) measures the angle between two apparent
+lines of sight; its readings are that angle from the truth plus Gaussian noise of 1σ
+``spec.sigma_deg``: ``A = A_true + sigma n``. ``A_true`` is computed here on its own, not by
+the model's kernel (``factors.celestial_angles``), the way an almanac computes an apparent
+place (Urban & Seidelmann 2013, sec. 7.2): in the barycentric frame (the frame origin's
+barycentric state from ERFA ``epv00``), each near body where it was when its light left it
+(the light time iterated to convergence on the ephemeris), the star at its catalogue
+direction, every line of sight then aberrated by the observer's barycentric velocity with
+ERFA ``ab``; the limb form's near limb is the point of the aberrated limb circle nearest the
+apparent star (searched on the circle). The ephemeris error of ``factors.ephemeris`` is not
+simulated.
 
 Star choice at each epoch (``spec.stars_per_epoch`` stars from the BSC5 catalogue to
 ``spec.vmag_max``, proper motion applied): a star is usable when the Earth's disc does not
@@ -28,17 +32,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from factors.celestial_angles import BODY_BODY, BODY_STAR, predicted_angle
+from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
 from factors.constants import DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-from factors.planets import earth_position_helio_m, moon_position_helio_m
+from factors.planets import (earth_position_helio_m, moon_position_helio_m,
+                             origin_state_bcrs)
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES
 from fgnav.simulate.body_directions import occulted_by_earth
 from fgnav.time import j2000_seconds
 from fgnav.vision.catalogue import decimal_year, load_catalogue
 
-__all__ = ["R_MOON_M", "R_SUN_M", "body_position_eci_m", "limb_radius_m",
+__all__ = ["R_MOON_M", "R_SUN_M", "body_position_eci_m", "body_velocity_mps",
+           "frame_velocity_bcrs_mps", "apparent_angle", "limb_radius_m",
            "simulate_angle_rows", "MIN_ANGLE_RAD", "LIMB_MARGIN_RAD"]
 
 R_MOON_M = 1737.4e3
@@ -69,6 +75,113 @@ def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarr
     if name == "moon":
         return moon_position_eci_m(t)
     return np.zeros((len(t), 3))
+
+
+_VELOCITY_STEP_S = 60.0
+_AU_M = 1.495978707e11
+_LIGHT_TIME_ITERATIONS = 4
+
+
+def body_velocity_mps(name: str, t_j2000_s, centre: str = "earth") -> np.ndarray:
+    """Velocity (N, 3), m/s, of a near body in the pass's frame (:func:`body_position_eci_m`):
+    its central difference over +-60 s (truncation ~1e-9 relative for the Moon)."""
+    t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
+    h = _VELOCITY_STEP_S
+    return (body_position_eci_m(name, t + h, centre)
+            - body_position_eci_m(name, t - h, centre)) / (2.0 * h)
+
+
+def frame_velocity_bcrs_mps(t_j2000_s, centre: str = "earth") -> np.ndarray:
+    """The model's barycentric velocity (N, 3), m/s, of the pass's frame origin: the Earth's
+    (``factors.aberration.earth_velocity_bcrs_mps``, within 70 m/s of ERFA) for a geocentric
+    pass; zero for a heliocentric one (the Sun moves <= 15 m/s about the barycentre:
+    0.01 arcsec of aberration)."""
+    t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
+    if centre == "sun":
+        return np.zeros((len(t), 3))
+    return earth_velocity_bcrs_mps(t).reshape(len(t), 3)
+
+
+def _bcrs_body(name, t, centre):
+    """Barycentric position (N, 3), m, of a near body at the epochs ``t`` (N,)."""
+    return body_position_eci_m(name, t, centre) + origin_state_bcrs(t, centre)[0]
+
+
+def _natural_direction(name, tj, o_bcrs_m, centre, r_limb_m=0.0):
+    """Unit direction (N, 3) from the observer at ``o_bcrs_m`` (N, 3, barycentric, at ``tj``)
+    to the body's centre where it was a light time earlier, and that distance (N,), m. The
+    light time is the centre's, or with ``r_limb_m`` the limb's, ``sqrt(d^2 - R^2)/c`` (the
+    tangent points, all at that distance, are what is seen: from LEO the Earth's limb is 14 ms
+    nearer than its centre, 420 m of the Earth's orbital motion)."""
+    w = _bcrs_body(name, tj, centre) - o_bcrs_m
+    for _ in range(_LIGHT_TIME_ITERATIONS):
+        d2 = np.sum(w * w, axis=1)
+        tau = np.sqrt(d2 - r_limb_m ** 2 if r_limb_m else d2) / SPEED_OF_LIGHT_MPS
+        w = _bcrs_body(name, tj - tau, centre) - o_bcrs_m
+    d = np.linalg.norm(w, axis=1)
+    return w / d[:, None], d
+
+
+def _aberrated(n, beta, sun_distance_au):
+    """ERFA ``ab``: the proper direction of the natural unit directions ``n`` (..., 3) for an
+    observer moving at ``beta`` (..., 3, units of c)."""
+    import erfa
+
+    bm1 = np.sqrt(1.0 - np.sum(beta * beta, axis=-1))
+    return erfa.ab(n, beta, sun_distance_au, bm1)
+
+
+def _angle(a, b):
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1))
+
+
+def _nearest_limb_angle(n_b, rho, beta, sun_au, s_app):
+    """Angle (M,) from the apparent stars ``s_app`` (M, 3) to the nearest point of the
+    aberrated limb circles (centres ``n_b`` (M, 3), radii ``rho`` (M,) rad): the circle's
+    points ``cos(rho) n_b + sin(rho) (cos(phi) e1 + sin(phi) e2)`` aberrated and searched in
+    ``phi`` on three nested grids (721, 201, 201 points: the last spacing 1e-6 rad)."""
+    e1 = s_app - np.sum(s_app * n_b, axis=1)[:, None] * n_b
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    e2 = np.cross(n_b, e1)
+    centre, half = np.zeros(len(n_b)), np.full(len(n_b), np.pi)
+    for n_grid in (721, 201, 201):
+        phi = centre[:, None] + half[:, None] * np.linspace(-1.0, 1.0, n_grid)[None, :]
+        pts = (np.cos(rho)[:, None, None] * n_b[:, None, :]
+               + np.sin(rho)[:, None, None] * (np.cos(phi)[..., None] * e1[:, None, :]
+                                               + np.sin(phi)[..., None] * e2[:, None, :]))
+        app = _aberrated(pts, beta[:, None, :], sun_au[:, None])
+        f = _angle(app, s_app[:, None, :])
+        k = np.argmin(f, axis=1)
+        centre = phi[np.arange(len(k)), k]
+        best = f[np.arange(len(k)), k]
+        half = 2.0 * half / (n_grid - 1)
+    return best
+
+
+def apparent_angle(tj, x_true, centre, body, *, stars=None, body2=None, r_limb_m=0.0):
+    """The angle (M,), rad, between apparent lines of sight (module docstring) at the epochs
+    ``tj`` (M,) (s after J2000 TT) from the true states ``x_true`` (M, 6) (the pass's frame):
+    between ``body``'s centre (or, ``r_limb_m > 0``, its near limb) and the catalogue stars
+    ``stars`` (M, 3), or between ``body`` and ``body2``."""
+    tj = np.asarray(tj, dtype=float)
+    x = np.asarray(x_true, dtype=float).reshape(-1, 6)
+    o_p, o_v = origin_state_bcrs(tj, centre)
+    o_p = o_p.reshape(-1, 3) + x[:, :3]
+    beta = (o_v.reshape(-1, 3) + x[:, 3:]) / SPEED_OF_LIGHT_MPS
+    sun_au = np.linalg.norm(_bcrs_body("sun", tj, centre) - o_p, axis=1) / _AU_M
+    n_b, d_b = _natural_direction(body, tj, o_p, centre, r_limb_m)
+    a_b = _aberrated(n_b, beta, sun_au)
+    if stars is None:
+        n_2, _ = _natural_direction(body2, tj, o_p, centre)
+        return _angle(a_b, _aberrated(n_2, beta, sun_au))
+    s = np.asarray(stars, dtype=float).reshape(-1, 3)
+    s_app = _aberrated(s / np.linalg.norm(s, axis=1)[:, None], beta, sun_au)
+    if not r_limb_m:
+        return _angle(a_b, s_app)
+    a_c = _angle(a_b, s_app)
+    rho = np.arcsin(r_limb_m / d_b)
+    out = _nearest_limb_angle(n_b, rho, beta, sun_au, s_app)
+    return np.where(a_c >= rho, out, -out)
 
 
 def limb_radius_m(spec) -> float:
@@ -129,12 +242,10 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb, centre="e
     sig = spec.sigma_deg * DEG
     if not star:
         p2 = body_position_eci_m(spec.body2, tj, centre)
-        data = np.zeros((len(t_s), 3))
-        data[:, 2] = BODY_BODY
-        B = np.stack([p, p2], axis=1)
         ok = seen & _seen(spec.body2, r, p2, e)
         i = np.flatnonzero(ok)
-        a = predicted_angle(r[i], data[i], B[i])
+        a = apparent_angle(tj[i], np.asarray(x_true, dtype=float)[i], centre, spec.body,
+                           body2=spec.body2)
         keep = (a >= MIN_ANGLE_RAD) & (a <= np.pi - MIN_ANGLE_RAD)
         i, a = i[keep], a[keep]
         a = a + sig * rng.standard_normal(len(i))
@@ -172,11 +283,8 @@ def simulate_angle_rows(spec, t_s, x_true, epoch0, rng, *, star, limb, centre="e
     t_out = np.concatenate(rows_t) if rows_t else np.zeros(0)
     s_out = np.concatenate(rows_s).reshape(-1, 3) if rows_s else np.zeros((0, 3))
     k_out = np.concatenate(rows_k).astype(int) if rows_k else np.zeros(0, dtype=int)
-    data = np.zeros((len(t_out), 3))
-    data[:, 1] = R_limb
-    data[:, 2] = BODY_STAR
-    B = np.stack([p[k_out], s_out], axis=1)
-    a = predicted_angle(r[k_out], data, B) + sig * rng.standard_normal(len(t_out))
+    a = apparent_angle(tj[k_out], np.asarray(x_true, dtype=float)[k_out], centre, spec.body,
+                       stars=s_out, r_limb_m=R_limb) + sig * rng.standard_normal(len(t_out))
     xyz = np.column_stack([a, np.full(len(t_out), R_limb if limb else np.nan),
                            np.full(len(t_out), np.nan)])
     extra = {"body": np.full(len(t_out), code), "star_x": s_out[:, 0], "star_y": s_out[:, 1],

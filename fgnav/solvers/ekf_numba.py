@@ -52,7 +52,8 @@ __all__ = ["ROW_KERNELS", "numba_supports", "run_ekf_numba", "pack_pass", "first
 ROW_KERNELS = (prior_position_kernel, prior_velocity_kernel, earth_direction_row_kernel,
                limb_radius_kernel, altitude_kernel, celestial_angle_kernel)
 """The row kernels :func:`_rows` dispatches on (a model's code = index of its ``numba_kernel``).
-Each is ``kernel(x (6,), data (3,), B (2, 3), e (m,), H (m, 6)) -> rows written, or -1``."""
+Each is ``kernel(x (6,), data (>= 3,), B (>= 2, 3), e (m,), H (m, 6)) -> rows written, or -1``
+(the pass's rows are packed to the widest kernel's; each reads its own leading entries)."""
 _K0, _K1, _K2, _K3, _K4, _K5 = ROW_KERNELS
 _MAX_ROWS = 64            # rows of one (epoch, family) group handled by the kernel at once
 
@@ -285,21 +286,24 @@ def pack_pass(p) -> Packed:
     datas, Bs, sigmas, spans = [], [], [], {}
     g_k, g_fam, g_code, g_row0, g_n, g_dim, g_prior = [], [], [], [], [], [], []
     row = 0
-    for fi, (kind, fam) in enumerate(p.families.items()):
-        mdl = MODELS.get(kind)
-        if mdl is None or not mdl.enters(p.layout):
-            continue
+    used = [(fi, kind, fam, MODELS.get(kind)) for fi, (kind, fam) in enumerate(p.families.items())]
+    used = [(fi, kind, fam, mdl, mdl.numba_data(fam)) for fi, kind, fam, mdl in used
+            if mdl is not None and mdl.enters(p.layout)]
+    # one width for every family's packed rows: the widest kernel's (>= (3,), (2, 3))
+    n_data = max([3] + [np.asarray(d).reshape(len(fam), -1).shape[1] for *_, fam, _, (d, _) in used])
+    n_B = max([2] + [np.asarray(b).shape[1] for *_, (_, b) in used if b is not None])
+    for fi, kind, fam, mdl, (d, b) in used:
         code = _code(mdl)
         M = len(fam)
         order = np.argsort(fam.k, kind="stable")
         ks = fam.k[order]
-        data = np.zeros((M, 3))
-        B = np.zeros((M, 2, 3))
-        d, b = mdl.numba_data(fam)
-        d = np.asarray(d, dtype=float)[order]
+        data = np.zeros((M, n_data))
+        B = np.zeros((M, n_B, 3))
+        d = np.asarray(d, dtype=float).reshape(M, -1)[order]
         data[:, :d.shape[1]] = d
         if b is not None:
-            B[:] = np.asarray(b, dtype=float)[order]
+            b = np.asarray(b, dtype=float)[order]
+            B[:, :b.shape[1]] = b
         sig = np.asarray(fam.sigma, dtype=float)[order]
         if np.any(~(sig > 0)):
             raise ValueError(f"{kind}: sigma must be positive")
