@@ -52,8 +52,8 @@ Residual ``e = A_pred(x) - A_meas`` (rad), each angle from ``atan2(|a x b|, a . 
   ``drho/dr = R u^T / (d sqrt(d^2 - R^2))``,
   ``dt/du = -(u s^T + c I)/sin A + c t s^T / sin^2 A``;
 * aberration ``du'/du = (g I + beta beta^T/(1 + g))/(1 + u.beta) - u' beta^T/(1 + u.beta)``
-  and ``du'/dbeta`` (``factors.aberration``), ``dbeta/dv = I/c`` (``-I/c`` never: the body's
-  velocity is a known value, the observer's enters with ``+``);
+  and ``du'/dbeta`` (``factors.aberration``), ``dbeta/dv = I/c`` for every line (the
+  bodies' and the frame's velocities are known values);
 * the angle between unit vectors ``a, b``: ``dA/da = -(b - (a.b) a)^T / sin A`` and
   symmetrically.
 
@@ -145,7 +145,7 @@ def _line_of_sight(p, r, u, D):
 
 @njit(cache=True)
 def _add_chain(H, row, g, J, D, sign):
-    """``H[row, :3] += sign g^T J D`` (g (3,), J (3, 3), D (3, 3) or None-like zeros)."""
+    """``H[row, :3] += sign g^T J D`` (g (3,), J (3, 3), D (3, 3))."""
     for k in range(3):
         acc = 0.0
         for i in range(3):
@@ -154,6 +154,35 @@ def _add_chain(H, row, g, J, D, sign):
                 gi += g[j] * J[j, i]
             acc += gi * D[i, k]
         H[row, k] += sign * acc
+
+
+@njit(cache=True)
+def _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, sign, on):
+    """The angle (rad) between the unit lines of sight ``u``, ``s`` (3,) aberrated by
+    ``beta_u``, ``beta_s``; adds ``sign`` times its gradient to ``H[0, :3]`` (through
+    ``Du = du/dr``, ``Ds = ds/dr``) and, when ``on``, to ``H[0, 3:6]`` (``dbeta/dv = I/c``).
+    Returns -1.0 where the two apparent lines are parallel."""
+    au = np.empty(3)
+    Jau = np.empty((3, 3))
+    Jbu = np.empty((3, 3))
+    _aberrate_row(u, beta_u, au, Jau, Jbu)
+    as_ = np.empty(3)
+    Jas = np.empty((3, 3))
+    Jbs = np.empty((3, 3))
+    _aberrate_row(s, beta_s, as_, Jas, Jbs)
+    gu = np.empty(3)
+    gs = np.empty(3)
+    a = _angle_between(au, as_, gu, gs)
+    if a < 0.0:
+        return -1.0
+    _add_chain(H, 0, gu, Jau, Du, sign)
+    _add_chain(H, 0, gs, Jas, Ds, sign)
+    if on:
+        eye = np.eye(3)
+        Hv = H[:, 3:6]
+        _add_chain(Hv, 0, gu, Jbu, eye, sign / _C_MPS)
+        _add_chain(Hv, 0, gs, Jbs, eye, sign / _C_MPS)
+    return a
 
 
 @njit(cache=True)
@@ -191,28 +220,9 @@ def celestial_angle_kernel(x, data, B, e, H):
         for i in range(3):
             beta_u[i] = (x[3 + i] - B[1, i]) / _C_MPS
             beta_s[i] = ((x[3 + i] + B[4, i]) if star else (x[3 + i] - B[3, i])) / _C_MPS
-    au = np.empty(3)
-    Jau = np.empty((3, 3))
-    Jbu = np.empty((3, 3))
-    _aberrate_row(u, beta_u, au, Jau, Jbu)
-    as_ = np.empty(3)
-    Jas = np.empty((3, 3))
-    Jbs = np.empty((3, 3))
-    _aberrate_row(s, beta_s, as_, Jas, Jbs)
-    gu = np.empty(3)
-    gs = np.empty(3)
-    a = _angle_between(au, as_, gu, gs)
+    a = _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, 1.0, on)
     if a < 0.0:
         return -1
-    _add_chain(H, 0, gu, Jau, Du, 1.0)
-    _add_chain(H, 0, gs, Jas, Ds, 1.0)
-    eye = np.eye(3)
-    if on:
-        for k in range(3):
-            H[0, 3 + k] = 0.0
-        Hv = H[:, 3:6]
-        _add_chain(Hv, 0, gu, Jbu, eye, 1.0 / _C_MPS)
-        _add_chain(Hv, 0, gs, Jbs, eye, 1.0 / _C_MPS)
     R = data[1]
     if star and R > 0.0:
         if not d > R:
@@ -239,22 +249,10 @@ def celestial_angle_kernel(x, data, B, e, H):
                              + c * t[i] * s[m] / (sn * sn))
                     acc += ((cr if i == m else 0.0) + sr * dt_du) * Du[m, j]
                 Dl[i, j] = acc
-        al = np.empty(3)
-        Jal = np.empty((3, 3))
-        Jbl = np.empty((3, 3))
-        _aberrate_row(l, beta_u, al, Jal, Jbl)
-        hu = np.empty(3)
-        hl = np.empty(3)
-        rho_app = _angle_between(au, al, hu, hl)
+        rho_app = _apparent_angle(u, Du, beta_u, l, Dl, beta_u, H, -1.0, on)
         if rho_app < 0.0:
             return -1
         a -= rho_app
-        _add_chain(H, 0, hu, Jau, Du, -1.0)
-        _add_chain(H, 0, hl, Jal, Dl, -1.0)
-        if on:
-            Hv = H[:, 3:6]
-            _add_chain(Hv, 0, hu, Jbu, eye, -1.0 / _C_MPS)
-            _add_chain(Hv, 0, hl, Jbl, eye, -1.0 / _C_MPS)
     e[0] = a - data[0]
     return 1
 
