@@ -20,10 +20,12 @@ redundant points with the previous orbit". Here:
    which keeps it only if its chi-square is consistent with the noise; its covariance is
    ``(J^T W J)^-1`` from the surfaces' gradients.
 2. **Which root is real.** With a previous orbit, the root nearest it (the lecture). Without
-   one (no prior rows), the roots of up to :data:`TRACK_EPOCHS` epochs spread over the pass
-   are combined in every way (2^M tracks at most) and a 6-state orbit of the motion model
-   is fitted to each track's positions, weighted by their covariances; the track of least
-   chi-square is the orbit (a spurious root does not move under gravity). It must pass a
+   one (no prior rows), the roots of up to :data:`TRACK_EPOCHS` epochs spread over an arc of
+   at most :data:`MAX_TRACK_ARC` of the orbital period (the whole of a cruise's weeks; a few
+   minutes of a low orbit) are combined in every way (2^M tracks at most) and a 6-state
+   orbit of the motion model is fitted to each track's positions, weighted by their
+   covariances; the track of least chi-square is the orbit (a spurious root does not move
+   under gravity). It must pass a
    chi-square test (``1 - 1e-6``) and beat the second best by a factor
    :data:`MIN_TRACK_MARGIN`, else the pass is refused with the two figures.
 3. **Refinement.** Levenberg-Marquardt on the 6-state at a middle epoch over the rows
@@ -46,7 +48,8 @@ from fgnav.measurements import Family, Pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE
 
 __all__ = ["cone_torus_candidates", "epoch_parts", "epoch_roots", "geometric_support",
-           "geometric_initial_orbit", "fixes_along", "TRACK_EPOCHS", "MIN_TRACK_MARGIN"]
+           "geometric_initial_orbit", "fixes_along", "TRACK_EPOCHS", "MIN_TRACK_MARGIN",
+           "MAX_TRACK_ARC"]
 
 TRACK_EPOCHS = 6
 """Epochs whose roots are combined to find the orbit without a prior (2^6 = 64 tracks)."""
@@ -54,6 +57,8 @@ MIN_TRACK_MARGIN = 10.0
 """The best track's chi-square must be this many times below the second best's."""
 MIN_FIX_EPOCHS = 4
 """Epochs with a closed-form fix needed for an orbit from geometric fixes."""
+MAX_TRACK_ARC = 0.125
+"""Longest arc (fraction of the orbital period) the tracks of roots are fitted over."""
 _STAR_KIND = BODY_STAR_ANGLE.kind
 _BODY_KIND = BODY_BODY_ANGLE.kind
 
@@ -162,12 +167,30 @@ def _fit_tracks(t, R, P, model, t0_j2000_s, i_ref, max_iterations=20):
     return x, chi2
 
 
+def _track_epochs(p, roots_by_k, model) -> np.ndarray:
+    """Up to :data:`TRACK_EPOCHS` epochs with roots, spread over the window of at most
+    :data:`MAX_TRACK_ARC` of an orbital period that holds the most of them (the period from
+    the median distance of the nearest roots to the central body, Kepler's third law), or
+    over the whole pass when that window holds fewer than :data:`MIN_FIX_EPOCHS`. A short
+    arc keeps the track fit's start (the velocity from two fixes' difference) near the orbit
+    in low orbits, where fixes spread over hours are several revolutions apart; a cruise's
+    weeks are a small arc of its year and stay whole."""
+    ks = np.array(sorted(roots_by_k))
+    r = np.median([min(np.linalg.norm(f.r_eci_m) for f in roots_by_k[int(k)]) for k in ks])
+    span = MAX_TRACK_ARC * 2.0 * math.pi * math.sqrt(r ** 3 / model.mu)
+    t = p.t_s[ks]
+    end = np.searchsorted(t, t + span, side="right")
+    i0 = int(np.argmax(end - np.arange(len(t))))
+    window = ks[i0:end[i0]] if end[i0] - i0 >= MIN_FIX_EPOCHS else ks
+    take = np.linspace(0, len(window) - 1, min(len(window), TRACK_EPOCHS)).round().astype(int)
+    return window[np.unique(take)]
+
+
 def _track_orbit(p, roots_by_k, model, t0_j2000_s):
     """The orbit (x at t_ref, t_ref) of the track of least chi-square (module docstring)."""
     from fgnav.chi2 import chi2_ppf
 
-    ks = np.array(sorted(roots_by_k))
-    pick = ks[np.unique(np.linspace(0, len(ks) - 1, min(len(ks), TRACK_EPOCHS)).round().astype(int))]
+    pick = _track_epochs(p, roots_by_k, model)
     t = p.t_s[pick]
     i_ref = len(pick) // 2
     combos = list(itertools.product(*[range(len(roots_by_k[int(k)])) for k in pick]))

@@ -82,3 +82,27 @@ def test_schemes_position_surfaces_prints_the_table_and_its_json(capsys):
     assert main(["schemes", "position-surfaces", "--duration-h", "0.2"]) == 0
     out = capsys.readouterr().out
     assert "fix err m" in out and "Cramér-Rao bound" in out
+
+
+def test_without_prior_rows_the_sextant_starts_from_its_geometric_fixes(tmp_path):
+    """No prior: the Moon-star cones and the Earth-Moon torus give closed-form fixes, the
+    track of roots over a short arc (fgnav.geometric_orbit.MAX_TRACK_ARC of the period: a
+    LEO's fixes hours apart are revolutions apart) gives the orbit, and the smoother reaches
+    the solution it reaches with the prior."""
+    from fgnav.io.log_csv import read_log, write_log
+    from fgnav.pipeline import smooth_log
+
+    sim = simulate_pass(load_scenario("sextant-leo").with_options(duration_h=1.0), seed=4)
+    full = tmp_path / "full.csv"
+    write_log(full, sim.log)
+    lines = full.read_text().splitlines(keepends=True)
+    (tmp_path / "no_prior.csv").write_text("".join(ln for ln in lines if ",prior_" not in ln))
+    assert len(lines) - len((tmp_path / "no_prior.csv").read_text().splitlines()) == 2
+    truth = (sim.t_s, sim.x_true)
+    res, _ = smooth_log(read_log(tmp_path / "no_prior.csv"), truth=truth)
+    ref, _ = smooth_log(sim.log, truth=truth)
+    assert res.summary["initial_orbit"]["method"] == "geometric-fixes+lm"
+    m, m_ref = res.summary, ref.summary
+    # the same optimum and covariance as with the prior (whose 10 km / 10 m/s add little)
+    assert m["position_rms_m"] == pytest.approx(m_ref["position_rms_m"], rel=0.01)
+    assert m["sigma_position_rms_m"] == pytest.approx(m_ref["sigma_position_rms_m"], rel=0.01)
