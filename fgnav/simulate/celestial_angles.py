@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
-from factors.constants import DEG, R_EARTH_M
+from factors.constants import AU_M, DEG, R_EARTH_M
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from factors.planets import (earth_position_helio_m, moon_position_helio_m,
                              origin_state_bcrs)
@@ -78,13 +78,12 @@ def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarr
 
 
 _VELOCITY_STEP_S = 60.0
-_AU_M = 1.495978707e11
 _LIGHT_TIME_ITERATIONS = 4
 
 
 def body_velocity_mps(name: str, t_j2000_s, centre: str = "earth") -> np.ndarray:
     """Velocity (N, 3), m/s, of a near body in the pass's frame (:func:`body_position_eci_m`):
-    its central difference over +-60 s (truncation ~1e-9 relative for the Moon)."""
+    its central difference over +-60 s (truncation ~4e-9 relative for the Moon)."""
     t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
     h = _VELOCITY_STEP_S
     return (body_position_eci_m(name, t + h, centre)
@@ -168,7 +167,7 @@ def apparent_angle(tj, x_true, centre, body, *, stars=None, body2=None, r_limb_m
     o_p, o_v = origin_state_bcrs(tj, centre)
     o_p = o_p.reshape(-1, 3) + x[:, :3]
     beta = (o_v.reshape(-1, 3) + x[:, 3:]) / SPEED_OF_LIGHT_MPS
-    sun_au = np.linalg.norm(_bcrs_body("sun", tj, centre) - o_p, axis=1) / _AU_M
+    sun_au = np.linalg.norm(_bcrs_body("sun", tj, centre) - o_p, axis=1) / AU_M
     n_b, d_b = _natural_direction(body, tj, o_p, centre, r_limb_m)
     a_b = _aberrated(n_b, beta, sun_au)
     if stars is None:
