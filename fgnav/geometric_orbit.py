@@ -19,6 +19,10 @@ redundant points with the previous orbit". Here:
    epoch's rows by Gauss-Newton (:func:`fgnav.analysis.position_surfaces.intersect_surfaces`),
    which keeps it only if its chi-square is consistent with the noise; its covariance is
    ``(J^T W J)^-1`` from the surfaces' gradients.
+   **Searched** where no closed form applies (e.g. star-limb angles alone) and an epoch has
+   three or more angle rows: Gauss-Newton from a grid of starts (:func:`search_starts`,
+   Fibonacci directions from the central body times log-spaced distances) at one epoch,
+   then from those roots at the neighbouring epochs (continuation).
 2. **Which root is real.** With a previous orbit, the root nearest it (the lecture). Without
    one (no prior rows), the roots of up to :data:`TRACK_EPOCHS` epochs spread over an arc of
    at most :data:`MAX_TRACK_ARC` of the orbital period (the whole of a cruise's weeks; a few
@@ -40,12 +44,14 @@ import math
 
 import numpy as np
 
+from factors.constants import AU_M
 from factors.dynamics import MotionModel, propagate, propagate_many
 from fgnav.analysis.direct_fix import DirectFixes
-from fgnav.analysis.position_surfaces import epoch_residual, intersect_surfaces, surface_models
+from fgnav.analysis.position_surfaces import (epoch_residual, fibonacci_directions,
+                                              intersect_surfaces, surface_models)
 from fgnav.errors import UserError
 from fgnav.measurements import Family, Pass
-from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE
+from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
 
 __all__ = ["cone_torus_candidates", "epoch_parts", "epoch_roots", "geometric_support",
            "geometric_initial_orbit", "fixes_along", "TRACK_EPOCHS", "MIN_TRACK_MARGIN",
@@ -59,8 +65,19 @@ MIN_FIX_EPOCHS = 4
 """Epochs with a closed-form fix needed for an orbit from geometric fixes."""
 MAX_TRACK_ARC = 0.125
 """Longest arc (fraction of the orbital period) the tracks of roots are fitted over."""
+MAX_TRACKS = 4096
+"""Most tracks (combinations of the epochs' roots) fitted; fewer epochs are taken if needed."""
+SEARCH_DIRECTIONS = 24
+SEARCH_DISTANCES = 10
+"""Starts of the root search at an epoch without a closed form: this many Fibonacci
+directions from the central body times this many log-spaced distances in
+:data:`SEARCH_RANGE_M`."""
+SEARCH_RANGE_M = {"earth": (6.5e6, 2.0e9), "sun": (0.2 * AU_M, 6.0 * AU_M)}
+"""Distances from the central body (m) the root search covers: low Earth orbit to beyond
+the Moon; inside Mercury's orbit to Jupiter's."""
 _STAR_KIND = BODY_STAR_ANGLE.kind
 _BODY_KIND = BODY_BODY_ANGLE.kind
+_ANGLE_KINDS = (BODY_STAR_ANGLE.kind, LIMB_STAR_ANGLE.kind, BODY_BODY_ANGLE.kind)
 
 
 def epoch_parts(p: Pass) -> dict[int, list]:
@@ -119,27 +136,91 @@ def cone_torus_candidates(parts) -> np.ndarray:
     return np.array(out).reshape(-1, 3)
 
 
-def epoch_roots(parts, v_guess=None, alpha: float = 1e-3):
-    """The consistent roots of one epoch: a list of ``SurfaceFix`` (one per distinct root of
-    the closed-form candidates, each refined on all of ``parts``)."""
+def search_starts(centre: str = "earth") -> np.ndarray:
+    """The root search's starting points (K, 3), m from the central body (module
+    docstring, :data:`SEARCH_DIRECTIONS` x :data:`SEARCH_DISTANCES`)."""
+    lo, hi = SEARCH_RANGE_M[centre]
+    d = np.geomspace(lo, hi, SEARCH_DISTANCES)
+    return (d[:, None, None] * fibonacci_directions(SEARCH_DIRECTIONS)[None]).reshape(-1, 3)
+
+
+def _n_rows(parts) -> int:
+    """The epoch's angle rows (the kinds the root search is for: its starts span where a
+    spacecraft measuring them can be; other surfaces refine the roots but do not start a
+    search: refraction alone, for one, fixes mirror pairs of orbits)."""
+    return sum(len(f) * m.dim for m, f in parts if m.kind in _ANGLE_KINDS)
+
+
+def epoch_roots(parts, v_guess=None, alpha: float = 1e-3, starts=None):
+    """The consistent roots of one epoch: a list of ``SurfaceFix``, each refined on all of
+    ``parts``, from the closed-form candidates or, where there are none and the epoch has
+    three or more angle rows, from ``starts`` (K, 3) (:func:`search_starts`). Roots within three
+    sigma of one found before are the same root."""
     roots = []
     residual = epoch_residual(parts, v_guess)
-    for r0 in cone_torus_candidates(parts):
+    cands = cone_torus_candidates(parts)
+    if not len(cands) and starts is not None and _n_rows(parts) >= 3:
+        cands = starts
+    for r0 in cands:
         fix = intersect_surfaces(residual, r0, starts=np.zeros((0, 3)), alpha=alpha)
-        if fix is not None and not any(np.linalg.norm(fix.r_eci_m - q.r_eci_m) < 1.0
-                                       for q in roots):
+        if fix is None:
+            continue
+        if not any(np.linalg.norm(fix.r_eci_m - q.r_eci_m)
+                   < max(1.0, 3.0 * math.sqrt(np.linalg.eigvalsh(q.P_m2)[-1])) for q in roots):
             roots.append(fix)
     return roots
 
 
 def geometric_support(p: Pass) -> tuple[bool, str]:
-    """Whether the pass has closed-form geometric fixes at enough epochs for an orbit."""
-    n = sum(len(cone_torus_candidates(parts)) > 0 for parts in epoch_parts(p).values())
+    """Whether the pass has geometric fixes at enough epochs for an orbit: closed-form ones,
+    or epochs with three or more position-surface rows for the root search."""
+    parts_by_k = epoch_parts(p)
+    n = sum(len(cone_torus_candidates(parts)) > 0 for parts in parts_by_k.values())
     if n >= MIN_FIX_EPOCHS:
         return True, (f"an initial orbit can be computed from geometric fixes (two "
                       f"{_STAR_KIND} cones and a {_BODY_KIND} torus) at {n} epochs")
-    return False, (f"geometric fixes need two {_STAR_KIND} rows of one body and a {_BODY_KIND} "
-                   f"row with it at {MIN_FIX_EPOCHS} or more epochs ({n} found)")
+    n3 = sum(_n_rows(parts) >= 3 for parts in parts_by_k.values())
+    if n3 >= MIN_FIX_EPOCHS:
+        return True, (f"an initial orbit can be searched from the position surfaces of {n3} "
+                      f"epochs with three or more angle rows")
+    return False, (f"geometric fixes need three or more angle rows (e.g. two {_STAR_KIND} rows "
+                   f"of one body and a {_BODY_KIND} row with it) at {MIN_FIX_EPOCHS} or more "
+                   f"epochs ({n3} found)")
+
+
+def _searched_roots(p: Pass, parts_by_k: dict, model: MotionModel) -> dict:
+    """Roots found by search (:func:`search_starts`) where there is no closed form: at the
+    middle epoch with three or more rows first (its roots' distance sets the arc, as in
+    :func:`_track_epochs`), then at up to twice :data:`TRACK_EPOCHS` epochs of that arc
+    around it, each started from the roots of the nearest epoch done (the whole search only
+    where none of those converges)."""
+    starts = search_starts(model.centre)
+    ks = np.array(sorted(k for k, parts in parts_by_k.items() if _n_rows(parts) >= 3))
+    order = np.argsort(np.abs(p.t_s[ks] - p.t_s[ks[len(ks) // 2]]), kind="stable")
+    found = {}
+    for k in ks[order]:
+        roots = epoch_roots(parts_by_k[int(k)], starts=starts)
+        if roots:
+            found[int(k)] = roots
+            break
+    if not found:
+        return found
+    k_mid = next(iter(found))
+    r = np.median([np.linalg.norm(f.r_eci_m) for f in found[k_mid]])
+    span = MAX_TRACK_ARC * 2.0 * math.pi * math.sqrt(r ** 3 / model.mu)
+    near = ks[np.abs(p.t_s[ks] - p.t_s[k_mid]) <= 0.5 * span]
+    take = near[np.unique(np.linspace(0, len(near) - 1, min(len(near), 2 * TRACK_EPOCHS))
+                          .round().astype(int))]
+    for k in take[np.argsort(np.abs(p.t_s[take] - p.t_s[k_mid]), kind="stable")]:
+        if int(k) in found:
+            continue
+        # continuation: from the roots of the nearest epoch solved, else the whole search
+        k_near = min(found, key=lambda q: abs(p.t_s[q] - p.t_s[k]))
+        roots = epoch_roots(parts_by_k[int(k)], starts=np.array([f.r_eci_m for f in found[k_near]]))
+        roots = roots or epoch_roots(parts_by_k[int(k)], starts=starts)
+        if roots:
+            found[int(k)] = roots
+    return found
 
 
 def _fit_tracks(t, R, P, model, t0_j2000_s, i_ref, max_iterations=20):
@@ -182,8 +263,12 @@ def _track_epochs(p, roots_by_k, model) -> np.ndarray:
     end = np.searchsorted(t, t + span, side="right")
     i0 = int(np.argmax(end - np.arange(len(t))))
     window = ks[i0:end[i0]] if end[i0] - i0 >= MIN_FIX_EPOCHS else ks
-    take = np.linspace(0, len(window) - 1, min(len(window), TRACK_EPOCHS)).round().astype(int)
-    return window[np.unique(take)]
+    n = min(len(window), TRACK_EPOCHS)
+    while True:
+        pick = window[np.unique(np.linspace(0, len(window) - 1, n).round().astype(int))]
+        if n <= MIN_FIX_EPOCHS or math.prod(len(roots_by_k[int(k)]) for k in pick) <= MAX_TRACKS:
+            return pick
+        n -= 1
 
 
 def _track_orbit(p, roots_by_k, model, t0_j2000_s):
@@ -263,6 +348,8 @@ def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
         roots = epoch_roots(parts)
         if roots:
             roots_by_k[k] = roots
+    if len(roots_by_k) < MIN_FIX_EPOCHS:
+        roots_by_k = _searched_roots(p, parts_by_k, model)
     if len(roots_by_k) < MIN_FIX_EPOCHS:
         raise UserError(f"{p.source}: geometric fixes at {len(roots_by_k)} epochs only (the "
                         f"angles' surfaces do not cut consistently at the others)")

@@ -525,7 +525,9 @@ def _angle_values(star, limb):
     centre ``p_body_eci_m`` (M, 3) and velocity ``v_body_mps`` at the row's epoch; the star
     ``s_eci`` (M, 3) or the second body ``p_body2_eci_m``, ``v_body2_mps``; ``r_limb_m``
     (limb form); the frame's barycentric velocity ``v_frame_bcrs_mps``; ``aberration`` (M,)
-    bool, apparent lines of sight (``fgnav smooth --no-aberration`` turns it off)."""
+    bool, apparent lines of sight (``fgnav smooth --no-aberration`` turns it off); and the
+    rows packed for the kernel, ``data`` (M, 4) and ``B`` (M, 5, 3)
+    (``factors.celestial_angles.pack_angle_rows``)."""
     def values(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
@@ -543,20 +545,25 @@ def _angle_values(star, limb):
             codes2 = np.asarray(log.extra["body2"], float)[i]
             out["p_body2_eci_m"] = _bodies_at(codes2, tj, centre)
             out["v_body2_mps"] = _bodies_at(codes2, tj, centre, body_velocity_mps)
+        out["data"], out["B"] = pack_angle_rows(
+            out["a_rad"], out["r_limb_m"] if star else 0.0, BODY_STAR if star else BODY_BODY,
+            out["p_body_eci_m"], out["s_eci"] if star else out["p_body2_eci_m"],
+            v_body_mps=out["v_body_mps"], v_body2_mps=0.0 if star else out["v_body2_mps"],
+            v_frame_bcrs_mps=out["v_frame_bcrs_mps"], aberration=True)
         return out
     return values
 
 
 def _angle_packed(fam, rows=slice(None)):
-    """The family's rows ``rows`` packed for ``factors.celestial_angles`` (``data``, ``B``),
-    with the aberration flag as the family holds it now."""
+    """The family's rows ``rows`` packed for ``factors.celestial_angles`` (``data``, ``B``:
+    packed once by the values), with the aberration flag as the family holds it now
+    (``fgnav.apparent.without_aberration`` turns the ``aberration`` value off)."""
     v = fam.values
-    star = "s_eci" in v
-    return pack_angle_rows(
-        v["a_rad"][rows], v["r_limb_m"][rows] if star else 0.0, BODY_STAR if star else BODY_BODY,
-        v["p_body_eci_m"][rows], (v["s_eci"] if star else v["p_body2_eci_m"])[rows],
-        v_body_mps=v["v_body_mps"][rows], v_body2_mps=0.0 if star else v["v_body2_mps"][rows],
-        v_frame_bcrs_mps=v["v_frame_bcrs_mps"][rows], aberration=v["aberration"][rows])
+    data, on = v["data"][rows], v["aberration"][rows]
+    if np.any((data[:, 3] != 0.0) != on):
+        data = data.copy()
+        data[:, 3] = on
+    return data, v["B"][rows]
 
 
 def _angle_residual(fam, v):
