@@ -72,6 +72,8 @@ SEARCH_DISTANCES = 10
 """Starts of the root search at an epoch without a closed form: this many Fibonacci
 directions from the central body times this many log-spaced distances in
 :data:`SEARCH_RANGE_M`."""
+SEARCH_ATTEMPTS = 5
+"""Epochs (nearest the middle first) the whole search is tried at before the pass is refused."""
 SEARCH_RANGE_M = {"earth": (6.5e6, 2.0e9), "sun": (0.2 * AU_M, 6.0 * AU_M)}
 """Distances from the central body (m) the root search covers: low Earth orbit to beyond
 the Moon; inside Mercury's orbit to Jupiter's."""
@@ -173,7 +175,7 @@ def epoch_roots(parts, v_guess=None, alpha: float = 1e-3, starts=None):
 
 def geometric_support(p: Pass) -> tuple[bool, str]:
     """Whether the pass has geometric fixes at enough epochs for an orbit: closed-form ones,
-    or epochs with three or more position-surface rows for the root search."""
+    or epochs with three or more angle rows for the root search."""
     parts_by_k = epoch_parts(p)
     n = sum(len(cone_torus_candidates(parts)) > 0 for parts in parts_by_k.values())
     if n >= MIN_FIX_EPOCHS:
@@ -190,15 +192,18 @@ def geometric_support(p: Pass) -> tuple[bool, str]:
 
 def _searched_roots(p: Pass, parts_by_k: dict, model: MotionModel) -> dict:
     """Roots found by search (:func:`search_starts`) where there is no closed form: at the
-    middle epoch with three or more rows first (its roots' distance sets the arc, as in
+    middle epoch with three or more angle rows first (up to :data:`SEARCH_ATTEMPTS` epochs
+    tried; its roots' distance sets the arc, as in
     :func:`_track_epochs`), then at up to twice :data:`TRACK_EPOCHS` epochs of that arc
     around it, each started from the roots of the nearest epoch done (the whole search only
     where none of those converges)."""
     starts = search_starts(model.centre)
     ks = np.array(sorted(k for k, parts in parts_by_k.items() if _n_rows(parts) >= 3))
+    if not len(ks):
+        return {}
     order = np.argsort(np.abs(p.t_s[ks] - p.t_s[ks[len(ks) // 2]]), kind="stable")
     found = {}
-    for k in ks[order]:
+    for k in ks[order][:SEARCH_ATTEMPTS]:
         roots = epoch_roots(parts_by_k[int(k)], starts=starts)
         if roots:
             found[int(k)] = roots
