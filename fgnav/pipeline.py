@@ -102,6 +102,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     def run(start: Start) -> Solution:
         try:
             check_observability(start.p, start.x_guess, model)
+        except ModelDomainError as exc:   # a row with no value on the first guess's orbit
+            raise NotObservableError(
+                f"{p.source}: {exc}, along the first guess's orbit: check that row (a limb "
+                f"sphere larger than the spacecraft's distance from the body has no limb), "
+                f"or the prior rows") from exc
         except UserError as exc:
             if not from_data:
                 raise

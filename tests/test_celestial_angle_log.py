@@ -174,3 +174,27 @@ def test_a_scenario_with_a_limb_on_the_sun_is_refused_with_the_key(tmp_path, cap
     (tmp_path / "u.toml").write_text(text.replace('body2 = "moon"', 'body2 = "mars"'))
     assert main(["simulate", str(tmp_path / "u.toml"), "--out", str(tmp_path / "o")]) == 2
     assert "sensor[3].body2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("scenario, kind, method", [("sextant-leo", "limb_star_angle", "batch"),
+                                                    ("sextant-leo", "limb_star_angle", "ekf"),
+                                                    ("geo-limb", "limb_radius", "isam2")])
+def test_a_limb_sphere_larger_than_the_orbit_is_a_user_error_naming_its_line(
+        tmp_path, capsys, scenario, kind, method):
+    """A row whose limb sphere (column y) encloses the spacecraft (7,500 km in an 800 km LEO,
+    50,000 km at GEO: a unit slip) has no limb to measure; the smoother says which line,
+    exit 2, where it had raised a traceback from the observability check."""
+    from fgnav.cli import main
+
+    sim = simulate_pass(load_scenario(scenario).with_options(duration_h=0.5), seed=0)
+    write_log(tmp_path / "log.csv", sim.log)
+    lines = (tmp_path / "log.csv").read_text().splitlines()
+    j = [i for i, t in enumerate(lines) if f",{kind}," in t][5]
+    f = lines[j].split(",")
+    f[3] = "5e7" if scenario == "geo-limb" else "7500000"
+    lines[j] = ",".join(f)
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    assert main(["smooth", str(tmp_path / "bad.csv"), "--method", method, "--out",
+                 str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"line {j + 1}" in err and kind in err and "limb" in err, err
