@@ -119,8 +119,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         except ModelDomainError as exc:
             raise NotObservableError(
                 f"{p.source}: the {method} estimate left the domain of a measurement model "
-                f"({exc}): the first guess is far from the data's orbit; check the prior rows, "
-                f"or try --ignore-prior") from exc
+                f"({exc}): "
+                + ("check the row named: it may not fit the other rows, from whose orbit the "
+                   "estimate started" if from_data else
+                   "the first guess is far from the data's orbit; check the prior rows, or try "
+                   "--ignore-prior")) from exc
         return start.finish(sol)
 
     if from_data or checkpoint:

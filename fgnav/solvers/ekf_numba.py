@@ -37,6 +37,7 @@ from factors.altimeter import altitude_kernel
 from factors.celestial_angles import celestial_angle_kernel
 from factors.direction import earth_direction_row_kernel
 from factors.dynamics import process_noise_terms, propagate_nb
+from factors.errors import ModelDomainError
 from factors.limb import limb_radius_kernel
 from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.measurements import prior_covariance
@@ -385,8 +386,12 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
             kind = next(kd for kd, (r0, order) in pk.spans.items() if r0 <= bad < r0 + len(order))
             r0, order = pk.spans[kind]
             row = int(order[bad - r0])
-            raise ValueError(f"numba EKF: {kind} row {row} (t = {p.t_s[p.families[kind].k[row]]:.3f} s) "
-                             f"has no defined residual or a singular innovation covariance")
+            # a ModelDomainError (a ValueError): the solvers' callers tell the user, as for
+            # the numpy EKF's undefined residuals
+            raise ModelDomainError(
+                f"numba EKF: {kind} row {row} at log line {int(p.families[kind].line[row])} "
+                f"(t = {p.t_s[p.families[kind].k[row]]:.3f} s) has no defined residual or a "
+                f"singular innovation covariance")
         latency[a:bnd] = (time.perf_counter() - t_a) / (bnd - a)
         if progress is not None:
             progress(int(bnd) - 1)
