@@ -109,3 +109,22 @@ def test_the_compiled_ekf_leaving_a_models_domain_is_a_user_error(tmp_path, caps
                "--method", "ekf"])
     err = capsys.readouterr().err
     assert rc == 2 and err.startswith("fgnav: error:") and "log line" in err, err
+
+
+def test_an_element_update_past_the_conics_is_a_user_error(tmp_path, capsys):
+    """Found by the fuzz test: a limb-star angle of 0 (a 6,600-sigma outlier) at the first
+    epoch makes the element EKF's update (``--state elements``) a negative semi-latus rectum;
+    the state became NaN (``sqrt`` of a negative number) and the user was told the orbit had
+    zero angular momentum. Now the message says that an update left the elements' domain
+    and names the log line of the row whose update did (a later one: the outlier had pulled
+    the estimate away)."""
+    lines = clean_lines(tmp_path)
+    cols = lines[6].split(",")
+    assert cols[1] == "limb_star_angle"
+    cols[2] = "0.0"
+    lines[6] = ",".join(cols)
+    (tmp_path / "log.csv").write_text("\n".join(lines) + "\n")
+    rc = main(["smooth", str(tmp_path / "log.csv"), "--out", str(tmp_path / "out"), "--quiet",
+               "--method", "ekf", "--state", "elements"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "semi-latus rectum" in err and "limb_star_angle row at log line" in err, err
