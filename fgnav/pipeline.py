@@ -317,7 +317,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
                             "spacecraft")
         return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
                                 stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0),
-                                relative=relative or "cartesian")
+                                relative=relative or "cartesian", aberration=aberration)
     if relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")

@@ -198,3 +198,18 @@ def test_a_limb_sphere_larger_than_the_orbit_is_a_user_error_naming_its_line(
                  str(tmp_path / "o"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert f"line {j + 1}" in err and kind in err and "limb" in err, err
+
+
+def test_no_aberration_reaches_a_formations_angle_rows():
+    """``--no-aberration`` on a formation's log (constellation-leo: each spacecraft's sextant
+    rows) had no effect at all (the same chi-square to the last digit): the formation route
+    built its pass without it. Now the angle rows take the geometric lines of sight there
+    too, and the fit to the simulator's apparent angles worsens as on one spacecraft."""
+    from fgnav.pipeline import smooth_log
+    from fgnav.simulate.formation_sim import simulate_formation_pass
+
+    log = simulate_formation_pass(load_scenario("constellation-leo").with_options(duration_h=0.5),
+                                  seed=0).log
+    on, _ = smooth_log(log, "batch")
+    off, _ = smooth_log(log, "batch", aberration=False)
+    assert off.solution.chi2 > 1.5 * on.solution.chi2, (on.solution.chi2, off.solution.chi2)
