@@ -80,7 +80,7 @@ from factors.errors import ModelDomainError
 
 __all__ = ["BODY_STAR", "BODY_BODY", "celestial_angle_kernel", "body_star_angle_residual",
            "limb_star_angle_residual", "body_body_angle_residual", "make_celestial_angle_factor",
-           "predicted_angle", "apparent_angle_residual", "pack_angle_rows"]
+           "apparent_angle_residual", "pack_angle_rows"]
 
 BODY_STAR = 0.0
 """``data[2]`` of a body-star (or limb-star, ``data[1] > 0``) row."""
@@ -355,15 +355,6 @@ def apparent_angle_residual(x_orbit, data, B):
     rad/(m/s)) of packed rows (:func:`pack_angle_rows`) at the orbit states ``x_orbit``
     (M, 6): apparent lines of sight where the row's aberration flag is on."""
     return _run(x_orbit, data, B, "celestial angle")
-
-
-def predicted_angle(x_orbit, data, B):
-    """``A_pred`` (M,) rad of packed rows (:func:`pack_angle_rows`) at the orbit states
-    ``x_orbit`` (M, 6) (or positions (M, 3): velocity zero)."""
-    d = np.array(data, dtype=float)
-    d[:, 0] = 0.0
-    e, _ = _run(x_orbit, d, B, "celestial angle")
-    return e[:, 0]
 
 
 def make_celestial_angle_factor(key_x, data, B, sigma_rad):

@@ -23,17 +23,20 @@ from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from test_cli_fuzz import assert_smooth_contract
 
-_CLEAN: list[str] = []
+_CLEAN: dict[str, list[str]] = {}
+SHORT_H = {"sextant-leo": 1 / 3, "mars-cruise": 72.0}
+"""The clean logs mutated: sextant-leo 20 min (21 epochs of limb-star, Moon-star and
+Earth-Moon angles and the prior rows); mars-cruise 3 days (19 epochs of Sun-star and
+Sun-Earth angles, heliocentric, no prior rows)."""
 
 
-def clean_lines(tmp_path) -> list[str]:
-    """A short clean sextant-leo log (20 min: 21 epochs of limb-star, Moon-star and
-    Earth-Moon angles and the prior rows), as lines; made once."""
-    if not _CLEAN:
-        sim = simulate_pass(load_scenario("sextant-leo").with_options(duration_h=1 / 3), seed=0)
+def clean_lines(tmp_path, name="sextant-leo") -> list[str]:
+    """A short clean log of scenario ``name`` (:data:`SHORT_H`), as lines; made once."""
+    if name not in _CLEAN:
+        sim = simulate_pass(load_scenario(name).with_options(duration_h=SHORT_H[name]), seed=0)
         write_log(tmp_path / "clean.csv", sim.log)
-        _CLEAN.extend((tmp_path / "clean.csv").read_text().splitlines())
-    return list(_CLEAN)
+        _CLEAN[name] = (tmp_path / "clean.csv").read_text().splitlines()
+    return list(_CLEAN[name])
 
 
 def _columns(lines):
@@ -71,9 +74,9 @@ def _mutate(cols, names, data):
 @settings(max_examples=int(os.environ.get("FGNAV_FUZZ_EXAMPLES", 20)), deadline=None,
           derandomize=os.environ.get("CI") == "true",
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-@given(data=st.data())
-def test_smooth_on_mutated_angle_logs_never_a_traceback(tmp_path, capsys, data):
-    lines = clean_lines(tmp_path)
+@given(data=st.data(), name=st.sampled_from(sorted(SHORT_H)))
+def test_smooth_on_mutated_angle_logs_never_a_traceback(tmp_path, capsys, data, name):
+    lines = clean_lines(tmp_path, name)
     names = _columns(lines)
     rows = [i for i, line in enumerate(lines) if "_angle," in line]
     for _ in range(data.draw(st.integers(1, 4))):
