@@ -13,7 +13,7 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, body_names, log_from_arrays, read_log, write_log
 from fgnav.measurements import build_pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
-from fgnav.scenarios import load_scenario
+from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 
 HEAD = "epoch,kind,x,y,z,sigma,star_x,star_y,star_z,body,body2\n"
@@ -111,7 +111,17 @@ def test_simulated_angles_are_the_true_geometry_plus_noise_of_the_stated_sigma()
                                                                               z.std())
 
 
+_SUN_FROM_LEO = {  # the Sun seen from Earth orbit (moving ~30 km/s in the geocentric frame)
+    "duration_h": 1.0,
+    "sensors": (SensorSpec("body_star_angle", sigma_deg=0.002, body="sun", stars_per_epoch=2,
+                           vmag_max=4.0),
+                SensorSpec("body_body_angle", sigma_deg=0.002, body="sun", body2="moon"),
+                SensorSpec("limb_star_angle", sigma_deg=0.002, body="moon", stars_per_epoch=2,
+                           vmag_max=4.0))}
+
+
 @pytest.mark.parametrize("name, options", [("sextant-leo", {"duration_h": 1.0}),
+                                           ("sextant-leo", _SUN_FROM_LEO),
                                            ("mars-cruise", {"duration_h": 120.0})])
 def test_the_model_sees_the_simulators_apparent_angles(name, options):
     """Noise-free, the model's apparent angles (aberration by the relative velocity of each
