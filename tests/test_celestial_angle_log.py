@@ -223,3 +223,40 @@ def test_no_aberration_reaches_a_formations_angle_rows():
     on, _ = smooth_log(log, "batch")
     off, _ = smooth_log(log, "batch", aberration=False)
     assert off.solution.chi2 > 1.5 * on.solution.chi2, (on.solution.chi2, off.solution.chi2)
+
+
+def test_the_geocentric_sun_and_moon_of_the_angles_are_erfas():
+    """The near bodies of a geocentric angle row come from ERFA, as a heliocentric pass's do
+    (``factors.planets``): the Sun from ``epv00`` (Bretagnon & Francou 1988, km-class), the
+    Moon from ``moon98`` (Meeus 1998, ch. 47, ~10 arcsec). The low-precision series of
+    ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49) had been used: in 2025
+    their Sun is 4.5-5 arcmin off (a perihelion held fixed since J2000) and their Moon up to
+    2.3 arcmin, 19x the 7.2-arcsec sigma of sextant-leo's Moon-star angle and ten times the
+    aberration the angles correct for."""
+    import erfa
+
+    from fgnav.simulate.celestial_angles import body_position_eci_m
+    from fgnav.time import j2000_seconds
+
+    t = float(j2000_seconds(np.datetime64("2025-03-06T12:00:00"))) + np.linspace(0, 3e7, 40)
+    jd = 2451545.0 + t / 86400.0
+    pvh, _ = erfa.epv00(np.floor(jd), jd - np.floor(jd))
+    sun = -pvh["p"] * 1.495978707e11
+    moon = erfa.moon98(np.floor(jd), jd - np.floor(jd))["p"] * 1.495978707e11
+
+    def arcsec(a, b):
+        c = np.sum(a * b, 1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        return np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) * 3600.0
+
+    assert arcsec(body_position_eci_m("sun", t), sun).max() < 0.01
+    assert arcsec(body_position_eci_m("moon", t), moon).max() < 0.01
+    assert np.abs(np.linalg.norm(body_position_eci_m("moon", t), axis=1)
+                  - np.linalg.norm(moon, axis=1)).max() < 1.0
+
+
+def test_angle_rows_beyond_the_ephemeris_span_are_a_user_error(tmp_path):
+    """ERFA's ``epv00`` (the Sun of a geocentric row, every body of a heliocentric one)
+    covers 1900-2100; a row outside is refused naming the line, not a ValueError traceback."""
+    rows = [r.replace("2025-", "2150-") for r in ROWS]
+    with pytest.raises(UserError, match=r"line 2 .*1900-2100"):
+        build_pass(read_log(_write(tmp_path, rows)))

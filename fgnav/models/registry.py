@@ -527,6 +527,14 @@ def _angle_values(star, limb):
     (limb form); the frame's barycentric velocity ``v_frame_bcrs_mps``; ``aberration`` (M,)
     bool, apparent lines of sight (``fgnav smooth --no-aberration`` turns it off)."""
     def values(log, i):
+        try:
+            return rows(log, i)
+        except ValueError as exc:   # factors.planets: ERFA's ephemerides cover 1900-2100
+            lines = np.asarray(log.line)[i]
+            raise UserError(f"{log.path}: the angle rows (line {int(lines[0])} ...): {exc}; "
+                            "expected epochs within 1900-2100") from exc
+
+    def rows(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
         centre = getattr(log, "centre", "earth")
