@@ -40,7 +40,8 @@ from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
-           "TABLE_STEP_S", "origin_state_bcrs", "earth_position_helio_m", "moon_position_helio_m",
+           "TABLE_STEP_S", "origin_state_bcrs", "earth_position_helio_m", "moon_position_geo_m",
+           "moon_position_helio_m",
            "planet_state_helio", "third_body_positions_m", "third_body_table",
            "table_positions_nb", "NO_TABLE", "check_table_span"]
 
@@ -109,12 +110,18 @@ def origin_state_bcrs(t_j2000_s, centre: str) -> tuple[np.ndarray, np.ndarray]:
     return p * AU_M, v * _AU_PER_DAY_TO_MPS
 
 
+def moon_position_geo_m(t_j2000_s) -> np.ndarray:
+    """Geocentric position of the Moon's centre, m (``erfa.moon98``): scalar -> (3,),
+    (N,) -> (N, 3)."""
+    erfa = _erfa()
+    pv = _quiet(erfa.moon98, _J2000_JD, _jd2(t_j2000_s))
+    return np.asarray(pv["p"]) * AU_M
+
+
 def moon_position_helio_m(t_j2000_s) -> np.ndarray:
     """Heliocentric position of the Moon's centre, m: the Earth (``epv00``) plus the
     geocentric Moon (``erfa.moon98``)."""
-    erfa = _erfa()
-    pv = _quiet(erfa.moon98, _J2000_JD, _jd2(t_j2000_s))
-    return earth_position_helio_m(t_j2000_s) + np.asarray(pv["p"]) * AU_M
+    return earth_position_helio_m(t_j2000_s) + moon_position_geo_m(t_j2000_s)
 
 
 def planet_state_helio(number: int, t_j2000_s) -> tuple[np.ndarray, np.ndarray]:

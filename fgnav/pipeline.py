@@ -102,6 +102,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     def run(start: Start) -> Solution:
         try:
             check_observability(start.p, start.x_guess, model)
+        except ModelDomainError as exc:   # a row with no value on the first guess's orbit
+            raise NotObservableError(
+                f"{p.source}: {exc}, along the first guess's orbit: check that row (a limb "
+                f"sphere larger than the spacecraft's distance from the body has no limb), "
+                f"or the prior rows") from exc
         except UserError as exc:
             if not from_data:
                 raise
@@ -114,8 +119,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         except ModelDomainError as exc:
             raise NotObservableError(
                 f"{p.source}: the {method} estimate left the domain of a measurement model "
-                f"({exc}): the first guess is far from the data's orbit; check the prior rows, "
-                f"or try --ignore-prior") from exc
+                f"({exc}): "
+                + ("check the row named: it may not fit the other rows, from whose orbit the "
+                   "estimate started" if from_data else
+                   "the first guess is far from the data's orbit; check the prior rows, or try "
+                   "--ignore-prior")) from exc
         return start.finish(sol)
 
     if from_data or checkpoint:
@@ -309,7 +317,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
                             "spacecraft")
         return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
                                 stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0),
-                                relative=relative or "cartesian")
+                                relative=relative or "cartesian", aberration=aberration)
     if relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")

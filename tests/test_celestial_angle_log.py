@@ -13,7 +13,7 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, body_names, log_from_arrays, read_log, write_log
 from fgnav.measurements import build_pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
-from fgnav.scenarios import load_scenario
+from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 
 HEAD = "epoch,kind,x,y,z,sigma,star_x,star_y,star_z,body,body2\n"
@@ -111,7 +111,17 @@ def test_simulated_angles_are_the_true_geometry_plus_noise_of_the_stated_sigma()
                                                                               z.std())
 
 
+_SUN_FROM_LEO = {  # the Sun seen from Earth orbit (moving ~30 km/s in the geocentric frame)
+    "duration_h": 1.0,
+    "sensors": (SensorSpec("body_star_angle", sigma_deg=0.002, body="sun", stars_per_epoch=2,
+                           vmag_max=4.0),
+                SensorSpec("body_body_angle", sigma_deg=0.002, body="sun", body2="moon"),
+                SensorSpec("limb_star_angle", sigma_deg=0.002, body="moon", stars_per_epoch=2,
+                           vmag_max=4.0))}
+
+
 @pytest.mark.parametrize("name, options", [("sextant-leo", {"duration_h": 1.0}),
+                                           ("sextant-leo", _SUN_FROM_LEO),
                                            ("mars-cruise", {"duration_h": 120.0})])
 def test_the_model_sees_the_simulators_apparent_angles(name, options):
     """Noise-free, the model's apparent angles (aberration by the relative velocity of each
@@ -174,3 +184,79 @@ def test_a_scenario_with_a_limb_on_the_sun_is_refused_with_the_key(tmp_path, cap
     (tmp_path / "u.toml").write_text(text.replace('body2 = "moon"', 'body2 = "mars"'))
     assert main(["simulate", str(tmp_path / "u.toml"), "--out", str(tmp_path / "o")]) == 2
     assert "sensor[3].body2" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("scenario, kind, method", [("sextant-leo", "limb_star_angle", "batch"),
+                                                    ("sextant-leo", "limb_star_angle", "ekf"),
+                                                    ("geo-limb", "limb_radius", "isam2")])
+def test_a_limb_sphere_larger_than_the_orbit_is_a_user_error_naming_its_line(
+        tmp_path, capsys, scenario, kind, method):
+    """A row whose limb sphere (column y) encloses the spacecraft (7,500 km in an 800 km LEO,
+    50,000 km at GEO: a unit slip) has no limb to measure; the smoother says which line,
+    exit 2, where it had raised a traceback from the observability check."""
+    from fgnav.cli import main
+
+    sim = simulate_pass(load_scenario(scenario).with_options(duration_h=0.5), seed=0)
+    write_log(tmp_path / "log.csv", sim.log)
+    lines = (tmp_path / "log.csv").read_text().splitlines()
+    j = [i for i, t in enumerate(lines) if f",{kind}," in t][5]
+    f = lines[j].split(",")
+    f[3] = "5e7" if scenario == "geo-limb" else "7500000"
+    lines[j] = ",".join(f)
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    assert main(["smooth", str(tmp_path / "bad.csv"), "--method", method, "--out",
+                 str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"line {j + 1}" in err and kind in err and "limb" in err, err
+
+
+def test_no_aberration_reaches_a_formations_angle_rows():
+    """``--no-aberration`` on a formation's log (constellation-leo: each spacecraft's sextant
+    rows) had no effect at all (the same chi-square to the last digit): the formation route
+    built its pass without it. Now the angle rows take the geometric lines of sight there
+    too, and the fit to the simulator's apparent angles worsens as on one spacecraft."""
+    from fgnav.pipeline import smooth_log
+    from fgnav.simulate.formation_sim import simulate_formation_pass
+
+    log = simulate_formation_pass(load_scenario("constellation-leo").with_options(duration_h=0.5),
+                                  seed=0).log
+    on, _ = smooth_log(log, "batch")
+    off, _ = smooth_log(log, "batch", aberration=False)
+    assert off.solution.chi2 > 1.5 * on.solution.chi2, (on.solution.chi2, off.solution.chi2)
+
+
+def test_the_geocentric_sun_and_moon_of_the_angles_are_erfas():
+    """The near bodies of a geocentric angle row come from ERFA, as a heliocentric pass's do
+    (``factors.planets``): the Sun from ``epv00`` (Bretagnon & Francou 1988, km-class), the
+    Moon from ``moon98`` (Meeus 1998, ch. 47, ~10 arcsec). The low-precision series of
+    ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49) had been used: in 2025
+    their Sun is 4.5-5 arcmin off (a perihelion held fixed since J2000) and their Moon up to
+    2.3 arcmin, 19x the 7.2-arcsec sigma of sextant-leo's Moon-star angle and ten times the
+    aberration the angles correct for."""
+    import erfa
+
+    from fgnav.simulate.celestial_angles import body_position_eci_m
+    from fgnav.time import j2000_seconds
+
+    t = float(j2000_seconds(np.datetime64("2025-03-06T12:00:00"))) + np.linspace(0, 3e7, 40)
+    jd = 2451545.0 + t / 86400.0
+    pvh, _ = erfa.epv00(np.floor(jd), jd - np.floor(jd))
+    sun = -pvh["p"] * 1.495978707e11
+    moon = erfa.moon98(np.floor(jd), jd - np.floor(jd))["p"] * 1.495978707e11
+
+    def arcsec(a, b):
+        c = np.sum(a * b, 1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        return np.degrees(np.arccos(np.clip(c, -1.0, 1.0))) * 3600.0
+
+    assert arcsec(body_position_eci_m("sun", t), sun).max() < 0.01
+    assert arcsec(body_position_eci_m("moon", t), moon).max() < 0.01
+    assert np.abs(np.linalg.norm(body_position_eci_m("moon", t), axis=1)
+                  - np.linalg.norm(moon, axis=1)).max() < 1.0
+
+
+def test_angle_rows_beyond_the_ephemeris_span_are_a_user_error(tmp_path):
+    """ERFA's ``epv00`` (the Sun of a geocentric row, every body of a heliocentric one)
+    covers 1900-2100; a row outside is refused naming the line, not a ValueError traceback."""
+    rows = [r.replace("2025-", "2150-") for r in ROWS]
+    with pytest.raises(UserError, match=r"line 2 .*1900-2100"):
+        build_pass(read_log(_write(tmp_path, rows)))

@@ -89,6 +89,27 @@ def test_equals_numpy_ekf_with_third_body_and_step_latency():
     assert calls[-1] == p.n_epochs - 1
 
 
+@pytest.mark.parametrize("name, hours", [("sextant-leo", 1.0), ("mars-cruise", 72.0)])
+def test_equals_numpy_ekf_with_several_rows_of_a_family_at_an_epoch(name, hours):
+    """Three limb-star and two Moon-star angles an epoch (the cruise: two Sun-star): the
+    numpy EKF updates one row at a time, relinearized after each; the compiled one had
+    taken a family's rows of an epoch in one update, linearized once, and differed by up
+    to 61 m (sextant-leo 2 h, seed 1) while the prior's 10 km shrank, with a chi-square of
+    2,414 against 1,507 (1 h, seed 1): ``--gate`` switched the numbers, not only the gate."""
+    p = build_pass(simulate_pass(load_scenario(name).with_options(duration_h=hours), seed=1).log)
+    counts = np.bincount(p.families["body_star_angle"].k)
+    assert counts.max() >= 2
+    if name == "mars-cruise":
+        from fgnav.initial_orbit import start_point
+        from fgnav.time import j2000_seconds
+
+        opt = SmootherOptions(centre="sun")
+        p = start_point(p, "ekf", opt.motion_model(), float(j2000_seconds(p.epoch0))).p
+    else:
+        opt = SmootherOptions()
+    _assert_same(run_ekf(p, opt), run_ekf_numba(p, opt))
+
+
 def test_prior_at_later_epoch_is_propagated_back():
     p, sim = _mixed_pass(seed=5, duration_h=0.5)
     from fgnav.solvers.first_guess import initial_guess

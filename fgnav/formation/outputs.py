@@ -218,8 +218,9 @@ def formation_summary(sol, p, options, truths=None, relative: str = "cartesian")
 
 def smooth_formation(log, method: str, options, *, truth_path=None, progress=None,
                      stage=None, t0=None, gap_factor: float | None = 10.0,
-                     relative: str = "cartesian"):
-    """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`."""
+                     relative: str = "cartesian", aberration: bool = True):
+    """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`
+    (``aberration=False``: :func:`fgnav.apparent.without_aberration`, for comparison)."""
     from contextlib import nullcontext
 
     from fgnav.measurements import build_pass
@@ -237,6 +238,10 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
         raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
                         "Cartesian states")
     p = build_pass(log)
+    if not aberration:
+        from fgnav.apparent import without_aberration
+
+        p = without_aberration(p)
     if gap_factor is not None and len(long_gaps(p, gap_factor)):
         k = int(long_gaps(p, gap_factor)[0])
         raise UserError(

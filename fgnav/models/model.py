@@ -51,6 +51,7 @@ from typing import Callable
 import numpy as np
 
 from factors.adapters import whiten
+from factors.errors import ModelDomainError
 from fgnav.models.variables import Layout, Variable
 
 __all__ = ["MeasurementModel", "sqrt_information", "COLUMN_PREFIX", "ROLE_DIMS"]
@@ -145,13 +146,26 @@ class MeasurementModel:
             return self._evaluate_per_row(fam, X, layout)
         vals_all = layout.values_at(X, fam.k)
         vals = {name: vals_all[name] for name in self.variables_in(layout)}
-        e, jac = self.residual(fam, vals)
+        try:
+            e, jac = self.residual(fam, vals)
+        except ModelDomainError as exc:
+            raise self._domain_error(fam, vals, exc) from exc
         e = np.asarray(e, dtype=float).reshape(len(fam), self.dim)
         H = np.zeros((len(fam), self.dim, layout.n))
         for name, h in jac.items():
             sl = slice(0, 3) if name == "position" else layout.slices[name]
             H[..., sl] = h
         return e, H
+
+    def _domain_error(self, fam, vals, exc) -> ModelDomainError:
+        """``exc`` with the log line of the first row outside the model's domain (rows
+        evaluated one by one: on this error path only), for the user's message."""
+        for j in range(len(fam)):
+            try:
+                self.residual(fam.subset(np.array([j])), {n: v[j:j + 1] for n, v in vals.items()})
+            except ModelDomainError as row_exc:
+                return ModelDomainError(f"{self.kind} row at log line {int(fam.line[j])}: {row_exc}")
+        return exc
 
     def _evaluate_per_row(self, fam, X: np.ndarray, layout: Layout):
         """:meth:`evaluate` for rows whose variables differ from row to row (a formation: the

@@ -529,6 +529,14 @@ def _angle_values(star, limb):
     rows packed for the kernel, ``data`` (M, 4) and ``B`` (M, 5, 3)
     (``factors.celestial_angles.pack_angle_rows``)."""
     def values(log, i):
+        try:
+            return rows(log, i)
+        except ValueError as exc:   # factors.planets: ERFA's ephemerides cover 1900-2100
+            lines = np.asarray(log.line)[i]
+            raise UserError(f"{log.path}: the angle rows (line {int(lines[0])} ...): {exc}; "
+                            "expected epochs within 1900-2100") from exc
+
+    def rows(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
         centre = getattr(log, "centre", "earth")

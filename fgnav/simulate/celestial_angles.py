@@ -10,7 +10,7 @@ barycentric state from ERFA ``epv00``), each near body where it was when its lig
 (the light time iterated to convergence on the ephemeris), the star at its catalogue
 direction, every line of sight then aberrated by the observer's barycentric velocity with
 ERFA ``ab``; the limb form's near limb is the point of the aberrated limb circle nearest the
-apparent star (searched on the circle). The ephemeris error of ``factors.ephemeris`` is not
+apparent star (searched on the circle). The ephemeris error of ``factors.planets`` is not
 simulated.
 
 Star choice at each epoch (``spec.stars_per_epoch`` stars from the BSC5 catalogue to
@@ -34,9 +34,8 @@ import numpy as np
 
 from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
 from factors.constants import AU_M, DEG, R_EARTH_M
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-from factors.planets import (earth_position_helio_m, moon_position_helio_m,
-                             origin_state_bcrs)
+from factors.planets import (earth_position_helio_m, moon_position_geo_m,
+                             moon_position_helio_m, origin_state_bcrs)
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES
 from fgnav.simulate.body_directions import occulted_by_earth
@@ -59,10 +58,13 @@ LIMB_MARGIN_RAD = 2.0 * DEG
 
 def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarray:
     """Centre of a near body (one of ``fgnav.io.log_csv.BODIES``), m, (N, 3) at the epochs
-    ``t_j2000_s`` (N,), relative to the pass's ``centre`` (EME2000 axes): geocentric, the
-    Earth at the origin, the Sun and the Moon from ``factors.ephemeris``; heliocentric
-    (``centre="sun"``), the Sun at the origin, the Earth and the Moon from pyerfa
-    (``factors.planets``)."""
+    ``t_j2000_s`` (N,), relative to the pass's ``centre`` (EME2000 axes), from pyerfa
+    (``factors.planets``): heliocentric (``centre="sun"``), the Sun at the origin, the Earth
+    from ``epv00`` and the Moon from ``moon98``; geocentric, the Earth at the origin, the Sun
+    from ``epv00`` (km-class) and the Moon from ``moon98`` (~10 arcsec). Not the
+    low-precision series of ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49),
+    whose Sun is ~5 arcmin off by 2025 and Moon up to ~2 arcmin: many sigmas of an
+    arcsecond angle sensor, and more than the aberration the angles correct for."""
     t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
     if centre == "sun":
         if name == "earth":
@@ -71,9 +73,9 @@ def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarr
             return moon_position_helio_m(t)
         return np.zeros((len(t), 3))
     if name == "sun":
-        return sun_position_eci_m(t)
+        return -earth_position_helio_m(t)
     if name == "moon":
-        return moon_position_eci_m(t)
+        return moon_position_geo_m(t)
     return np.zeros((len(t), 3))
 
 

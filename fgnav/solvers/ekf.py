@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from factors.dynamics import process_noise, propagate
+from factors.errors import ModelDomainError
 from fgnav.errors import UserError
 from fgnav.graph import enters, initial_block, layout_of, linearize_family
 from fgnav.measurements import Pass, prior_covariance, rows_by_epoch
@@ -123,7 +124,11 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     normalized[kind] = np.full((len(fam), len(b)), np.nan)
                 normalized[kind][j] = np.linalg.solve(np.linalg.cholesky(S), b)
                 K = np.linalg.solve(S, A @ P).T
-                x = lay.retract(x, K @ b) if chart is None else chart.retract(lay, x, K @ b)
+                try:
+                    x = lay.retract(x, K @ b) if chart is None else chart.retract(lay, x, K @ b)
+                except ModelDomainError as exc:   # the element chart's (--state elements)
+                    raise ModelDomainError(f"{kind} row at log line {int(fam.line[j])}: "
+                                           f"{exc}") from exc
                 IKA = eye_n - K @ A
                 P = IKA @ P @ IKA.T + K @ K.T
         xs[k] = x

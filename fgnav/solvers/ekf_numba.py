@@ -6,8 +6,8 @@ Same math, step for step (SI, ECI, state ``x = [r_eci_m; v_eci_mps]``):
   (``factors.dynamics.propagate_nb``, called directly), ``P <- Phi P Phi^T + Q(dt)`` with the
   white-acceleration process noise ``Q = q [[dt^3/3 I, dt^2/2 I], [dt^2/2 I, dt I]]``
   (Bar-Shalom eq. 6.2.2-12; ``factors.dynamics.process_noise``);
-* update, per epoch and per measurement family (all rows of one family at one epoch at once,
-  in the order of ``fgnav.measurements.rows_by_epoch``), with the whitened rows
+* update, per epoch, one measurement at a time (relinearized after each, in the order of
+  ``fgnav.measurements.rows_by_epoch``), with the whitened rows
   ``A = H/sigma``, ``b = -e/sigma`` of the family's measurement model:
   ``S = A P A^T + I``, ``K = P A^T S^-1``, ``x <- x + K b``,
   ``P <- (I - K A) P (I - K A)^T + K K^T`` (Joseph form).
@@ -37,6 +37,7 @@ from factors.altimeter import altitude_kernel
 from factors.celestial_angles import celestial_angle_kernel
 from factors.direction import earth_direction_row_kernel
 from factors.dynamics import process_noise_terms, propagate_nb
+from factors.errors import ModelDomainError
 from factors.limb import limb_radius_kernel
 from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.measurements import prior_covariance
@@ -55,7 +56,7 @@ ROW_KERNELS = (prior_position_kernel, prior_velocity_kernel, earth_direction_row
 Each is ``kernel(x (6,), data (>= 3,), B (>= 2, 3), e (m,), H (m, 6)) -> rows written, or -1``
 (the pass's rows are packed to the widest kernel's; each reads its own leading entries)."""
 _K0, _K1, _K2, _K3, _K4, _K5 = ROW_KERNELS
-_MAX_ROWS = 64            # rows of one (epoch, family) group handled by the kernel at once
+_MAX_ROWS = 3             # rows of one measurement (the widest model's dim) in one update
 
 
 def _code(mdl) -> int | None:
@@ -204,57 +205,53 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
             code = g_code[g]
             if g_prior[g] and k == 0:
                 continue  # the initial state already is this prior
-            m = 0
             r0 = g_row0[g]
-            for jm in range(g_nmeas[g]):
-                w = _rows(code, x, m_data[r0 + jm], m_B[r0 + jm], m_sigma[r0 + jm], A, b, m)
-                if w < 0:
-                    return r0 + jm
-                m += w
-            # AP = A P ; S = AP A^T + I
-            for i in range(m):
-                for j in range(6):
-                    s = 0.0
-                    for p in range(6):
-                        s += A[i, p] * P[p, j]
-                    AP[i, j] = s
-                    Kt[i, j] = s
-            for i in range(m):
-                for j in range(m):
-                    s = 0.0
-                    for p in range(6):
-                        s += AP[i, p] * A[j, p]
-                    S[i, j] = s
-                S[i, i] += 1.0
-            if not _chol_solve_inplace(S, Kt, m, 6):
-                return r0
-            # K = Kt^T (6 x m); x += K b
-            for j in range(6):
-                s = 0.0
-                for i in range(m):
-                    s += Kt[i, j] * b[i]
-                x[j] += s
-            # IKA = I - K A
-            for i in range(6):
-                for j in range(6):
-                    s = 0.0
-                    for p in range(m):
-                        s += Kt[p, i] * A[p, j]
-                    IKA[i, j] = (1.0 if i == j else 0.0) - s
-            # P <- IKA P IKA^T + K K^T
-            _sandwich(IKA, P, T, Phi)
-            for i in range(6):
-                for j in range(6):
-                    for p in range(m):
-                        Phi[i, j] += Kt[p, i] * Kt[p, j]
-            for i in range(6):
-                for j in range(6):
-                    P[i, j] = Phi[i, j]
-            # innovations -b, row by row
             dim = g_dim[g]
-            for jm in range(g_nmeas[g]):
-                for c in range(dim):
-                    innov[r0 + jm, c] = -b[jm * dim + c]
+            for jm in range(g_nmeas[g]):   # one measurement at a time, as the numpy EKF
+                m = _rows(code, x, m_data[r0 + jm], m_B[r0 + jm], m_sigma[r0 + jm], A, b, 0)
+                if m < 0:
+                    return r0 + jm
+                # AP = A P ; S = AP A^T + I
+                for i in range(m):
+                    for j in range(6):
+                        s = 0.0
+                        for p in range(6):
+                            s += A[i, p] * P[p, j]
+                        AP[i, j] = s
+                        Kt[i, j] = s
+                for i in range(m):
+                    for j in range(m):
+                        s = 0.0
+                        for p in range(6):
+                            s += AP[i, p] * A[j, p]
+                        S[i, j] = s
+                    S[i, i] += 1.0
+                if not _chol_solve_inplace(S, Kt, m, 6):
+                    return r0 + jm
+                # K = Kt^T (6 x m); x += K b
+                for j in range(6):
+                    s = 0.0
+                    for i in range(m):
+                        s += Kt[i, j] * b[i]
+                    x[j] += s
+                # IKA = I - K A
+                for i in range(6):
+                    for j in range(6):
+                        s = 0.0
+                        for p in range(m):
+                            s += Kt[p, i] * A[p, j]
+                        IKA[i, j] = (1.0 if i == j else 0.0) - s
+                # P <- IKA P IKA^T + K K^T
+                _sandwich(IKA, P, T, Phi)
+                for i in range(6):
+                    for j in range(6):
+                        for p in range(m):
+                            Phi[i, j] += Kt[p, i] * Kt[p, j]
+                for i in range(6):
+                    for j in range(6):
+                        P[i, j] = Phi[i, j]
+                for c in range(dim):   # the innovation -b
+                    innov[r0 + jm, c] = -b[c]
         for i in range(6):
             xs[k, i] = x[i]
             for j in range(6):
@@ -308,8 +305,8 @@ def pack_pass(p) -> Packed:
         if np.any(~(sig > 0)):
             raise ValueError(f"{kind}: sigma must be positive")
         uk, first, counts = np.unique(ks, return_index=True, return_counts=True)
-        if np.any(counts * mdl.dim > _MAX_ROWS):
-            raise ValueError(f"{kind}: more than {_MAX_ROWS // mdl.dim} rows at one epoch")
+        if mdl.dim > _MAX_ROWS:
+            raise ValueError(f"{kind}: {mdl.dim} rows per measurement, more than {_MAX_ROWS}")
         g_k.append(uk)
         g_fam.append(np.full(len(uk), fi))
         g_code.append(np.full(len(uk), code))
@@ -385,8 +382,12 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
             kind = next(kd for kd, (r0, order) in pk.spans.items() if r0 <= bad < r0 + len(order))
             r0, order = pk.spans[kind]
             row = int(order[bad - r0])
-            raise ValueError(f"numba EKF: {kind} row {row} (t = {p.t_s[p.families[kind].k[row]]:.3f} s) "
-                             f"has no defined residual or a singular innovation covariance")
+            # a ModelDomainError (a ValueError): the solvers' callers tell the user, as for
+            # the numpy EKF's undefined residuals
+            raise ModelDomainError(
+                f"numba EKF: {kind} row {row} at log line {int(p.families[kind].line[row])} "
+                f"(t = {p.t_s[p.families[kind].k[row]]:.3f} s) has no defined residual or a "
+                f"singular innovation covariance")
         latency[a:bnd] = (time.perf_counter() - t_a) / (bnd - a)
         if progress is not None:
             progress(int(bnd) - 1)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.elements import cartesian_from_mee, mee_from_cartesian
+from factors.errors import ModelDomainError
 from fgnav.errors import UserError
 
 STATES = ("cartesian", "elements")
@@ -83,7 +84,16 @@ class ElementChart:
         """``X (+) dX`` with the orbit updated in the elements, ``c(e(x) + dE)``; the further
         variables by the layout's retraction."""
         out = lay.retract(X, dX)
-        out[..., :6] = cartesian_from_mee(_elements(X[..., :6]) + dX[..., :6], jacobian=False)
+        E = _elements(X[..., :6]) + dX[..., :6]
+        p, f, g, L = E[..., 0], E[..., 1], E[..., 2], E[..., 5]
+        w = 1.0 + f * np.cos(L) + g * np.sin(L)   # p/|r| (Walker et al. 1985, eq. 3)
+        bad = ~((p > 0.0) & (w > 0.0))
+        if np.any(bad):
+            i = np.unravel_index(np.argmax(bad), bad.shape)
+            raise ModelDomainError(
+                f"--state elements: the update leaves the conics (semi-latus rectum p = "
+                f"{p[i]:.4g} m, 1 + f cos L + g sin L = {w[i]:.4g}; both must be > 0)")
+        out[..., :6] = cartesian_from_mee(E, jacobian=False)
         return out
 
     def covariance_to_cartesian(self, X: np.ndarray, P: np.ndarray) -> np.ndarray:
