@@ -4,8 +4,16 @@ equinox of J2000), metres.
 Montenbruck & Gill, *Satellite Orbits* (Springer 2000), sec. 3.3.2, eqs. (3.43)-(3.49)
 (the ``SunPos``/``MoonPos`` series, longitudes referred to the J2000 equinox):
 
-- Sun: elliptic-orbit series in mean anomaly, ecliptic latitude neglected. Accuracy about
-  0.1-1 % (M&G): ~1 arcmin in direction (0.02 deg), ~1e-4 relative in distance.
+- Sun: elliptic-orbit series in mean anomaly, ecliptic latitude neglected, ~1e-4 relative in
+  distance. M&G hold the Sun's perigee at its J2000 longitude (282.94 deg, the series'
+  mean longitude advancing at the anomalistic rate), so their direction drifts by the
+  perigee's sidereal advance, 0.3233 deg per century (11.6 arcsec a year: 5 arcmin by
+  2025); that advance is added here (Standish, "Keplerian Elements for Approximate
+  Positions of the Major Planets", JPL: the Earth-Moon barycentre's longitude of
+  perihelion 102.93768 + 0.32327 T deg, J2000 ecliptic and equinox). Against ERFA
+  ``epv00`` the direction is then within 36 arcsec over 1990-2040 (the Earth-Moon
+  barycentre's 6 arcsec and the planetary terms the series leaves out), where it was 5-8
+  arcmin in 2025-2040.
 - Moon: the leading perturbation terms of Brown's theory. Accuracy a few arcmin in
   direction (~0.1 deg) and a few hundred km in distance (M&G); tested here to 0.05 deg /
   500 km against Meeus' full series.
@@ -34,6 +42,9 @@ __all__ = [
 OBLIQUITY_J2000_RAD = np.deg2rad(23.43929111)
 """Obliquity of the J2000 ecliptic, rad (M&G eq. 3.45)."""
 
+_PERIGEE_ADVANCE_REV_PER_CENTURY = 0.32327364 / 360.0
+"""Sidereal advance of the Sun's perigee (the Earth-Moon barycentre's perihelion + 180 deg),
+rev per Julian century (Standish, JPL approximate planetary elements)."""
 _TWO_PI = 2.0 * np.pi
 _ARCSEC_PER_RAD = 206264.80624709636
 _S_PER_CENTURY = 86400.0 * 36525.0
@@ -58,7 +69,8 @@ def sun_position_eci_m_nb(t_j2000_s):
     """Geocentric Sun position, EME2000, m, at ``t_j2000_s`` (s since J2000 TT). M&G (3.43)-(3.45)."""
     T = t_j2000_s / _S_PER_CENTURY
     M = _TWO_PI * _frac(0.9931267 + 99.9973583 * T)  # mean anomaly, rad
-    L = _TWO_PI * _frac(0.7859444 + M / _TWO_PI
+    # perigee longitude 282.9400 deg (M&G) + its sidereal advance (module docstring)
+    L = _TWO_PI * _frac(0.7859444 + _PERIGEE_ADVANCE_REV_PER_CENTURY * T + M / _TWO_PI
                         + (6892.0 * np.sin(M) + 72.0 * np.sin(2.0 * M)) / 1296.0e3)
     r = 149.619e9 - 2.499e9 * np.cos(M) - 0.021e9 * np.cos(2.0 * M)
     return _ecliptic_to_eme2000(r * np.cos(L), r * np.sin(L), 0.0)

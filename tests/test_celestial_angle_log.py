@@ -229,10 +229,10 @@ def test_the_geocentric_sun_and_moon_of_the_angles_are_erfas():
     """The near bodies of a geocentric angle row come from ERFA, as a heliocentric pass's do
     (``factors.planets``): the Sun from ``epv00`` (Bretagnon & Francou 1988, km-class), the
     Moon from ``moon98`` (Meeus 1998, ch. 47, ~10 arcsec). The low-precision series of
-    ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49) had been used: in 2025
-    their Sun is 4.5-5 arcmin off (a perihelion held fixed since J2000) and their Moon up to
-    2.3 arcmin, 19x the 7.2-arcsec sigma of sextant-leo's Moon-star angle and ten times the
-    aberration the angles correct for."""
+    ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49) had been used: their Moon
+    is up to 2.3 arcmin off, 19x the 7.2-arcsec sigma of sextant-leo's Moon-star angle and
+    ten times the aberration the angles correct for; their Sun was 4.5-5 arcmin off in 2025
+    (a perigee held fixed since J2000; within ~36 arcsec since its advance was added)."""
     import erfa
 
     from fgnav.simulate.celestial_angles import body_position_eci_m

@@ -138,10 +138,13 @@ def refraction_direct_fix(s_eci, gamma_rad, sigma_gamma_rad, sigma_model_m, r_re
     for tri in itertools.combinations(range(n), 3):
         A = Hw[list(tri)]
         try:
-            dop = np.sqrt(np.trace(np.linalg.inv(A.T @ A)))
+            tr = np.trace(np.linalg.inv(A.T @ A))
         except np.linalg.LinAlgError:
             continue
-        if np.isfinite(dop) and dop < best_dop:
+        if not (np.isfinite(tr) and tr > 0.0):   # a near-singular triple: rounding left no DOP
+            continue
+        dop = np.sqrt(tr)
+        if dop < best_dop:
             best, best_dop = tri, dop
     if best is None:
         return None

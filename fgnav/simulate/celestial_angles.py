@@ -63,8 +63,8 @@ def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarr
     from ``epv00`` and the Moon from ``moon98``; geocentric, the Earth at the origin, the Sun
     from ``epv00`` (km-class) and the Moon from ``moon98`` (~10 arcsec). Not the
     low-precision series of ``factors.ephemeris`` (Montenbruck & Gill 2000, eqs. 3.43-3.49),
-    whose Sun is ~5 arcmin off by 2025 and Moon up to ~2 arcmin: many sigmas of an
-    arcsecond angle sensor, and more than the aberration the angles correct for."""
+    whose Sun is within ~36 arcsec and Moon up to ~2 arcmin off: many sigmas of an arcsecond
+    angle sensor, and more than the aberration the angles correct for."""
     t = np.atleast_1d(np.asarray(t_j2000_s, dtype=float))
     if centre == "sun":
         if name == "earth":
