@@ -182,8 +182,10 @@ class _Factors:
                 col2[c0 + shift:c1 + shift] += np.sum(Ac * Ac, axis=1)
         self.col_norm = np.sqrt(col2)
 
-    def make(self, k0: int, k1: int) -> list:
-        """The factors of epochs k0..k1-1 in epoch order (None for an epoch without one)."""
+    def add_to(self, graph, k0: int, k1: int) -> None:
+        """Add the factors of epochs k0..k1-1 to ``graph`` in epoch order (none for an epoch
+        without one), each made by GTSAM inside ``graph.add`` (one call into GTSAM per factor
+        instead of a JacobianFactor made in Python and then pushed: the same factor)."""
         N, n = self.N, self.n
         A_rows, b_rows = self.rows.A, self.rows.b
         starts, s_starts = self.starts[k0:k1 + 1], self.s_starts[k0:k1 + 1]
@@ -191,8 +193,8 @@ class _Factors:
         # the stacking is one numpy call per group rather than one per epoch (0.45 -> 0.35 s
         # per iteration at 14,400 epochs, same factors in the same order).
         counts, s_counts = np.diff(starts), np.diff(s_starts)
-        factors = [None] * (k1 - k0)
-        JF = gtsam.JacobianFactor
+        args = [None] * (k1 - k0)
+        x0 = X(0)   # a Symbol key: the character in the top byte, the index below it
         for m, ms in sorted(set(zip(counts.tolist(), s_counts.tolist()))):
             js = np.flatnonzero((counts == m) & (s_counts == ms))
             ks = js + k0
@@ -208,10 +210,13 @@ class _Factors:
                 b = np.concatenate([bm[mot], self.b_mot[km], self.s_b[sidx]], axis=1)
                 unit = _unit(m + n + ms)
                 for i, k in enumerate(km.tolist()):
-                    factors[k - k0] = JF(X(k), A0[i], X(k + 1), A1[i], b[i], unit)
+                    args[k - k0] = (x0 + k, A0[i], x0 + k + 1, A1[i], b[i], unit)
             if m and not mot.all():
-                factors[N - 1 - k0] = JF(X(N - 1), Am[~mot][0], bm[~mot][0], _unit(m))
-        return factors
+                args[N - 1 - k0] = (x0 + N - 1, Am[~mot][0], bm[~mot][0], _unit(m))
+        add = graph.add
+        for a in args:
+            if a is not None:
+                add(*a)
 
 
 def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
@@ -224,9 +229,7 @@ def build_linear_graph(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0
     """
     fs = _Factors(p, Xs, q, model, t0_j2000_s, robust, rejected)
     graph = gtsam.GaussianFactorGraph()
-    for f in fs.make(0, fs.N):
-        if f is not None:
-            graph.push_back(f)
+    fs.add_to(graph, 0, fs.N)
     return graph, fs.chi2_meas, fs.chi2_motion, fs.rows, fs.col_norm
 
 
@@ -236,9 +239,26 @@ def _singular(source, exc):
 
 
 def _conditionals(bn, k0: int, k1: int, N: int, R, S, d) -> None:
-    """Copy the conditionals of X_k0..X_{k1-1} (in ``bn``, in that order) into R, S, d."""
-    for k in range(k0, k1):
-        c = bn.at(k - k0)
+    """Copy the conditionals of X_k0..X_{k1-1} (in ``bn``, in that order) into R, S, d.
+
+    Each conditional of X_k (k < N - 1) is read as one matrix ``[R S d]`` (its augmented
+    Jacobian, frontal columns then those of its parent X_{k+1}) and the chunk's matrices
+    split with numpy: one call into GTSAM per conditional instead of three, the same values
+    (40 % less time here)."""
+    n = R.shape[1]
+    at = bn.at
+    k2 = min(k1, N - 1)   # the last state has no parent: read on its own below
+    try:
+        Ab = np.array([at(k - k0).augmentedJacobianUnweighted() for k in range(k0, k2)])
+    except ValueError:   # pragma: no cover (matrices of different shapes)
+        Ab = None
+    k0_rest = k0
+    if k2 > k0 and Ab is not None and Ab.shape == (k2 - k0, n, 2 * n + 1):
+        R[k0:k2], S[k0:k2], d[k0:k2] = Ab[:, :, :n], Ab[:, :, n:2 * n], Ab[:, :, 2 * n]
+        k0_rest = k2
+    del Ab
+    for k in range(k0_rest, k1):
+        c = at(k - k0)
         R[k] = c.R()
         d[k] = c.d()
         if k < N - 1:
@@ -285,9 +305,7 @@ def eliminate_in_chunks(fs: _Factors, source: str = "", chunk: int | None = None
     for k0 in range(0, N, chunk):
         k1 = min(N, k0 + chunk)
         graph = gtsam.GaussianFactorGraph()
-        for f in fs.make(k0, k1):
-            if f is not None:
-                graph.push_back(f)
+        fs.add_to(graph, k0, k1)
         if carried is not None:
             graph.push_back(carried)
         ordering = _time_order(k0, k1)
