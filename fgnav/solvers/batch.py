@@ -84,9 +84,12 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     (:func:`fgnav.solvers.process.variable_step_rows`). With the orbit alone and steps of one
     length, ``A1`` is that step's ``W`` broadcast (read-only, no memory per step).
 
-    ``chunked``: ``A0`` as a list of arrays, steps ``[i * PROCESS_CHUNK, (i + 1) *
-    PROCESS_CHUNK)`` each (the same values), so that its parts can be freed as they are used
-    (:class:`_Factors`); with further variables than one orbit, a list of the one array.
+    ``chunked``: ``A0`` as a list of arrays of ``2 * PROCESS_CHUNK`` steps each (the same
+    chunks of the computation, so the same values), so that its parts can be freed as they
+    are used (:class:`_Factors`); with further variables than one orbit, a list of the one
+    array. A part (37.7 MB) is above the size from which the C allocator (glibc) always maps
+    memory of its own, so that a freed part goes back to the system at once (parts of one
+    chunk, 19 MB, were placed in the heap and, freed, kept by the process).
     """
     lay = layout_of(p)
     N, n = p.n_epochs, lay.n
@@ -97,9 +100,9 @@ def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j20
     dt = np.diff(p.t_s)
     W = _step_sqrt_information(dt, q)
     if chunked and n == 6:   # the orbit alone
-        A0 = []
-        for c0 in range(0, N - 1, PROCESS_CHUNK):
-            c1 = min(N - 1, c0 + PROCESS_CHUNK)
+        A0, part = [], 2 * PROCESS_CHUNK
+        for c0 in range(0, N - 1, part):
+            c1 = min(N - 1, c0 + part)
             A0.append(np.zeros((c1 - c0, n, n)))
             _orbit_rows(Xs[c0:c1, :6], Xs[c0 + 1:c1 + 1, :6], dt[c0:c1],
                         t0_j2000_s + p.t_s[c0:c1], W[c0:c1], model, A0[-1], b[c0:c1])
@@ -163,7 +166,7 @@ class _Factors:
         self.N, self.n = N, n
         self.rows = rows = linearize_all(p, Xs, robust, rejected)
         self.starts = np.searchsorted(rows.k, np.arange(N + 1))
-        # the rows on X_k of the motion steps, in parts of PROCESS_CHUNK steps (or one part)
+        # the rows on X_k of the motion steps, in parts of 2 PROCESS_CHUNK steps (or one part)
         # that eliminate_in_chunks(release=True) frees once their epochs are eliminated
         self.A0_parts, self.W, self.b_mot = process_blocks(p, Xs, q, model, t0_j2000_s,
                                                            chunked=chart is None)
@@ -205,7 +208,9 @@ class _Factors:
         """The motion rows on X_k of steps c0..c1-1 (within one part: a view)."""
         i = int(np.searchsorted(self.A0_starts, c0, side="right")) - 1
         s0 = self.A0_starts[i]
-        return self.A0_parts[i][c0 - s0:c1 - s0]
+        if c1 <= self.A0_starts[i + 1]:
+            return self.A0_parts[i][c0 - s0:c1 - s0]
+        return self._A0_take(np.arange(c0, c1))
 
     def _A0_take(self, km: np.ndarray) -> np.ndarray:
         """The motion rows on X_k of the steps ``km`` (increasing), a copy."""
