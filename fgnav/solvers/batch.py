@@ -292,15 +292,19 @@ def _conditionals(bn, k0: int, k1: int, N: int, R, S, d) -> None:
     n = R.shape[1]
     at = bn.at
     k2 = min(k1, N - 1)   # the last state has no parent: read on its own below
-    try:
-        Ab = np.array([at(k - k0).augmentedJacobianUnweighted() for k in range(k0, k2)])
-    except ValueError:   # pragma: no cover (matrices of different shapes)
-        Ab = None
     k0_rest = k0
-    if k2 > k0 and Ab is not None and Ab.shape == (k2 - k0, n, 2 * n + 1):
-        R[k0:k2], S[k0:k2], d[k0:k2] = Ab[:, :, :n], Ab[:, :, n:2 * n], Ab[:, :, 2 * n]
-        k0_rest = k2
-    del Ab
+    while k0_rest < k2:   # 2,048 at a time: the list of small arrays stays small (~1.5 MB)
+        kb = min(k2, k0_rest + 2048)
+        try:
+            Ab = np.array([at(k - k0).augmentedJacobianUnweighted()
+                           for k in range(k0_rest, kb)])
+        except ValueError:   # pragma: no cover (matrices of different shapes)
+            break
+        if Ab.shape != (kb - k0_rest, n, 2 * n + 1):   # pragma: no cover
+            break
+        R[k0_rest:kb], S[k0_rest:kb] = Ab[:, :, :n], Ab[:, :, n:2 * n]
+        d[k0_rest:kb] = Ab[:, :, 2 * n]
+        k0_rest = kb
     for k in range(k0_rest, k1):
         c = at(k - k0)
         R[k] = c.R()
