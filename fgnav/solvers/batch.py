@@ -173,7 +173,7 @@ class _Factors:
         if chart is not None:   # the orbit in other coordinates (--state elements)
             J = chart.jacobian(Xs)
             rows.A = chart.chain(rows.A[:, None], J[rows.k])[:, 0]
-            self.A0_parts = [chart.chain(self.A0_parts[0], J[:-1])]
+            self.A0_parts = [chart.chain(self.A0_parts, J[:-1])]   # one array (not chunked)
             self.W = chart.chain(self.W, J[1:])
             if rows.steps is not None:
                 sk, sA0, sA1, sb = rows.steps
