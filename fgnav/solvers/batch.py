@@ -454,6 +454,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             sigma = np.sqrt(np.diagonal(chain_marginals(lin.R, lin.S), axis1=1, axis2=2))
             if np.max(np.abs(dx) / sigma) < options.tol_sigma * tol_scale:
                 return lin, True
+            del sigma, dx, dx_m   # (N, n) each: not held through the next linearization
             # ... or the cost no longer moves (a formation's carrier phase: relative states
             # known to microns beside absolute ones known to kilometres, whose steps keep a
             # numerical jitter far above the microns)
