@@ -1,5 +1,3 @@
-import sys
+from fgnav.cli import run
 
-from fgnav.cli import main
-
-sys.exit(main())
+run()

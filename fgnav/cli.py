@@ -59,5 +59,39 @@ def main(argv: list[str] | None = None) -> int:
     return int(rc or 0)
 
 
+def run() -> None:
+    """The ``fgnav`` program (console script and ``python -m fgnav``): :func:`main`, then the
+    process ends at once.
+
+    A normal interpreter exit tears down every module and object one by one (numba's type
+    registries and LLVM objects, GTSAM's factors, the pass's arrays): ~0.3 s of CPU after a
+    4 h pass that the operating system would reclaim in one step. Here the output streams
+    are flushed and the ``atexit`` handlers run (a recording library's final flush, logging),
+    then ``os._exit``. With another thread still running (a worker pool shutting down), the
+    normal exit, which joins it, is kept.
+
+    The cyclic garbage collector runs after 100,000 new container objects instead of 700:
+    the imports (numba's type registries) and a pass's per-epoch objects made it collect
+    thousands of times, ~0.1 s of CPU of a 4 h pass (4 %); memory is freed by reference
+    counting as before, only reference cycles wait a little longer.
+    """
+    import gc
+
+    gc.set_threshold(100_000, 10, 10)
+    rc = main()
+    import atexit
+    import threading
+
+    if threading.active_count() > 1:
+        sys.exit(rc)
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # a closed pipe or stream: nothing more to deliver
+            pass
+    atexit._run_exitfuncs()
+    os._exit(rc)
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    run()

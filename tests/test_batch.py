@@ -166,6 +166,29 @@ def test_elimination_in_chunks_is_the_whole_chain_bit_for_bit():
             np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
 
 
+def test_elimination_releasing_motion_rows_is_the_whole_chain_bit_for_bit(monkeypatch):
+    """The motion rows formed in parts and freed as their epochs are eliminated (the memory
+    of a long pass) give the conditionals of the one-graph elimination exactly, with
+    elimination chunks that straddle the parts; every part is freed by the end."""
+    from fgnav.solvers import batch
+    from fgnav.solvers.batch import _Factors, eliminate_in_chunks
+
+    sim, p = gto(step_s=120.0, duration_h=1.0)
+    opt = SmootherOptions()
+    model = opt.motion_model()
+    t0 = float(j2000_seconds(p.epoch0))
+    Xs = sim.x_true + np.array([300.0, -200.0, 100.0, 0.1, 0.05, -0.02])
+    graph, *_ = build_linear_graph(p, Xs, opt.q_m2_s3, model, t0)
+    R, S, d = eliminate_chain(graph, p.n_epochs)
+    monkeypatch.setattr(batch, "PROCESS_CHUNK", 3)   # parts of 6 steps
+    fs = _Factors(p, Xs, opt.q_m2_s3, model, t0)
+    assert len(fs.A0_parts) == -(-(p.n_epochs - 1) // 6) > 2
+    R2, S2, d2 = eliminate_in_chunks(fs, chunk=5, release=True)
+    for a, b in ((R, R2), (S, S2), (d, d2)):
+        np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
+    assert all(part is None for part in fs.A0_parts)
+
+
 @pytest.mark.parametrize("uneven", [False, True])
 def test_motion_rows_in_chunks_are_the_whole_pass_bit_for_bit(monkeypatch, uneven):
     """The motion rows formed a few steps at a time (bounded memory on long passes) are those
