@@ -40,7 +40,7 @@ from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
-           "TABLE_STEP_S", "origin_state_bcrs", "earth_position_helio_m", "moon_position_geo_m",
+           "TABLE_STEP_S", "origin_state_bcrs", "sun_position_geo_m", "moon_position_geo_m", "earth_position_helio_m", "moon_position_geo_m",
            "moon_position_helio_m",
            "planet_state_helio", "third_body_positions_m", "third_body_table",
            "table_positions_nb", "NO_TABLE", "check_table_span"]
@@ -108,6 +108,12 @@ def origin_state_bcrs(t_j2000_s, centre: str) -> tuple[np.ndarray, np.ndarray]:
     if centre == "sun":
         p, v = p - np.asarray(pvh["p"]), v - np.asarray(pvh["v"])
     return p * AU_M, v * _AU_PER_DAY_TO_MPS
+
+
+def sun_position_geo_m(t_j2000_s) -> np.ndarray:
+    """Geocentric position of the Sun's centre, m (``erfa.epv00``: minus the heliocentric
+    Earth): scalar -> (3,), (N,) -> (N, 3)."""
+    return -earth_position_helio_m(t_j2000_s)
 
 
 def moon_position_geo_m(t_j2000_s) -> np.ndarray:

@@ -36,7 +36,7 @@ import numpy as np
 
 from factors.attitude import triad, triad_covariance
 from factors.constants import R_EARTH_M
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import moon_position_geo_m, sun_position_geo_m
 from factors.geometry import skew, so3_log, tangent_basis
 from fgnav.errors import UserError
 from fgnav.io.log_csv import log_from_arrays
@@ -101,7 +101,7 @@ def sem_epochs(t_s, t0_j2000_s, L_ws_body, L_wm_body, L_we_body, h_m, *, sigma_s
         raise UserError(f"first must be 'sun' or 'moon', got {first!r}")
     t = np.asarray(t_s, dtype=float)
     tj = t0_j2000_s + t
-    r_s, r_m = sun_position_eci_m(tj), moon_position_eci_m(tj)
+    r_s, r_m = sun_position_geo_m(tj), moon_position_geo_m(tj)
     Le = np.asarray(L_we_body, dtype=float)
     h = np.asarray(h_m, dtype=float)
     d_we = r_ref_m + h

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from factors.constants import DEG, R_EARTH_M
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import moon_position_geo_m, sun_position_geo_m
 from factors.geometry import so3_exp
 from fgnav.analysis.scheme_studies import SEM_SOURCE_FIGURES, format_sem_table, sem_study
 from fgnav.errors import UserError
@@ -31,7 +31,7 @@ def _geometry(n=1, seed=0):
     R = lvlh_R_eci_from_body(x) @ so3_exp(np.random.default_rng(seed).normal(0, 0.3, (n, 3)))
     t = np.zeros(n)
     r = x[:, :3]
-    rs, rm = sun_position_eci_m(T0_J2000 + t), moon_position_eci_m(T0_J2000 + t)
+    rs, rm = sun_position_geo_m(T0_J2000 + t), moon_position_geo_m(T0_J2000 + t)
 
     def body(d):
         return np.einsum("nji,nj->ni", R, d / np.linalg.norm(d, axis=1, keepdims=True))
@@ -113,7 +113,7 @@ def test_visibility_and_preprocessing():
     assert c["moon_direction_body"] < n                   # Earth occults the Moon
     i = sim.log.select("sun_direction_body")
     x = sim.x_true[np.searchsorted(sim.t_s, sim.log.t_s[i])]
-    rs = sun_position_eci_m(T0_J2000 + sim.log.t_s[i])
+    rs = sun_position_geo_m(T0_J2000 + sim.log.t_s[i])
     assert not np.any(occulted_by_earth(x[:, :3], rs))
     # eclipse geometry: behind the Earth from the Sun (hidden) vs beside it (seen)
     rs0 = rs[:1] * 1.0

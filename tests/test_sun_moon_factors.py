@@ -16,7 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.ephemeris import sun_position_eci_m
+from factors.planets import moon_position_geo_m, sun_position_geo_m
 from factors.direction import body_direction_residual
 from factors.geometry import so3_exp, so3_log
 from factors.testing import check_jacobians
@@ -83,8 +84,8 @@ def test_sun_and_moon_rows_carry_their_epoch_target_and_a_triad_first_guess(sem_
     assert {SUN_DIRECTION_BODY.kind, MOON_DIRECTION_BODY.kind,
             EARTH_DIRECTION_BODY.kind, ALTITUDE.kind} <= set(p.families)
     t0 = float(j2000_seconds(sim.log.epoch0))
-    for mdl, eph in ((SUN_DIRECTION_BODY, sun_position_eci_m), (MOON_DIRECTION_BODY,
-                                                                moon_position_eci_m)):
+    for mdl, eph in ((SUN_DIRECTION_BODY, sun_position_geo_m), (MOON_DIRECTION_BODY,
+                                                                moon_position_geo_m)):
         fam = p.families[mdl.kind]
         np.testing.assert_allclose(fam.values["t_j2000_s"], t0 + p.t_s[fam.k], rtol=0, atol=1e-6)
         np.testing.assert_allclose(fam.values["p_target_eci_m"], eph(t0 + p.t_s[fam.k]),

@@ -28,7 +28,7 @@ from factors.direction import (body_direction_residual, earth_direction_residual
                                make_earth_direction_factor,
                                make_star_direction_apparent_factor,
                                star_direction_apparent_residual)
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import moon_position_geo_m, sun_position_geo_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.isl import (isl_carrier_residual, isl_range_residual, make_isl_carrier_factor,
                          make_isl_range_factor)
@@ -284,14 +284,20 @@ def _body_factor(fam, j, keys, noise):
 def _body_values(ephemeris, partner=None):
     """``values(log, rows)`` of a body-frame direction kind: ``u_body`` (M, 3); the row's epoch
     ``t_j2000_s`` (M,) s after J2000 and the target's ECI position ``p_target_eci_m`` (M, 3), m,
-    from ``ephemeris(t_j2000_s)`` (``factors.ephemeris``; None: the Earth centre, the origin);
+    from ``ephemeris(t_j2000_s)`` (ERFA, ``factors.planets``; None: the Earth centre, the
+    origin);
     with ``partner`` (a kind) also ``u_partner_body`` (M, 3), that kind's body-frame direction
     at the row's epoch (NaN where the epoch has none), for the first guess of the attitude."""
     def values(log, i):
         t = np.asarray(log.t_s, dtype=float)[i]
         tj = float(j2000_seconds(log.epoch0)) + t
-        out = {"u_body": _xyz(log, i), "t_j2000_s": tj,
-               "p_target_eci_m": np.zeros((len(t), 3)) if ephemeris is None else ephemeris(tj)}
+        try:
+            p = np.zeros((len(t), 3)) if ephemeris is None else ephemeris(tj).reshape(-1, 3)
+        except ValueError as exc:   # factors.planets: ERFA's ephemerides cover 1900-2100
+            lines = np.asarray(log.line)[i]
+            raise UserError(f"{log.path}: the rows (line {int(lines[0])} ...): {exc}; expected "
+                            "epochs within 1900-2100") from exc
+        out = {"u_body": _xyz(log, i), "t_j2000_s": tj, "p_target_eci_m": p}
         if partner is not None:
             out["u_partner_body"] = np.full((len(t), 3), np.nan)
             jp = log.select(partner)
@@ -320,7 +326,7 @@ def _moon_sun_initial(fam):
     if not len(pair):
         return {}
     m_eci = fam.values["p_target_eci_m"]
-    s_eci = sun_position_eci_m(fam.values["t_j2000_s"][pair])
+    s_eci = sun_position_geo_m(fam.values["t_j2000_s"][pair])
     try:
         R = triad(fam.values["u_partner_body"][pair], fam.values["u_body"][pair], s_eci,
                   m_eci[pair])
@@ -356,10 +362,10 @@ def _body(kind, target, observes, keys, seen, ephemeris=None, into=None, partner
 EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
                              earth_centre_target, into=EARTH_DIRECTION.kind)
 SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",), sun_target,
-                           ephemeris=sun_position_eci_m)
+                           ephemeris=sun_position_geo_m)
 MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
                             ("sigma_deg", "min_sun_elongation_deg"), moon_target,
-                            ephemeris=moon_position_eci_m, partner=SUN_DIRECTION_BODY.kind,
+                            ephemeris=moon_position_geo_m, partner=SUN_DIRECTION_BODY.kind,
                             initial=_moon_sun_initial)
 
 

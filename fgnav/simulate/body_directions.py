@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.constants import DEG, R_EARTH_M
-from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import moon_position_geo_m, sun_position_geo_m
 from fgnav.simulate.noise import perturb_directions
 from fgnav.time import j2000_seconds
 
@@ -67,16 +67,17 @@ def earth_centre_target(spec, r_eci_m, t_j2000_s):
 
 
 def sun_target(spec, r_eci_m, t_j2000_s):
-    """The Sun (``factors.ephemeris``), seen unless the Earth hides it (eclipse)."""
-    p = sun_position_eci_m(t_j2000_s)
+    """The Sun (ERFA ``epv00``, ``factors.planets``), seen unless the Earth hides it
+    (eclipse)."""
+    p = sun_position_geo_m(t_j2000_s)
     return p, ~occulted_by_earth(r_eci_m, p)
 
 
 def moon_target(spec, r_eci_m, t_j2000_s):
-    """The Moon (``factors.ephemeris``), seen unless the Earth hides it or it is closer than
-    ``spec.min_sun_elongation_deg`` to the Sun (stray light)."""
-    p = moon_position_eci_m(t_j2000_s)
-    s = sun_position_eci_m(t_j2000_s)
+    """The Moon (ERFA ``moon98``, ``factors.planets``), seen unless the Earth hides it or it
+    is closer than ``spec.min_sun_elongation_deg`` to the Sun (stray light)."""
+    p = moon_position_geo_m(t_j2000_s)
+    s = sun_position_geo_m(t_j2000_s)
     d_m, d_s = p - r_eci_m, s - r_eci_m
     cos_el = np.sum(d_m * d_s, axis=1) / (np.linalg.norm(d_m, axis=1) * np.linalg.norm(d_s, axis=1))
     return p, ~occulted_by_earth(r_eci_m, p) & (cos_el < np.cos(spec.min_sun_elongation_deg * DEG))
