@@ -185,3 +185,15 @@ def test_tight_route_beats_triad_over_seeds():
            for name, v in (("triad", e_triad), ("tight", e_tight))}
     assert rms["tight"] < rms["triad"]
     assert 0.5 < rms["tight"] / float(np.sqrt(np.mean(np.square(s_tight)))) < 1.5
+
+
+def test_sun_rows_beyond_the_ephemeris_span_are_a_user_error(tmp_path):
+    """The Sun and Moon targets come from ERFA (``epv00``, ``moon98``: 1900-2100); a row
+    outside is refused naming its line, not a ValueError traceback."""
+    from fgnav.io.log_csv import read_log
+
+    path = tmp_path / "log.csv"
+    path.write_text("epoch,kind,x,y,z,sigma\n"
+                    "2150-03-06T12:00:00Z,sun_direction_body,0.6,0,0.8,3e-4\n", encoding="utf-8")
+    with pytest.raises(UserError, match=r"line 2 .*1900-2100"):
+        build_pass(read_log(path))
