@@ -5,3 +5,7 @@ class ModelDomainError(ValueError):
     """A state outside the domain of a measurement model, e.g. a position inside the limb
     sphere, where no limb is seen. Raised during linearization; solvers turn it into a
     message that the estimate left the model's domain (a first guess far off)."""
+
+
+class EphemerisSpanError(ValueError):
+    """An epoch outside the span of a planetary ephemeris (ERFA's series: 1900-2100)."""

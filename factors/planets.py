@@ -37,6 +37,7 @@ import warnings
 import numpy as np
 
 from factors.constants import AU_M, MU_EARTH_M3_S2, MU_MOON_M3_S2
+from factors.errors import EphemerisSpanError
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
@@ -87,7 +88,7 @@ def _quiet(fn, *args):
         try:
             return fn(*args)
         except erfa.ErfaWarning as exc:
-            raise ValueError(f"planetary ephemeris outside its span: {exc}") from None
+            raise EphemerisSpanError(f"planetary ephemeris outside its span: {exc}") from None
 
 
 def earth_position_helio_m(t_j2000_s) -> np.ndarray:

@@ -10,6 +10,7 @@ format's columns and value checks stay in ``fgnav.io.log_csv`` (the format's def
 
 from __future__ import annotations
 
+import contextlib
 import functools
 
 import numpy as np
@@ -38,6 +39,7 @@ from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_po
 from factors.refraction import (make_refraction_bias_factor, make_refraction_factor,
                                 refraction_residual, refraction_sigma_m)
 from factors.constants import ARCSEC
+from factors.errors import EphemerisSpanError
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
@@ -281,6 +283,17 @@ def _body_factor(fam, j, keys, noise):
                                       noise)
 
 
+@contextlib.contextmanager
+def _ephemeris_span(log, i, what):
+    """The log's rows ``i`` whose epochs an ERFA ephemeris (``factors.planets``: 1900-2100)
+    does not cover are a user error naming their first line."""
+    try:
+        yield
+    except EphemerisSpanError as exc:
+        raise UserError(f"{log.path}: the {what} (line {int(np.asarray(log.line)[i][0])} ...): "
+                        f"{exc}; expected epochs within 1900-2100") from exc
+
+
 def _body_values(ephemeris, partner=None):
     """``values(log, rows)`` of a body-frame direction kind: ``u_body`` (M, 3); the row's epoch
     ``t_j2000_s`` (M,) s after J2000 and the target's ECI position ``p_target_eci_m`` (M, 3), m,
@@ -291,12 +304,8 @@ def _body_values(ephemeris, partner=None):
     def values(log, i):
         t = np.asarray(log.t_s, dtype=float)[i]
         tj = float(j2000_seconds(log.epoch0)) + t
-        try:
+        with _ephemeris_span(log, i, "rows"):
             p = np.zeros((len(t), 3)) if ephemeris is None else ephemeris(tj).reshape(-1, 3)
-        except ValueError as exc:   # factors.planets: ERFA's ephemerides cover 1900-2100
-            lines = np.asarray(log.line)[i]
-            raise UserError(f"{log.path}: the rows (line {int(lines[0])} ...): {exc}; expected "
-                            "epochs within 1900-2100") from exc
         out = {"u_body": _xyz(log, i), "t_j2000_s": tj, "p_target_eci_m": p}
         if partner is not None:
             out["u_partner_body"] = np.full((len(t), 3), np.nan)
@@ -535,12 +544,8 @@ def _angle_values(star, limb):
     rows packed for the kernel, ``data`` (M, 4) and ``B`` (M, 5, 3)
     (``factors.celestial_angles.pack_angle_rows``)."""
     def values(log, i):
-        try:
+        with _ephemeris_span(log, i, "angle rows"):
             return rows(log, i)
-        except ValueError as exc:   # factors.planets: ERFA's ephemerides cover 1900-2100
-            lines = np.asarray(log.line)[i]
-            raise UserError(f"{log.path}: the angle rows (line {int(lines[0])} ...): {exc}; "
-                            "expected epochs within 1900-2100") from exc
 
     def rows(log, i):
         xyz = _xyz(log, i)
