@@ -190,6 +190,12 @@ def geometric_support(p: Pass) -> tuple[bool, str]:
                    f"epochs ({n3} found)")
 
 
+def _track_arc_s(r_m: float, model: MotionModel) -> float:
+    """The longest arc the tracks are fitted over, s: :data:`MAX_TRACK_ARC` of the period of
+    an orbit of radius ``r_m`` about the central body (Kepler's third law)."""
+    return MAX_TRACK_ARC * 2.0 * math.pi * math.sqrt(r_m ** 3 / model.mu)
+
+
 def _searched_roots(p: Pass, parts_by_k: dict, model: MotionModel) -> dict:
     """Roots found by search (:func:`search_starts`) where there is no closed form: at the
     middle epoch with three or more angle rows first (up to :data:`SEARCH_ATTEMPTS` epochs
@@ -211,8 +217,7 @@ def _searched_roots(p: Pass, parts_by_k: dict, model: MotionModel) -> dict:
     if not found:
         return found
     k_mid = next(iter(found))
-    r = np.median([np.linalg.norm(f.r_eci_m) for f in found[k_mid]])
-    span = MAX_TRACK_ARC * 2.0 * math.pi * math.sqrt(r ** 3 / model.mu)
+    span = _track_arc_s(np.median([np.linalg.norm(f.r_eci_m) for f in found[k_mid]]), model)
     near = ks[np.abs(p.t_s[ks] - p.t_s[k_mid]) <= 0.5 * span]
     take = near[np.unique(np.linspace(0, len(near) - 1, min(len(near), 2 * TRACK_EPOCHS))
                           .round().astype(int))]
@@ -262,8 +267,8 @@ def _track_epochs(p, roots_by_k, model) -> np.ndarray:
     in low orbits, where fixes spread over hours are several revolutions apart; a cruise's
     weeks are a small arc of its year and stay whole."""
     ks = np.array(sorted(roots_by_k))
-    r = np.median([min(np.linalg.norm(f.r_eci_m) for f in roots_by_k[int(k)]) for k in ks])
-    span = MAX_TRACK_ARC * 2.0 * math.pi * math.sqrt(r ** 3 / model.mu)
+    span = _track_arc_s(np.median([min(np.linalg.norm(f.r_eci_m) for f in roots_by_k[int(k)])
+                                   for k in ks]), model)
     t = p.t_s[ks]
     end = np.searchsorted(t, t + span, side="right")
     i0 = int(np.argmax(end - np.arange(len(t))))

@@ -35,7 +35,7 @@ import numpy as np
 from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
 from factors.constants import AU_M, DEG, R_EARTH_M
 from factors.planets import (earth_position_helio_m, moon_position_geo_m,
-                             moon_position_helio_m, origin_state_bcrs)
+                             moon_position_helio_m, origin_state_bcrs, sun_position_geo_m)
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES
 from fgnav.simulate.body_directions import occulted_by_earth
@@ -73,7 +73,7 @@ def body_position_eci_m(name: str, t_j2000_s, centre: str = "earth") -> np.ndarr
             return moon_position_helio_m(t)
         return np.zeros((len(t), 3))
     if name == "sun":
-        return -earth_position_helio_m(t)
+        return sun_position_geo_m(t)
     if name == "moon":
         return moon_position_geo_m(t)
     return np.zeros((len(t), 3))
