@@ -51,11 +51,15 @@ Jacobian with respect to ``beta`` (for the spacecraft velocity, a graph state): 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from factors.jit import njit
 
 from factors.ephemeris import sun_position_eci_m
 
-__all__ = ["SPEED_OF_LIGHT_MPS", "aberrate", "apparent_direction", "earth_velocity_bcrs_mps"]
+__all__ = ["SPEED_OF_LIGHT_MPS", "aberrate", "aberrate_row_kernel", "apparent_direction",
+           "earth_velocity_bcrs_mps"]
 
 SPEED_OF_LIGHT_MPS = 299_792_458.0
 """Speed of light in vacuum, m/s (exact, SI)."""
@@ -90,6 +94,28 @@ def aberrate(u, beta):
           + a[:, None, None] * np.eye(3))
     J = dn / d[:, None, None] - n[:, :, None] * u[:, None, :] / (d * d)[:, None, None]
     return u_app, J
+
+
+@njit(cache=True)
+def aberrate_row_kernel(u, beta, ua, Ju, Jb):
+    """:func:`aberrate` of one row, for compiled kernels: the apparent direction ``ua`` (3,)
+    of the unit ``u`` (3,) for ``beta`` (3,), ``Jb = dua/dbeta`` (3, 3) as there, and also
+    ``Ju = dua/du = (g I + beta beta^T/(1 + g))/d - ua beta^T/d`` (3, 3), ``d = 1 + u.beta``."""
+    bb = beta[0] * beta[0] + beta[1] * beta[1] + beta[2] * beta[2]
+    g = math.sqrt(1.0 - bb)
+    w = u[0] * beta[0] + u[1] * beta[1] + u[2] * beta[2]
+    a = 1.0 + w / (1.0 + g)
+    d = 1.0 + w
+    for i in range(3):
+        ua[i] = (g * u[i] + a * beta[i]) / d
+    for i in range(3):
+        ni = ua[i] * d
+        for j in range(3):
+            eye = 1.0 if i == j else 0.0
+            Ju[i, j] = (g * eye + beta[i] * beta[j] / (1.0 + g)) / d - ni * beta[j] / (d * d)
+            dg = -beta[j] / g
+            da = u[j] / (1.0 + g) + w * beta[j] / (g * (1.0 + g) ** 2)
+            Jb[i, j] = (u[i] * dg + beta[i] * da + a * eye) / d - ni * u[j] / (d * d)
 
 
 def apparent_direction(u, v_observer_bcrs_mps):

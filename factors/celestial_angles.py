@@ -75,6 +75,7 @@ import numpy as np
 from factors.interpret import run
 from factors.jit import njit
 
+from factors.aberration import SPEED_OF_LIGHT_MPS, aberrate_row_kernel
 from factors.adapters import noise_model
 from factors.errors import ModelDomainError
 
@@ -87,28 +88,6 @@ BODY_STAR = 0.0
 BODY_BODY = 1.0
 """``data[2]`` of a body-body row."""
 _MIN_SIN = 1e-12
-_C_MPS = 299_792_458.0   # factors.aberration.SPEED_OF_LIGHT_MPS (no import: a compiled constant)
-
-
-@njit(cache=True)
-def _aberrate_row(u, beta, ua, Ju, Jb):
-    """Apparent direction ``ua`` (3,) of the unit ``u`` (3,) for ``beta`` (3,)
-    (``factors.aberration.aberrate``, one row) and ``Ju = dua/du``, ``Jb = dua/dbeta`` (3, 3)."""
-    bb = beta[0] * beta[0] + beta[1] * beta[1] + beta[2] * beta[2]
-    g = math.sqrt(1.0 - bb)
-    w = u[0] * beta[0] + u[1] * beta[1] + u[2] * beta[2]
-    a = 1.0 + w / (1.0 + g)
-    d = 1.0 + w
-    for i in range(3):
-        ua[i] = (g * u[i] + a * beta[i]) / d
-    for i in range(3):
-        ni = ua[i] * d
-        for j in range(3):
-            eye = 1.0 if i == j else 0.0
-            Ju[i, j] = (g * eye + beta[i] * beta[j] / (1.0 + g)) / d - ni * beta[j] / (d * d)
-            dg = -beta[j] / g
-            da = u[j] / (1.0 + g) + w * beta[j] / (g * (1.0 + g) ** 2)
-            Jb[i, j] = (u[i] * dg + beta[i] * da + a * eye) / d - ni * u[j] / (d * d)
 
 
 @njit(cache=True)
@@ -165,11 +144,11 @@ def _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, sign, on):
     au = np.empty(3)
     Jau = np.empty((3, 3))
     Jbu = np.empty((3, 3))
-    _aberrate_row(u, beta_u, au, Jau, Jbu)
+    aberrate_row_kernel(u, beta_u, au, Jau, Jbu)
     as_ = np.empty(3)
     Jas = np.empty((3, 3))
     Jbs = np.empty((3, 3))
-    _aberrate_row(s, beta_s, as_, Jas, Jbs)
+    aberrate_row_kernel(s, beta_s, as_, Jas, Jbs)
     gu = np.empty(3)
     gs = np.empty(3)
     a = _angle_between(au, as_, gu, gs)
@@ -180,8 +159,8 @@ def _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, sign, on):
     if on:
         eye = np.eye(3)
         Hv = H[:, 3:6]
-        _add_chain(Hv, 0, gu, Jbu, eye, sign / _C_MPS)
-        _add_chain(Hv, 0, gs, Jbs, eye, sign / _C_MPS)
+        _add_chain(Hv, 0, gu, Jbu, eye, sign / SPEED_OF_LIGHT_MPS)
+        _add_chain(Hv, 0, gs, Jbs, eye, sign / SPEED_OF_LIGHT_MPS)
     return a
 
 
@@ -218,8 +197,9 @@ def celestial_angle_kernel(x, data, B, e, H):
     beta_s = np.zeros(3)
     if on:
         for i in range(3):
-            beta_u[i] = (x[3 + i] - B[1, i]) / _C_MPS
-            beta_s[i] = ((x[3 + i] + B[4, i]) if star else (x[3 + i] - B[3, i])) / _C_MPS
+            beta_u[i] = (x[3 + i] - B[1, i]) / SPEED_OF_LIGHT_MPS
+            v_rel = (x[3 + i] + B[4, i]) if star else (x[3 + i] - B[3, i])
+            beta_s[i] = v_rel / SPEED_OF_LIGHT_MPS
     a = _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, 1.0, on)
     if a < 0.0:
         return -1

@@ -183,3 +183,27 @@ def test_star_model_velocity_columns_and_switch():
     assert not np.any(H_off[..., :6])
     shift = np.linalg.norm(e_off - e, axis=1) / ARCSEC
     assert 5.0 < np.median(shift) < 30.0
+
+
+def test_the_compiled_row_kernel_is_aberrate_row_by_row():
+    """``aberrate_row_kernel`` (the angle kernels' form) gives ``aberrate``'s direction and
+    velocity Jacobian, and a direction Jacobian that central differences confirm."""
+    from factors.aberration import aberrate, aberrate_row_kernel
+
+    rng = np.random.default_rng(7)
+    u = rng.normal(size=(20, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    beta = rng.normal(size=(20, 3)) * 1e-4
+    ua_np, Jb_np = aberrate(u, beta)
+    for i in range(20):
+        ua, Ju, Jb = np.empty(3), np.empty((3, 3)), np.empty((3, 3))
+        aberrate_row_kernel(u[i], beta[i], ua, Ju, Jb)
+        np.testing.assert_allclose(ua, ua_np[i], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(Jb, Jb_np[i], rtol=1e-12, atol=1e-15)
+        h = 1e-6
+        num = np.column_stack([(aberrate((u[i] + h * e)[None], beta[i][None])[0][0]
+                                - aberrate((u[i] - h * e)[None], beta[i][None])[0][0]) / (2 * h)
+                               for e in np.eye(3)])
+        # aberrate normalizes u first: compare on the tangent plane, where a unit u moves
+        P = np.eye(3) - np.outer(u[i], u[i])
+        np.testing.assert_allclose(Ju @ P, num @ P, atol=1e-8)
