@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import sys
 
-__all__ = ["njit", "prange", "LazyKernel", "load_numba", "when_numba_loads"]
+__all__ = ["njit", "prange", "LazyKernel", "load_numba", "numba_loaded", "when_numba_loads"]
 
 prange = range
 """Placeholder for ``numba.prange`` (a parallel loop in compiled code, ``range`` in Python)."""
@@ -76,6 +76,11 @@ def when_numba_loads(callback) -> None:
         callback()
     else:
         _on_load.append(callback)
+
+
+def numba_loaded() -> bool:
+    """Whether numba is loaded for the kernels (a compiled call then costs no start-up)."""
+    return _loaded
 
 
 def load_numba() -> None:

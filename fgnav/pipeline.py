@@ -539,15 +539,18 @@ def write_residuals_csv(path: Path, residuals: dict, times: dict, chunk: int = 6
     component (``residuals``: kind -> (M, m); ``times``: kind -> (M,) s from the pass epoch),
     by kind, row and component. Streamed in chunks of rows: a 1,000,000-epoch pass would
     otherwise hold its ~2,000,000 lines as Python strings at once."""
-    with atomic_writer(path, "w") as f:
-        f.write("t_s,kind,component,whitened\n")
+    from fgnav.io.number_text import render_rows
+
+    with atomic_writer(path, "wb") as f:
+        f.write(b"t_s,kind,component,whitened\n")
         for kind, r in residuals.items():
-            line = f"{{:.6f}},{kind},{{}},{{:.6g}}\n".format
             t = np.asarray(times[kind], dtype=float)
+            middle = [f",{kind},{c}," for c in range(np.shape(r)[1])]
             for a in range(0, len(r), chunk):
                 rc = np.asarray(r[a:a + chunk], dtype=float)
                 i, j = np.nonzero(np.isfinite(rc))
-                f.write("".join(map(line, t[a + i].tolist(), j.tolist(), rc[i, j].tolist())))
+                f.write(render_rows(["", (middle, j), "\n"],
+                                    np.column_stack([t[a + i], rc[i, j]]), [("f", 6), ("g", 6)]))
 
 
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:

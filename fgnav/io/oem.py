@@ -62,6 +62,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
+from fgnav.io.number_text import render_rows
 from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
 
 __all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch", "oem_frame"]
@@ -507,23 +508,23 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
     has_cov = [] if P is None else np.flatnonzero(np.concatenate(
         [np.all(np.isfinite(_symmetric(P[i0:i0 + _CHUNK])), axis=(1, 2))
          for i0 in range(0, N, _CHUNK)]))
-    with atomic_writer(path, "w") as f:
-        f.write("".join(out))
-        # streamed in chunks (a 1,000,000-epoch solution is ~0.6 GB of text); "%" formats
-        # exactly as the f-string format spec of the same precision
-        line = "%s %.9f %.9f %.9f %.12f %.12f %.12f\n"
+    with atomic_writer(path, "wb") as f:
+        f.write("".join(out).encode("utf-8"))
+        # streamed in chunks (a 1,000,000-epoch solution is ~0.6 GB of text), each number as
+        # "%" writes it (fgnav.io.number_text)
+        state = [("f", 9)] * 3 + [("f", 12)] * 3
         for i0 in range(0, N, _CHUNK):
-            xk = (x[i0:i0 + _CHUNK] / _M_PER_KM).T.tolist()
-            f.write("".join(map(line.__mod__, zip(ep[i0:i0 + _CHUNK], *xk))))
+            f.write(render_rows([[e + " " for e in ep[i0:i0 + _CHUNK]]] + [" "] * 5 + ["\n"],
+                                x[i0:i0 + _CHUNK] / _M_PER_KM, state))
         if len(has_cov):
-            f.write("\nCOVARIANCE_START\n")
-            frame = names['REF_FRAME'].replace('%', '%%')
-            block = (f"EPOCH = %s\nCOV_REF_FRAME = {frame}\n"
-                     + "".join(" ".join(["%.16e"] * (a + 1)) + "\n" for a in range(6)))
+            f.write(b"\nCOVARIANCE_START\n")
+            head = f"\nCOV_REF_FRAME = {names['REF_FRAME']}\n"
+            seps = [" " * (b < a) or "\n" for a in range(6) for b in range(a + 1)]
             lower = np.tril_indices(6)
             for i0 in range(0, len(has_cov), _CHUNK):
                 idx = has_cov[i0:i0 + _CHUNK]
-                low = (_symmetric(P[idx]) / _M_PER_KM**2)[:, lower[0], lower[1]].tolist()
-                f.write("".join(block % (ep[i], *v) for i, v in zip(idx.tolist(), low)))
-            f.write("COVARIANCE_STOP\n")
+                low = (_symmetric(P[idx]) / _M_PER_KM**2)[:, lower[0], lower[1]]
+                f.write(render_rows([[f"EPOCH = {ep[i]}{head}" for i in idx.tolist()]] + seps,
+                                    low, [("e", 16)] * 21))
+            f.write(b"COVARIANCE_STOP\n")
 
