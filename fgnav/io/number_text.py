@@ -2,20 +2,20 @@
 
 A 1,000,000-epoch solution is 27 million numbers of text (states and covariances), and
 Python formats one in ~0.7 us: ~15 s, a sixth of the whole run. Here a compiled kernel
-writes whole lines into a byte buffer at ~30 ns a number.
+writes whole lines into a byte buffer at ~0.1 us a number.
 
-Each number is rounded correctly, as Python rounds it (the exact binary value, ties to
-even): the nearest integer to ``|x| 10**s`` comes from an error-free product. ``|x| * hi``
-is split exactly into ``p + e`` (Dekker 1971, TwoProduct), with ``10**s = hi + lo`` held to
-~2**-106 (a double-double table made from exact integers), so ``|x| 10**s`` is known to
-~1e-14 absolute. Where that cannot decide the rounding (within 1e-9 of a half: exact ties,
-once in ~1e9 otherwise) or the number is outside the range the table covers, the number is
-written by Python's ``%`` instead. So the text is always Python's; tests compare the two on
+Each number is rounded correctly (Steele & White 1990), as Python rounds it (the exact
+binary value, ties to even): the nearest integer to ``|x| 10**s`` comes from an error-free
+product. ``|x| * hi`` is split exactly into ``p + e`` (Dekker 1971, TwoProduct), with
+``10**s = hi + lo`` held to ~2**-106 (a double-double table made from exact integers), so
+``|x| 10**s`` is known to ~1e-14 absolute. Where that cannot decide the rounding (within
+1e-9 of a half: exact ties, once in ~1e9 otherwise) or the number is outside the range the
+table covers, the number is written by Python's ``%`` instead. So the text is always Python's; tests compare the two on
 millions of values, ties and edges included.
 
 Styles: ``("f", n)`` is ``"%.nf"``, ``("e", n)`` is ``"%.ne"`` and ``("g", n)`` is ``"%.ng"``.
 A row is texts and numbers in turn: ``text_0 v_0 text_1 v_1 ... v_{K-1} text_K``, every text
-a constant or one string per row (:func:`render_rows`).
+a constant, one string per row, or an index into a few strings (:func:`render_rows`).
 """
 
 from __future__ import annotations
