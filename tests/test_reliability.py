@@ -133,3 +133,33 @@ def test_single_epoch_log_is_reported_unobservable():
     assert p.n_epochs == 1
     with pytest.raises(NotObservableError, match="do not observe the orbit"):
         solve(p, "batch")
+
+
+def test_observability_head_shortcut_gives_the_whole_pass_verdict(monkeypatch):
+    """A long pass is tested on its first epochs first: a head that observes the orbit
+    answers for the whole pass (information only grows with rows); a head that does not
+    falls back to the whole pass, whose verdict then stands, in both directions."""
+    import fgnav.analysis.crb as crb
+    from factors.dynamics import MotionModel
+    from fgnav.measurements import slice_pass
+
+    scn = load_scenario("gto-transfer").with_options(step_s=60.0, duration_h=4.0)
+    sim = simulate_pass(scn, 0)
+    p = build_pass(sim.log)
+    X = sim.x_true
+    assert len(X) == p.n_epochs
+    whole = crb.check_observability(p, X, MotionModel())
+    monkeypatch.setattr(crb, "OBSERVABILITY_HEAD", 40)
+    head = crb.check_observability(slice_pass(p, 0, 40)[0], X[:40], MotionModel())
+    assert crb.check_observability(p, X, MotionModel()) == head != whole
+    # a head without measurements (the first 100 epochs' rows dropped): the whole pass decides
+    late = slice_pass(p, 0, p.n_epochs)[0]
+    for kind, f in list(late.families.items()):
+        late.families[kind] = f.subset(np.flatnonzero(f.k >= 100))
+    assert crb.check_observability(late, X, MotionModel()) > 0
+    # ... and a pass unobservable throughout still says so
+    single = slice_pass(p, 0, p.n_epochs)[0]
+    for kind, f in list(single.families.items()):
+        single.families[kind] = f.subset(np.flatnonzero(f.k == 100))
+    with pytest.raises(NotObservableError, match="do not observe the orbit"):
+        crb.check_observability(single, X, MotionModel())
