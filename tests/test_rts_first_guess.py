@@ -1,0 +1,52 @@
+"""The batch smoother's first guess: the filter's states smoothed backward (Rauch, Tung &
+Striebel 1965, fgnav.solvers.rts)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import fgnav.solvers.batch as batch
+from factors.dynamics import MotionModel
+from fgnav.measurements import build_pass
+from fgnav.pipeline import solve
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.solvers.ekf_numba import run_ekf_numba
+from fgnav.solvers.options import SmootherOptions
+from fgnav.solvers.rts import rts_smooth
+from fgnav.time import j2000_seconds
+
+
+def _pass():
+    scn = load_scenario("gto-transfer").with_options(duration_h=2.0, step_s=5.0)
+    return build_pass(simulate_pass(scn, seed=4).log)
+
+
+def test_smoothed_states_are_near_the_batch_solution_and_the_last_is_the_filters():
+    p = _pass()
+    options = SmootherOptions()
+    ekf = run_ekf_numba(p, options)
+    x_s = rts_smooth(p.t_s, ekf.x_eci, ekf.P_eci, MotionModel(), options.q_m2_s3,
+                     float(j2000_seconds(p.epoch0)))
+    sol = solve(p, "batch", options)
+    err_f = np.linalg.norm(ekf.x_eci[:, :3] - sol.x_eci[:, :3], axis=1)
+    err_s = np.linalg.norm(x_s[:, :3] - sol.x_eci[:, :3], axis=1)
+    assert np.array_equal(x_s[-1], ekf.x_eci[-1])
+    # the backward pass carries the later measurements back: the filter's early states are
+    # kilometres from the smoother's, the smoothed ones metres
+    assert np.sqrt(np.mean(err_s ** 2)) < 1e-3 * np.sqrt(np.mean(err_f ** 2))
+    assert err_s.max() < 10.0
+
+
+def test_gauss_newton_from_the_smoothed_guess_saves_an_iteration(monkeypatch):
+    p = _pass()
+    out = {}
+    for rts in (False, True):
+        monkeypatch.setattr(batch, "RTS_FIRST_GUESS", rts)
+        out[rts] = solve(p, "batch")
+    assert out[True].iterations == out[False].iterations - 1
+    assert out[True].extras["converged"] and out[False].extras["converged"]
+    # the same solution: within the convergence tolerance (1 mm), far below its sigma
+    assert np.abs(out[True].x_eci[:, :3] - out[False].x_eci[:, :3]).max() < 1e-2
+    sigma = np.sqrt(np.diagonal(out[True].P_eci, axis1=1, axis2=2))[:, :3]
+    assert sigma.min() > 1.0
