@@ -441,6 +441,8 @@ def process_case(name: str, quick: bool, repeat: int, tmp: Path, before_tree: Pa
         a, b = (tmp / f"out_{name}_{lab}_0" / "trajectory.oem" for lab in ("after", "before"))
         if a.exists() and b.exists():
             c["trajectory_identical"] = _states_identical(a, b)
+            if not c["trajectory_identical"]:
+                c["trajectory_max_difference_m_mps"] = _states_difference(a, b)
     t = PROCESS_TARGETS.get(name)
     if t and "error" not in c["after"]:
         c["targets"] = t
@@ -456,6 +458,22 @@ def _states_identical(a: Path, b: Path) -> bool:
         return [line for line in path.read_text().splitlines()
                 if not line.startswith(("CREATION_DATE", "COMMENT"))]
     return body(a) == body(b)
+
+
+def _states_difference(a: Path, b: Path) -> list | None:
+    """The largest position (m) and velocity (m/s) difference between two trajectory.oem
+    files of the same epochs (None if the epochs differ)."""
+    import numpy as np
+
+    from fgnav.io.oem import read_oem
+
+    x, y = read_oem(a), read_oem(b)
+    if not np.array_equal(x.t_s, y.t_s):
+        return None
+    d = np.abs(x.x_eci - y.x_eci)
+    return [float(d[:, :3].max()), float(d[:, 3:].max())]
+
+
 def images_case(quick: bool, tmp: Path) -> dict:
     """Wall time and size on disk of the default image pass (module doc)."""
     out_dir = tmp / "images"
