@@ -431,7 +431,7 @@ def manoeuvre_glr(m: _Mapped, n_tests: int | None = None, tested=None) -> dict |
     ``u^T M^+ u``, ``u = C^T (h_tau - J_tau J^-1 h)``, ``M = C^T (J_tau - J_tau J^-1 J_tau) C``,
     ``C = Phi(t_k, t_0)^-1 [0; I]``: chi-square with 3 degrees of freedom without a
     manoeuvre; the largest over the epochs is tested against the Bonferroni threshold
-    (over ``n_tests`` epochs: default the pass's; a segment's tests count the whole pass's).
+    (over ``n_tests`` epochs: default the pass's; a window's tests count the whole pass's).
     ``tested``: (N,) bool, the epochs whose ratio counts (default all).
     """
     from fgnav.chi2 import chi2_isf
@@ -493,21 +493,20 @@ the first (:func:`manoeuvre_glr_segmented`)."""
 
 
 def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict | None:
-    """:func:`manoeuvre_glr` over segments of the pass short enough for the mapping to their
+    """:func:`manoeuvre_glr` in windows of the pass short enough for the mapping to their
     first state to keep its digits.
 
     A symplectic ``Phi`` has condition number ``|Phi|_2^2 <= |Phi|_F^2``, and the mapped
     rows lose that factor in their weakest directions. Measured on gto-transfer at 1 Hz with
     two solutions 16 um apart: the largest ratio agreed to 1e-9 over 4 h (``|Phi|_F^2``
     2.5e9) and was 88 against 16 over 12 h (6e11), 255 against 154 over 24 h, up to 3,153
-    over 278 h (threshold ~50): noise, and false alarms. Beyond
-    :data:`MAPPING_GROWTH_MAX` the pass is cut into consecutive segments as long as the
-    start of the pass took to reach it, each mapped to its own first state; the largest
-    ratio over all of them is tested against the threshold of the whole pass's epochs.
-    Windows two spans long, a span apart, each counting the ratios of its middle span only:
-    every epoch is tested with at least half a span of rows on either side of it (the rows
-    before pin the orbit a manoeuvre would change; independent segments lose that at their
-    starts, and with it the power to see an impulse there).
+    over 278 h (threshold ~50): noise, and false alarms. Beyond :data:`MAPPING_GROWTH_MAX`
+    the test runs in windows two spans long, a span apart (a span: the time the pass's
+    start took to reach the limit), each mapped to its own first state and counting the
+    ratios of its middle span only, so that every epoch is tested with at least half a span
+    of rows on either side (the rows before pin the orbit a manoeuvre would change). The
+    largest ratio over all windows is tested against the threshold of the whole pass's
+    epochs; ``"windows"`` in the result says how many there were.
     """
     from types import SimpleNamespace
 
@@ -522,8 +521,6 @@ def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict 
     for j in range(int(np.ceil((t[-1] - t[0]) / span))):
         s0, s1 = np.searchsorted(t, t[0] + span * np.array([j - 0.5, j + 1.5]))
         mid = (t[s0:s1] >= t[0] + span * j) & (t[s0:s1] < t[0] + span * (j + 1))
-        if j == 0:
-            mid |= t[s0:s1] < t[0] + span
         if s1 - s0 < 8 or not mid.any():
             continue
         sub, rows_of = slice_pass(p, s0, s1)
@@ -539,7 +536,7 @@ def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict 
         if g is not None and (best is None or g["glr"] > best["glr"]):
             best = dict(g, epoch_index=g["epoch_index"] + int(s0))
     if best is not None:
-        best["segments"] = n_windows
+        best["windows"] = n_windows
     return best
 
 

@@ -279,7 +279,7 @@ def test_manoeuvre_test_keeps_its_digits_over_a_long_pass():
     """Over 12 h of gto-transfer the transition matrix to the first state reaches
     |Phi|_F^2 ~ 6e11, and the likelihood ratios of rows mapped to the first state were noise:
     two solutions 16 um apart gave a largest ratio of 88 and of 16 at 1 Hz. Cut into
-    segments mapped to their own first states, the test gives the same answer for a solution
+    windows mapped to their own first states, the test gives the same answer for a solution
     moved by 20 um, and no alarm on this clean pass."""
     import types
 
@@ -295,7 +295,7 @@ def test_manoeuvre_test_keeps_its_digits_over_a_long_pass():
         part = types.SimpleNamespace(x_eci=sol.x_eci + shift * np.r_[1.0, -1.0, 1.0, 0, 0, 0],
                                      variables={})
         out.append(manoeuvre_glr_segmented(p, part, model, {}, _Mapped(p, part, model)))
-    assert out[0]["segments"] >= 2
+    assert out[0]["windows"] >= 2
     assert out[0]["epoch_index"] == out[1]["epoch_index"]
     assert abs(out[0]["glr"] - out[1]["glr"]) < 1e-4 * out[0]["glr"]
     assert out[0]["glr"] < out[0]["threshold"]
@@ -307,6 +307,6 @@ def test_segmented_manoeuvre_test_still_finds_the_impulse():
     hour (the manoeuvre at 43,200 s; found at ~45,000 s)."""
     s = verdict(F.manoeuvre(2.0, duration_h=24.0, step_s=60.0))
     glr = s["integrity"]["manoeuvre_glr"]
-    assert glr["segments"] >= 3
+    assert glr["windows"] >= 3
     assert glr["glr"] > 4.0 * glr["threshold"] and s["integrity"]["status"] == "failed"
     assert abs(glr["t_s"] - 43200.0) < 3600.0
