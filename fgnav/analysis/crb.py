@@ -162,7 +162,7 @@ def check_observability(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionM
     singular. A long pass is tried on its first :data:`OBSERVABILITY_HEAD` epochs first:
     information only grows with rows, so rows that span the six directions there span them
     in the whole pass (returned: the condition number of the head's rows); only a head that
-    does not observe the orbit costs the whole pass's test (5 s of 1,000,000 epochs)."""
+    does not observe the orbit costs the whole pass's test (2.5 s of 1,000,000 epochs)."""
     if p.n_epochs > OBSERVABILITY_HEAD:
         head = slice_pass(p, 0, OBSERVABILITY_HEAD)[0]
         try:

@@ -540,8 +540,9 @@ RTS_FIRST_GUESS = True
 
 
 def _ekf_first_guess(p: Pass, options: SmootherOptions):
-    """The numba EKF's filtered states as a first guess, or None where it does not apply
-    (measurement kinds it does not model, ``init="prior"``, or a filter that fails).
+    """The numba EKF's states, smoothed backward (:mod:`fgnav.solvers.rts`), as a first
+    guess, or None where it does not apply (measurement kinds it does not model,
+    ``init="prior"``, or a filter that fails).
 
     Across a bridged gap (epochs inserted by :func:`fgnav.measurements.fill_gaps`) the numpy
     EKF gives the guess where the numba one does not apply: the prior propagated across the
