@@ -492,6 +492,23 @@ MAPPING_GROWTH_MAX = 1e10
 the first (:func:`manoeuvre_glr_segmented`)."""
 
 
+def window_span(t_s: np.ndarray, growth: np.ndarray) -> float:
+    """The span (s) of the manoeuvre test's windows: the time the pass took to reach
+    ``|Phi|_F^2 =`` :data:`MAPPING_GROWTH_MAX` (``growth`` (N,) per epoch at ``t_s`` (N,) s),
+    but at least the pass's first :data:`WINDOW_STEPS_MIN` steps. Where one step already
+    passes the limit (``Phi``'s position-velocity block is the step in seconds: a step of
+    16 h or more, as a heliocentric cruise's daily fix) the limit cannot be kept by any
+    window; a span of zero made ~1e15 windows (the verdict never returned), and a window two
+    spans long needs ~8 epochs for the test to run at all."""
+    k = int(np.argmax(growth > MAPPING_GROWTH_MAX))
+    floor = t_s[min(WINDOW_STEPS_MIN, len(t_s) - 1)] - t_s[0]
+    return float(max(t_s[max(k - 1, 0)] - t_s[0], floor, 1e-9))
+
+
+WINDOW_STEPS_MIN = 4
+"""Steps a window's span covers at least (:func:`window_span`)."""
+
+
 def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict | None:
     """:func:`manoeuvre_glr` in windows of the pass short enough for the mapping to their
     first state to keep its digits.
@@ -516,7 +533,7 @@ def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict 
     if growth.max() <= MAPPING_GROWTH_MAX:
         return manoeuvre_glr(whole)
     N, t = p.n_epochs, p.t_s
-    span = max(t[int(np.argmax(growth > MAPPING_GROWTH_MAX)) - 1] - t[0], 1e-9)
+    span = window_span(t, growth)
     best, n_windows = None, 0
     for j in range(int(np.ceil((t[-1] - t[0]) / span))):
         s0, s1 = np.searchsorted(t, t[0] + span * np.array([j - 0.5, j + 1.5]))

@@ -310,3 +310,22 @@ def test_segmented_manoeuvre_test_still_finds_the_impulse():
     assert glr["windows"] >= 3
     assert glr["glr"] > 4.0 * glr["threshold"] and s["integrity"]["status"] == "failed"
     assert abs(glr["t_s"] - 43200.0) < 3600.0
+
+
+def test_a_pass_whose_first_step_passes_the_mapping_limit_gets_its_verdict():
+    """mars-cruise with one angle set a day: one step's transition matrix already has
+    |Phi|_F^2 ~ 3 (86,400 s)^2 = 2.2e10 beyond the limit, and the windows' span was zero
+    (1e-9 s: ~2e15 windows, the verdict never came; the same log took 4.8 s before the
+    windows). The span is at least four steps, so each window holds ~8 epochs, and the clean
+    pass asks for no manoeuvre."""
+    from fgnav.integrity import MAPPING_GROWTH_MAX, WINDOW_STEPS_MIN, window_span
+
+    t = np.arange(22) * 86400.0
+    growth = 6.0 + 3.0 * t ** 2
+    assert growth[1] > MAPPING_GROWTH_MAX
+    assert window_span(t, growth) == t[WINDOW_STEPS_MIN]
+    s = verdict(F.clean("mars-cruise", step_s=86400.0))
+    glr = s["integrity"]["manoeuvre_glr"]
+    assert 1 <= glr["segments"] <= 22 // WINDOW_STEPS_MIN + 1
+    assert glr["glr"] < glr["threshold"]
+    assert not [r for r in s["integrity"]["reasons"] if "manoeuvre" in r]
