@@ -326,6 +326,6 @@ def test_a_pass_whose_first_step_passes_the_mapping_limit_gets_its_verdict():
     assert window_span(t, growth) == t[WINDOW_STEPS_MIN]
     s = verdict(F.clean("mars-cruise", step_s=86400.0))
     glr = s["integrity"]["manoeuvre_glr"]
-    assert 1 <= glr["segments"] <= 22 // WINDOW_STEPS_MIN + 1
+    assert 1 <= glr["windows"] <= 22 // WINDOW_STEPS_MIN + 1
     assert glr["glr"] < glr["threshold"]
     assert not [r for r in s["integrity"]["reasons"] if "manoeuvre" in r]
