@@ -41,8 +41,8 @@ from factors.errors import EphemerisSpanError
 from factors.jit import njit
 
 __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_J2000_S",
-           "TABLE_STEP_S", "origin_state_bcrs", "sun_position_geo_m", "moon_position_geo_m", "earth_position_helio_m", "moon_position_geo_m",
-           "moon_position_helio_m",
+           "TABLE_STEP_S", "origin_state_bcrs", "sun_position_geo_m", "moon_position_geo_m",
+           "earth_position_helio_m", "moon_position_helio_m",
            "planet_state_helio", "third_body_positions_m", "third_body_table",
            "table_positions_nb", "NO_TABLE", "check_table_span"]
 
