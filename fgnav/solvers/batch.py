@@ -19,7 +19,7 @@ requested ``q_m2_s3`` (a continuation method: Allgower & Georg 2003).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -66,6 +66,15 @@ class Linearization:
     residuals: dict
     weights: dict
     col_norm: np.ndarray | None = None  # (N,n) column norms of the whitened system
+    _marginals: np.ndarray | None = field(default=None, repr=False)
+
+    def marginals(self) -> np.ndarray:
+        """The marginal covariances (N,n,n) of every state (:func:`chain_marginals` of the
+        conditionals), formed at the first call: the convergence test by sigma and the
+        solution's covariances use the same ones."""
+        if self._marginals is None:
+            self._marginals = chain_marginals(self.R, self.S)
+        return self._marginals
 
 
 PROCESS_CHUNK = 65_536
@@ -425,7 +434,6 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     kernel = RobustKernel.create(options.robust, options.robust_k)
     iterations = 0
     chart = chart_of(options)
-    marginals = [None, None]   # (linearization, its marginals) when converge formed them
 
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
@@ -453,11 +461,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             # At a tiny process noise the solution is only determined numerically to a small
             # fraction of its sigma (steps oscillate at ~0.1 m when sigma is ~3 km): converged
             # when every update is below tol_sigma of its own marginal sigma.
-            marginals[:] = [lin, chain_marginals(lin.R, lin.S)]
-            sigma = np.sqrt(np.diagonal(marginals[1], axis1=1, axis2=2))
+            sigma = np.sqrt(np.diagonal(lin.marginals(), axis1=1, axis2=2))
             if np.max(np.abs(dx) / sigma) < options.tol_sigma * tol_scale:
                 return lin, True
-            marginals[:] = [None, None]
             del sigma, dx, dx_m   # (N, n) each: not held through the next linearization
             # ... or the cost no longer moves (a formation's carrier phase: relative states
             # known to microns beside absolute ones known to kilometres, whose steps keep a
@@ -505,8 +511,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         lin, converged = converge(q_stages[-1], None, rejected, 1.0)
         lin.weights = {k: np.where(rejected[k], 0.0, weights_robust[k]) if k in rejected else w
                        for k, w in weights_robust.items()}
-    P = marginals[1] if marginals[0] is lin else chain_marginals(lin.R, lin.S)
-    marginals = None
+    P = lin.marginals()
     if chart is not None:
         P = chart.covariance_to_cartesian(Xs, P)
     wall = time.perf_counter() - t_start
