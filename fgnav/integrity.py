@@ -262,7 +262,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         except (np.linalg.LinAlgError, ValueError):
             mapped = None
         if mapped is not None:
-            glr = manoeuvre_glr_segmented(p, sol, model, row_weights, mapped)
+            glr = manoeuvre_glr_windowed(p, sol, model, row_weights, mapped)
             third = third_body_sensitivity(mapped, sol, model)
     if glr is not None and glr["glr"] > glr["threshold"]:
         glr["t_s"] = float(p.t_s[glr["epoch_index"]])
@@ -489,7 +489,7 @@ def manoeuvre_glr(m: _Mapped, n_tests: int | None = None, tested=None) -> dict |
 
 MAPPING_GROWTH_MAX = 1e10
 """``|Phi(t_k, t_0)|_F^2`` above which the manoeuvre test maps rows to a later state than
-the first (:func:`manoeuvre_glr_segmented`)."""
+the first (:func:`manoeuvre_glr_windowed`)."""
 
 
 def window_span(t_s: np.ndarray, growth: np.ndarray) -> float:
@@ -509,7 +509,7 @@ WINDOW_STEPS_MIN = 4
 """Steps a window's span covers at least (:func:`window_span`)."""
 
 
-def manoeuvre_glr_segmented(p, sol, model, row_weights, whole: _Mapped) -> dict | None:
+def manoeuvre_glr_windowed(p, sol, model, row_weights, whole: _Mapped) -> dict | None:
     """:func:`manoeuvre_glr` in windows of the pass short enough for the mapping to their
     first state to keep its digits.
 

@@ -283,7 +283,7 @@ def test_manoeuvre_test_keeps_its_digits_over_a_long_pass():
     moved by 20 um, and no alarm on this clean pass."""
     import types
 
-    from fgnav.integrity import _Mapped, manoeuvre_glr_segmented
+    from fgnav.integrity import _Mapped, manoeuvre_glr_windowed
 
     made = F.clean(duration_h=12.0, step_s=10.0)
     options = SmootherOptions()
@@ -294,14 +294,14 @@ def test_manoeuvre_test_keeps_its_digits_over_a_long_pass():
     for shift in (0.0, 2e-5):
         part = types.SimpleNamespace(x_eci=sol.x_eci + shift * np.r_[1.0, -1.0, 1.0, 0, 0, 0],
                                      variables={})
-        out.append(manoeuvre_glr_segmented(p, part, model, {}, _Mapped(p, part, model)))
+        out.append(manoeuvre_glr_windowed(p, part, model, {}, _Mapped(p, part, model)))
     assert out[0]["windows"] >= 2
     assert out[0]["epoch_index"] == out[1]["epoch_index"]
     assert abs(out[0]["glr"] - out[1]["glr"]) < 1e-4 * out[0]["glr"]
     assert out[0]["glr"] < out[0]["threshold"]
 
 
-def test_segmented_manoeuvre_test_still_finds_the_impulse():
+def test_windowed_manoeuvre_test_still_finds_the_impulse():
     """A 2 m/s impulse half way through 24 h of directions at 60 s: the pass is cut into
     windows (|Phi|_F^2 reaches 2.4e12) and the largest ratio still points at it, within the
     hour (the manoeuvre at 43,200 s; found at ~45,000 s)."""
