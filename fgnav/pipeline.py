@@ -164,9 +164,16 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
             if sol.extras.get("converged"):
                 return sol
         x_init = start.x_init
+        spent = 0
         if x_init is None and interpret_active() and not (p.inserted is not None and p.inserted.any()):
             x_init = start.x_guess  # short pass, no bridged gap: the prior propagated, once
-        return smooth_batch(p, options, x_init=x_init, progress=progress)
+            if options.init == "auto" and options.robust is None:
+                sol, spent = _batch_direct(p, options, x_init, progress)
+                if sol is not None:
+                    return sol
+        sol = smooth_batch(p, options, x_init=x_init, progress=progress)
+        sol.iterations += spent
+        return sol
     if method == "ekf":
         # The numba kernel (same numbers as the numpy EKF to 1e-9, tests/test_ekf_numba.py;
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
@@ -176,6 +183,37 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
     return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
                               progress=progress, checkpoint=checkpoint,
                               checkpoint_every=checkpoint_every, resume=resume)
+
+
+DIRECT_ITERATIONS = 8
+"""Gauss-Newton iterations a short pass tries at its own process noise before the
+continuation (:func:`_batch_direct`)."""
+DIRECT_SHRINK = 2.0
+"""The factor each update of that try must shrink by (:func:`_batch_direct`)."""
+
+
+def _batch_direct(p: Pass, options: SmootherOptions, x_init: np.ndarray, progress):
+    """Gauss-Newton at the requested process noise straight from ``x_init`` (the prior
+    propagated), as from the filter's states on long passes: ``(solution, 0)``, or
+    ``(None, iterations spent)`` when it does not converge within
+    :data:`DIRECT_ITERATIONS`, an update is not half the one before
+    (:data:`DIRECT_SHRINK`: outside the region of fast convergence) or it leaves the
+    models' domain; the continuation then starts again from ``x_init``.
+
+    A 4 h gto-transfer pass at 60 s from its 10 km, 2 m/s prior: 3 iterations to the same
+    solution (to 3 um) as the continuation's 7. Of 32 short passes of five scenarios, with
+    priors up to 1,000 km off, the direct start converged on 28 (to the continuation's
+    solution within 1.1 mm, in 3-6 iterations against 6-10) and gave up on 4 at its second
+    update."""
+    try:
+        sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3,
+                                      max_iterations=DIRECT_ITERATIONS),
+                           x_init=x_init, progress=progress, min_shrink=DIRECT_SHRINK)
+    except (NotObservableError, ModelDomainError):
+        return None, 0
+    if sol.extras.get("converged"):
+        return sol, 0
+    return None, sol.iterations
 
 
 def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 10.0,

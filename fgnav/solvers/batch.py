@@ -415,10 +415,14 @@ def _check_rank(p: Pass, lin: Linearization, rel_tol: float = 1e-13) -> None:
 
 
 def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
-                 x_init: np.ndarray | None = None, *, progress=None) -> Solution:
+                 x_init: np.ndarray | None = None, *, progress=None,
+                 min_shrink: float | None = None) -> Solution:
     """Smooth a whole pass; states and marginal covariances at every epoch.
 
     progress : optional callable(stage_q, iteration, max_update_m) for progress display.
+    min_shrink : stop, not converged, at an update not at least this many times smaller than
+        the one before (a start outside Gauss-Newton's region of fast convergence, where
+        the steps shrink quadratically: Nocedal & Wright 2006, sec. 10.3).
     """
     t_start = time.perf_counter()
     model = options.motion_model()
@@ -438,7 +442,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
         nonlocal Xs, iterations
         lin = None
-        chi2_prev = None
+        chi2_prev = step_prev = None
         for _ in range(max_iterations):
             lin = None   # the previous linearization is not needed: free it first (memory)
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected,
@@ -458,6 +462,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                 progress(q, iterations, step_r)
             if step_r < options.tol_position_m * tol_scale and step_v < options.tol_velocity_mps * tol_scale:
                 return lin, True
+            if min_shrink is not None and step_prev is not None and step_r * min_shrink > step_prev:
+                return lin, False
+            step_prev = step_r
             # At a tiny process noise the solution is only determined numerically to a small
             # fraction of its sigma (steps oscillate at ~0.1 m when sigma is ~3 km): converged
             # when every update is below tol_sigma of its own marginal sigma.
