@@ -408,6 +408,7 @@ class _Mapped:
         self.t0_j2000_s = float(j2000_seconds(p.epoch0))
         rejected = {k: np.asarray(w) == 0 for k, w in (row_weights or {}).items()
                     if k not in PRIOR_KINDS}
+        rejected = {k: r for k, r in rejected.items() if r.any()}   # none: the bound's rows
         self.Phik, H, rows = rows_at_first_state(p, block_values(p, sol.x_eci, sol.variables),
                                                  model, rejected or None)
         live = np.any(rows.A != 0, axis=1)
@@ -456,33 +457,42 @@ def manoeuvre_glr(m: _Mapped, n_tests: int | None = None, tested=None) -> dict |
     k_sorted = m.k[order]
     stat = np.zeros(N)
     carry = np.zeros((1, 6, 6))
+    Jinv_h = Jinv @ h
     for a in range(((N - 1) // CHUNK) * CHUNK, -1, -CHUNK):
         b = min(a + CHUNK, N)
         lo, hi = np.searchsorted(k_sorted, [a, b])
         Hc = m.H[order[lo:hi]]
+        # each epoch's sum of H_j^T H_j: its rows are consecutive in k_sorted
         Jk = np.zeros((b - a, 6, 6))
-        np.add.at(Jk, k_sorted[lo:hi] - a, Hc[:, :, None] * Hc[:, None, :])
+        kc = k_sorted[lo:hi]
+        if len(kc):
+            first = np.concatenate([[0], np.flatnonzero(np.diff(kc)) + 1])
+            ks = kc[first]
+            Jk[ks - a] = np.add.reduceat(Hc[:, :, None] * Hc[:, None, :], first, axis=0)
         J_tau = np.cumsum(np.concatenate([carry, Jk[::-1]]), axis=0)[1:][::-1]
         carry = J_tau[:1].copy()
+        # the ratio at the tested epochs only (a window's middle span)
+        e = np.arange(a, b) if tested is None else a + np.flatnonzero(tested[a:b])
+        if not len(e):
+            continue
+        J_e = J_tau[e - a]
         try:
-            C = np.linalg.solve(m.Phik[a:b], np.broadcast_to(np.eye(6)[:, 3:], (b - a, 6, 3))) \
+            C = np.linalg.solve(m.Phik[e], np.broadcast_to(np.eye(6)[:, 3:], (len(e), 6, 3))) \
                 / m.s[None, :, None]
         except np.linalg.LinAlgError:
             return None
-        u = np.einsum("kij,ki->kj", C, h_tau[a:b] - J_tau @ (Jinv @ h))
-        Mt = J_tau - J_tau @ Jinv @ J_tau
-        M = np.einsum("kij,kil,klm->kjm", C, Mt, C)
+        Ct = np.swapaxes(C, 1, 2)
+        u = (Ct @ (h_tau[e] - J_e @ Jinv_h)[:, :, None])[:, :, 0]
+        M = Ct @ (J_e - J_e @ Jinv @ J_e) @ C
         # u^T M^+ u by eigen-decomposition (M is singular where no row follows the epoch),
         # over the directions where an impulse within MAX_MANOEUVRE_FRACTION of the orbital
         # speed could reach the threshold: w dv^2 is the chi-square an impulse dv buys
         w, V = np.linalg.eigh(0.5 * (M + np.swapaxes(M, 1, 2)))
         keep = (w > 1e-9 * np.maximum(w[:, -1:], 1e-300)) & \
-            (w * dv_max[a:b, None] ** 2 > threshold)
-        proj = np.einsum("kij,ki->kj", V, u)
-        stat[a:b] = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
+            (w * dv_max[e, None] ** 2 > threshold)
+        proj = (np.swapaxes(V, 1, 2) @ u[:, :, None])[:, :, 0]
+        stat[e] = np.sum(np.where(keep, proj * proj / np.where(keep, w, 1.0), 0.0), axis=1)
     stat[[0, -1]] = 0.0  # a manoeuvre before the first or after the last row is no test
-    if tested is not None:
-        stat[~tested] = 0.0
     k = int(np.argmax(stat))
     return {"glr": float(stat[k]), "threshold": threshold, "epoch_index": k}
 

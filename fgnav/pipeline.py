@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgnav.analysis.crb import check_observability, cramer_rao_bound
+from fgnav.analysis.crb import check_observability, cramer_rao_bound, mapping_shared
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
@@ -474,19 +474,20 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
          "third_body": options.third_body, "gravity": options.gravity, "source": p.source}
     if options.state != "cartesian":
         s["state"] = options.state   # the orbit's coordinates in the solver (--state)
-    s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
-    if p.inserted is not None and p.inserted.any():
-        s["inserted_epochs"] = int(p.inserted.sum())
-    if p.gap_notes:
-        s["gaps"] = gap_summary(p)
-    if p.warnings:
-        s["warnings"] = list(p.warnings)
-    for k, v in sol.extras.items():
-        if _is_plain(v):
-            s.setdefault(k, v)
-    if sol.variables:
-        s["variables"] = variable_summary(sol)
-    s["integrity"] = assess(sol, p, options.motion_model())
+    with mapping_shared():   # the bound and the integrity tests map the same rows
+        s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
+        if p.inserted is not None and p.inserted.any():
+            s["inserted_epochs"] = int(p.inserted.sum())
+        if p.gap_notes:
+            s["gaps"] = gap_summary(p)
+        if p.warnings:
+            s["warnings"] = list(p.warnings)
+        for k, v in sol.extras.items():
+            if _is_plain(v):
+                s.setdefault(k, v)
+        if sol.variables:
+            s["variables"] = variable_summary(sol)
+        s["integrity"] = assess(sol, p, options.motion_model())
     return s
 
 

@@ -37,10 +37,14 @@ def test_chunked_checks_are_bit_identical(made, monkeypatch):
         assert chunked["integrity"][key] == whole["integrity"][key]
     assert chunked == whole
     assert np.array_equal(small.P_eci, bound.P_eci)
-    assert np.array_equal(small.position_var_m2,
-                          np.trace(bound.P_eci[:, :3, :3], axis1=1, axis2=2))
-    assert crb_metrics(p, sol.x_eci, options)["crb_position_rms_m"] == \
-        math.sqrt(np.mean(np.trace(bound.P_eci[:, :3, :3], axis1=1, axis2=2)))
+    assert np.array_equal(small.position_var_m2, bound.position_var_m2)
+    assert np.array_equal(small.velocity_var_m2s2, bound.velocity_var_m2s2)
+    # the traces are formed without the (6, 6) bounds: the same to rounding
+    assert np.allclose(small.position_var_m2, np.trace(bound.P_eci[:, :3, :3], axis1=1, axis2=2),
+                       rtol=1e-13, atol=0)
+    assert math.isclose(crb_metrics(p, sol.x_eci, options)["crb_position_rms_m"],
+                        math.sqrt(np.mean(np.trace(bound.P_eci[:, :3, :3], axis1=1, axis2=2))),
+                        rel_tol=1e-13)
     # without keep_covariance the (N, 6, 6) bounds are not kept
     assert crb.cramer_rao_bound(p, sol.x_eci, options.motion_model()).P_eci is None
 
@@ -70,3 +74,49 @@ def test_stm_accumulated_in_place_is_the_cumulative_product():
     Phik[1:] = steps
     crb.accumulate_stm(Phik)
     assert np.array_equal(Phik, crb.cumulative_stm(steps))
+
+
+def test_the_bound_and_the_integrity_tests_map_the_rows_once_with_the_same_result(monkeypatch):
+    log, t, x = F.manoeuvre(5.0)
+    options = SmootherOptions()
+    p = prepare_pass(build_pass(log), options)
+    sol = solve(p, "batch", options)
+    calls = []
+    real = crb._rows_at_first_state
+    monkeypatch.setattr(crb, "_rows_at_first_state", lambda *a: calls.append(1) or real(*a))
+    shared = summarize(sol, p, options)
+    n_shared = len(calls)
+    calls.clear()
+    with monkeypatch.context() as m:   # without the hand-over: each maps its own rows
+        m.setattr(crb, "mapping_shared", lambda: __import__("contextlib").nullcontext())
+        m.setattr("fgnav.pipeline.mapping_shared", crb.mapping_shared)
+        alone = summarize(sol, p, options)
+    assert n_shared == len(calls) - 1 and len(calls) >= 2
+    assert shared == alone
+    # outside the block nothing is kept: a call maps again, for other states too
+    calls.clear()
+    crb.rows_at_first_state(p, sol.x_eci, options.motion_model())
+    with crb.mapping_shared():
+        a = crb.rows_at_first_state(p, sol.x_eci, options.motion_model())
+        b = crb.rows_at_first_state(p, sol.x_eci + 1.0, options.motion_model())
+        c = crb.rows_at_first_state(p, sol.x_eci, options.motion_model())
+    assert len(calls) == 3 and c is a and b is not a
+
+
+def test_the_manoeuvre_ratio_at_tested_epochs_is_the_whole_tests():
+    """A window computes its ratios at its tested epochs only: they equal the whole test's
+    there, and the largest moves when its epoch is left out."""
+    log, t, x = F.manoeuvre(5.0)
+    options = SmootherOptions()
+    p = prepare_pass(build_pass(log), options)
+    sol = solve(p, "batch", options)
+    m = integrity._Mapped(p, sol, options.motion_model())
+    whole = integrity.manoeuvre_glr(m)
+    k = whole["epoch_index"]
+    tested = np.zeros(p.n_epochs, bool)
+    tested[max(k - 20, 1):k + 20] = True
+    part = integrity.manoeuvre_glr(m, tested=tested)
+    assert part["epoch_index"] == k and math.isclose(part["glr"], whole["glr"], rel_tol=1e-12)
+    tested[k] = False
+    assert integrity.manoeuvre_glr(m, tested=tested)["glr"] < whole["glr"]
+    assert whole["glr"] > whole["threshold"]   # the manoeuvre is found: not a flat statistic

@@ -51,3 +51,24 @@ def test_gauss_newton_from_the_smoothed_guess_saves_an_iteration(monkeypatch):
     assert np.abs(out[True].x_eci[:, :3] - out[False].x_eci[:, :3]).max() < 1e-2
     sigma = np.sqrt(np.diagonal(out[True].P_eci, axis1=1, axis2=2))[:, :3]
     assert sigma.min() > 1.0
+
+
+def test_the_filters_sigmas_spare_the_first_updates_marginals_and_change_nothing(monkeypatch):
+    """The filter's sigmas bound the smoother's from above: the first update, far beyond
+    1e-4 of them, cannot pass the test by sigma, and its marginals are not formed."""
+    p = _pass()
+    formed = []
+    real = batch.chain_marginals
+    monkeypatch.setattr(batch, "chain_marginals", lambda *a: formed.append(1) or real(*a))
+    with_bound = solve(p, "batch")
+    n_with = len(formed)
+    formed.clear()
+    guess = batch._ekf_guess
+    monkeypatch.setattr(batch, "_ekf_guess", lambda *a: (guess(*a)[0], None))
+    without = solve(p, "batch")
+    assert n_with == len(formed) - 1
+    assert np.array_equal(with_bound.x_eci, without.x_eci)
+    assert np.array_equal(with_bound.P_eci, without.P_eci)
+    sigma_f = guess(p, SmootherOptions())[1]
+    sigma_s = np.sqrt(np.diagonal(with_bound.P_eci, axis1=1, axis2=2))
+    assert sigma_f.shape == sigma_s.shape and np.all(sigma_s <= sigma_f * (1 + 1e-3))

@@ -13,6 +13,8 @@ trajectory (the truth when known, else the estimate). The measurement-only part 
 
 from __future__ import annotations
 
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +71,22 @@ def _scaled_inverse(J: np.ndarray) -> np.ndarray:
     return np.linalg.inv(Js) * s[:, None] * s[None, :]
 
 
+_kept = threading.local()
+
+
+@contextmanager
+def mapping_shared():
+    """Within the block, the first :func:`rows_at_first_state` without rejected rows is kept
+    and handed, once, to the next call for the same pass, states and model instead of being
+    computed again (the Cramer-Rao bound and the integrity tests of one solution map the
+    same rows: 1,000,000 epochs, ~1.7 s); dropped at the end of the block."""
+    _kept.on, _kept.value = True, None
+    try:
+        yield
+    finally:
+        _kept.on, _kept.value = False, None
+
+
 def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected=None):
     """Every whitened row of the pass linearized along ``X_ref`` (N, 6), or block values
     (N, n) with the pass's further variables, and mapped to the
@@ -78,8 +96,22 @@ def rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected
     :class:`fgnav.graph.Rows` (``rejected``: kind -> (M,) bool rows given zero weight).
     A pass with graph variables beyond the orbit (a bias) is bounded with them known: their
     columns and priors are left out, so the bound is the orbit's with a perfectly known bias
-    (a lower bound of the bound with the bias estimated).
+    (a lower bound of the bound with the bias estimated). The arrays are not to be written
+    to: inside :func:`mapping_shared` a second caller may receive the same ones.
     """
+    kept = getattr(_kept, "value", None)
+    if kept is not None and rejected is None:
+        p_kept, X_kept, model_kept, result = kept
+        if p_kept is p and model_kept == model and np.array_equal(X_kept, X_ref):
+            _kept.on, _kept.value = False, None   # handed over: nothing more is kept
+            return result
+    result = _rows_at_first_state(p, X_ref, model, rejected)
+    if getattr(_kept, "on", False) and kept is None and rejected is None:
+        _kept.value = (p, X_ref, model, result)
+    return result
+
+
+def _rows_at_first_state(p: Pass, X_ref: np.ndarray, model: MotionModel, rejected=None):
     t0 = float(j2000_seconds(p.epoch0))
     if p.n_epochs > 1:
         # the step STMs written into Phik[1:] and accumulated in place: one (N,6,6) array
@@ -117,11 +149,15 @@ def cramer_rao_bound(p: Pass, X_ref: np.ndarray, model: MotionModel = MotionMode
     P = np.empty((n, 6, 6)) if keep_covariance else None
     var_r, var_v = np.empty(n), np.empty(n)
     for a in range(0, n, CHUNK):
-        Pc = np.einsum("kij,jl,kml->kim", Phik[a:a + CHUNK], C0, Phik[a:a + CHUNK])
-        var_r[a:a + CHUNK] = np.trace(Pc[:, :3, :3], axis1=1, axis2=2)
-        var_v[a:a + CHUNK] = np.trace(Pc[:, 3:, 3:], axis1=1, axis2=2)
+        Ph = Phik[a:a + CHUNK]
+        PhC = Ph @ C0
+        # the traces of the position and velocity blocks of Phi C0 Phi^T: the rows' dot
+        # products of Phi C0 with Phi, without the (6, 6) products
+        d = np.sum(PhC * Ph, axis=2)
+        var_r[a:a + CHUNK] = d[:, :3].sum(axis=1)
+        var_v[a:a + CHUNK] = d[:, 3:].sum(axis=1)
         if P is not None:
-            P[a:a + CHUNK] = Pc
+            P[a:a + CHUNK] = PhC @ np.swapaxes(Ph, 1, 2)
     del Phik
     return CrbResult(P_eci=P, position_rms_m=float(np.sqrt(var_r.mean())),
                      velocity_rms_mps=float(np.sqrt(var_v.mean())),

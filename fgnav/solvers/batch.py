@@ -439,11 +439,12 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
     iterations = 0
     chart = chart_of(options)
 
-    def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations):
+    def converge(q, stage_kernel, rejected, tol_scale, max_iterations=options.max_iterations,
+                 sigma_above=None):
         nonlocal Xs, iterations
         lin = None
         chi2_prev = step_prev = None
-        for _ in range(max_iterations):
+        for it in range(max_iterations):
             lin = None   # the previous linearization is not needed: free it first (memory)
             lin = linearize_and_eliminate(p, Xs, q, model, t0_j2000, stage_kernel, rejected,
                                           chart)
@@ -467,11 +468,18 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             step_prev = step_r
             # At a tiny process noise the solution is only determined numerically to a small
             # fraction of its sigma (steps oscillate at ~0.1 m when sigma is ~3 km): converged
-            # when every update is below tol_sigma of its own marginal sigma.
-            sigma = np.sqrt(np.diagonal(lin.marginals(), axis1=1, axis2=2))
-            if np.max(np.abs(dx) / sigma) < options.tol_sigma * tol_scale:
-                return lin, True
-            del sigma, dx, dx_m   # (N, n) each: not held through the next linearization
+            # when every update is below tol_sigma of its own marginal sigma. On the first
+            # update from the filter's states, sigma_above (N, 6) bounds the orbit's sigmas
+            # from above: an update beyond tol_sigma of twice that bound cannot pass the
+            # test, and its marginals (1,000,000 epochs: ~2 s) are not formed.
+            tol = options.tol_sigma * tol_scale
+            if not (it == 0 and sigma_above is not None and chart is None
+                    and np.max(np.abs(dx[:, :6]) / (2.0 * sigma_above)) >= tol):
+                sigma = np.sqrt(np.diagonal(lin.marginals(), axis1=1, axis2=2))
+                if np.max(np.abs(dx) / sigma) < tol:
+                    return lin, True
+                del sigma
+            del dx, dx_m   # (N, n) each: not held through the next linearization
             # ... or the cost no longer moves (a formation's carrier phase: relative states
             # known to microns beside absolute ones known to kilometres, whose steps keep a
             # numerical jitter far above the microns)
@@ -483,7 +491,9 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         return lin, False
 
     converged = False
-    x_ekf = _ekf_first_guess(p, options) if x_init is None and kernel is None else None
+    guess = _ekf_guess(p, options) if x_init is None and kernel is None else None
+    x_ekf, sigma_ekf = (None, None) if guess is None else guess
+    del guess
     if x_ekf is not None:
         # The filtered trajectory, smoothed backward, is a first guess close enough for
         # Gauss-Newton at the target process noise: 2 iterations (filtered only: 3; from the
@@ -492,7 +502,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         Xs = initial_block(p, x_ekf)[0]
         x_ekf = None   # not needed past the first guess (48 MB at 1,000,000 epochs)
         try:
-            lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15)
+            lin, converged = converge(options.q_m2_s3, None, None, 1.0, max_iterations=15,
+                                      sigma_above=sigma_ekf)
         except (NotObservableError, ModelDomainError):
             converged = False
         if converged:
@@ -554,7 +565,16 @@ RTS_FIRST_GUESS = True
 def _ekf_first_guess(p: Pass, options: SmootherOptions):
     """The numba EKF's states, smoothed backward (:mod:`fgnav.solvers.rts`), as a first
     guess, or None where it does not apply (measurement kinds it does not model,
-    ``init="prior"``, or a filter that fails).
+    ``init="prior"``, or a filter that fails). See :func:`_ekf_guess`."""
+    guess = _ekf_guess(p, options)
+    return None if guess is None else guess[0]
+
+
+def _ekf_guess(p: Pass, options: SmootherOptions):
+    """``(x (N, 6), sigma (N, 6) or None)``: :func:`_ekf_first_guess`'s states and the
+    filter's standard deviations, float32, where they bound the smoother's from above (the
+    filter has seen only the earlier measurements: Rauch, Tung & Striebel 1965) because it
+    estimates the same variables (not with the attitude known); or None.
 
     Across a bridged gap (epochs inserted by :func:`fgnav.measurements.fill_gaps`) the numpy
     EKF gives the guess where the numba one does not apply: the prior propagated across the
@@ -579,12 +599,15 @@ def _ekf_first_guess(p: Pass, options: SmootherOptions):
         del sol   # its online copies (0.3 GB at 1,000,000 epochs)
         if not np.all(np.isfinite(x)):
             return None
+        sigma = None
+        if p_orbit is p:
+            sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2)).astype(np.float32)
         if RTS_FIRST_GUESS:
             x = rts_smooth(p.t_s, x, P, options.motion_model(), options.q_m2_s3,
                            float(j2000_seconds(p.epoch0)))
     except (ValueError, ZeroDivisionError, np.linalg.LinAlgError, ModelDomainError):
         return None
-    return x
+    return None if x is None else (x, sigma)
 
 
 def _orbit_only_pass(p: Pass) -> Pass | None:
