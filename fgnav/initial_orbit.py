@@ -81,7 +81,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from factors.jit import njit
 
-from factors.dynamics import MotionModel, propagate, propagate_through
+from factors.dynamics import MotionModel, propagate, propagate_many, propagate_through
 from fgnav.errors import UserError
 from fgnav.graph import linearize_all
 from fgnav.measurements import (Family, Pass, covering_sigmas, directions_in_eci,
@@ -397,19 +397,30 @@ def _subpass(p: Pass, k_sub: np.ndarray) -> Pass:
 
 
 def _trajectory(x_ref, t_ref, t_sub, model, t0_j2000_s):
-    """States (M,6) at ``t_sub`` (sorted) and their STMs (M,6,6) with respect to x_ref."""
+    """States (M,6) at ``t_sub`` (sorted) and their STMs (M,6,6) with respect to x_ref.
+
+    The states are carried from epoch to epoch outward from ``t_ref``
+    (:func:`factors.dynamics.propagate_through`), then every step's STM is formed at once
+    (:func:`factors.dynamics.propagate_many`) and accumulated: the same steps as one
+    :func:`factors.dynamics.propagate` per epoch, but without a Python call per sub-step
+    where the kernels run as Python (a short pass's initial orbit: 289 epochs 300 s apart,
+    23 trajectories, 20 s -> 0.5 s)."""
+    t_sub = np.asarray(t_sub, dtype=float)
     M = len(t_sub)
-    X = np.empty((M, 6))
-    Phi = np.empty((M, 6, 6))
     i0 = int(np.searchsorted(t_sub, t_ref))
-    for rng in (range(i0, M), range(i0 - 1, -1, -1)):
-        x, F, tp = np.asarray(x_ref, dtype=float), np.eye(6), t_ref
-        for i in rng:
-            x, S = propagate(x, t_sub[i] - tp, model, t0_j2000_s + tp)
-            F = S @ F
-            tp = t_sub[i]
-            X[i], Phi[i] = x, F
-    return X, Phi
+    t_all = np.insert(t_sub, i0, t_ref)   # x_ref's epoch among them, at index i0
+    X_all = propagate_through(np.asarray(x_ref, dtype=float), t_all, i0, model, t0_j2000_s)
+    # steps outward: forward from i0 to the end, backward from i0 to the start
+    fwd, bwd = np.arange(i0, M), np.arange(i0, 0, -1)
+    src = np.concatenate([fwd, bwd])
+    dst = np.concatenate([fwd + 1, bwd - 1])
+    S = propagate_many(X_all[src], t_all[dst] - t_all[src], model, t0_j2000_s + t_all[src])[1]
+    F_all = np.empty((M + 1, 6, 6))
+    F_all[i0] = np.eye(6)
+    for j, (a, b) in enumerate(zip(src.tolist(), dst.tolist())):
+        F_all[b] = S[j] @ F_all[a]
+    keep = np.arange(M + 1) != i0
+    return X_all[keep], F_all[keep]
 
 
 def _linearize(sp: Pass, x_ref, t_ref, model, t0_j2000_s):

@@ -308,3 +308,32 @@ def test_two_sessions_20_days_apart_fit_one_session_and_test_the_prior_beside_it
     assert prior_consistency(p, iod, model, t0)["prior_consistent"]
     start = start_point(p, "batch", model, t0)
     assert start.info["prior_consistent"] and start.x_init is None
+
+
+@pytest.mark.parametrize("interpret", [False, True], ids=["compiled", "python"])
+def test_fit_trajectory_is_one_propagation_per_epoch(interpret):
+    """The initial orbit's fit carries its states and STMs through the subsample's epochs
+    (states chained, the steps' STMs formed at once): the numbers of one ``propagate`` per
+    epoch outward from the reference epoch, whether that epoch is on the subsample, between
+    two of its epochs, before or after it."""
+    from factors.dynamics import MotionModel, propagate
+    from factors.interpret import interpreted
+    from fgnav.initial_orbit import _trajectory
+
+    x_ref = np.array([6510501.67, -1321.0, 3719649.06, -3737.18, -1.07, 8791.3])
+    t = np.cumsum(np.random.default_rng(2).uniform(30.0, 400.0, 40))
+    model = MotionModel()
+    for t_ref in (t[20], t[20] + 17.0, t[0] - 50.0, t[-1] + 10.0):
+        X_ref, Phi_ref = np.empty((40, 6)), np.empty((40, 6, 6))
+        i0 = int(np.searchsorted(t, t_ref))
+        for order in (range(i0, 40), range(i0 - 1, -1, -1)):
+            x, F, tp = x_ref, np.eye(6), t_ref
+            for i in order:
+                x, S = propagate(x, t[i] - tp, model, 7.0e8 + tp)
+                F, tp = S @ F, t[i]
+                X_ref[i], Phi_ref[i] = x, F
+        with interpreted(interpret):
+            X, Phi = _trajectory(x_ref, t_ref, t, model, 7.0e8)
+        assert np.array_equal(X, X_ref)
+        assert np.allclose(Phi, Phi_ref, rtol=1e-12, atol=1e-12 * np.abs(Phi_ref).max())
+    assert np.abs(Phi_ref[0] - np.eye(6)).max() > 1.0   # hours of motion: not the identity
