@@ -40,6 +40,7 @@ def test_smoothed_states_are_near_the_batch_solution_and_the_last_is_the_filters
 
 def test_gauss_newton_from_the_smoothed_guess_saves_an_iteration(monkeypatch):
     p = _pass()
+    monkeypatch.setattr(batch, "ITERATED_GUESS", False)
     out = {}
     for rts in (False, True):
         monkeypatch.setattr(batch, "RTS_FIRST_GUESS", rts)
@@ -57,6 +58,7 @@ def test_the_filters_sigmas_spare_the_first_updates_marginals_and_change_nothing
     """The filter's sigmas bound the smoother's from above: the first update, far beyond
     1e-4 of them, cannot pass the test by sigma, and its marginals are not formed."""
     p = _pass()
+    monkeypatch.setattr(batch, "ITERATED_GUESS", False)   # (its first update passes the test)
     formed = []
     real = batch.chain_marginals
     monkeypatch.setattr(batch, "chain_marginals", lambda *a: formed.append(1) or real(*a))
@@ -72,3 +74,29 @@ def test_the_filters_sigmas_spare_the_first_updates_marginals_and_change_nothing
     sigma_f = guess(p, SmootherOptions())[1]
     sigma_s = np.sqrt(np.diagonal(with_bound.P_eci, axis1=1, axis2=2))
     assert sigma_f.shape == sigma_s.shape and np.all(sigma_s <= sigma_f * (1 + 1e-3))
+
+
+def test_the_iterated_guess_is_a_gauss_newton_step_and_the_batch_needs_one_elimination(monkeypatch):
+    """Filtered and smoothed once more, linearized about the smoothed states (Bell 1994), the
+    guess is where Gauss-Newton's first step would go: one elimination instead of two, the
+    same solution within the convergence test, and the iterated smoother about the
+    solution itself stays there (Gauss-Newton's fixed point)."""
+    p = _pass()
+    one = solve(p, "batch")
+    monkeypatch.setattr(batch, "ITERATED_GUESS", False)
+    two = solve(p, "batch")
+    assert one.iterations == 1 and two.iterations == 2
+    assert one.extras["converged"] and two.extras["converged"]
+    sigma = np.sqrt(np.diagonal(two.P_eci, axis1=1, axis2=2))
+    assert np.max(np.abs(one.x_eci - two.x_eci) / sigma) < 1e-4
+    scale = sigma[:, :, None] * sigma[:, None, :]
+    assert np.max(np.abs(one.P_eci - two.P_eci) / scale) < 1e-6
+    # about the solution: the linearized filter and smoother give the solution back
+    options = SmootherOptions()
+    f = run_ekf_numba(p, options, x_lin=two.x_eci)
+    x_s = rts_smooth(p.t_s, f.x_eci, f.P_eci, MotionModel(), options.q_m2_s3,
+                     float(j2000_seconds(p.epoch0)), x_lin=two.x_eci)
+    assert np.max(np.abs(x_s - two.x_eci) / sigma) < 1e-4
+    # ... while the extended filter's own states are far from it (the test is not empty)
+    plain = run_ekf_numba(p, options)
+    assert np.max(np.abs(plain.x_eci - two.x_eci) / sigma) > 0.1

@@ -167,8 +167,13 @@ def _sandwich(M, P, T, out):
 @njit(cache=True)
 def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, q,
                g_ptr, g_code, g_row0, g_nmeas, g_dim, g_prior, m_data, m_B, m_sigma, x, P, xs,
-               Ps, innov):
+               Ps, innov, x_lin):
     """Filter epochs ``k_begin <= k < k_end`` in place; returns -1, or the failing measurement.
+
+    ``x_lin`` (N, 6), or (0, 6) for the extended filter: a trajectory to linearize the motion
+    and the measurements about instead of the filter's own states (the linearized filter of
+    an iterated smoother: Bell 1994), ``f(x) ~ f(x_lin) + Phi (x - x_lin)``,
+    ``h(x) ~ h(x_lin) + H (x - x_lin)``.
 
     x (6,), P (6,6): state and covariance after epoch ``k_begin - 1`` (or the prior at 0).
     Groups of epoch k are ``g_ptr[k]:g_ptr[k+1]``; group g holds ``g_nmeas[g]`` measurements
@@ -186,13 +191,25 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
     S = np.empty((_MAX_ROWS, _MAX_ROWS))
     Kt = np.empty((_MAX_ROWS, 6))
     IKA = np.empty((6, 6))
+    lin = x_lin.shape[0] > 0
     for k in range(k_begin, k_end):
         if k > 0:
             dt = t_s[k] - t_s[k - 1]
-            propagate_nb(x, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph,
-                         t0_j2000 + t_s[k - 1], True, x1, Phi)
-            for i in range(6):
-                x[i] = x1[i]
+            if lin:   # x <- f(x_lin) + Phi (x - x_lin), Phi at x_lin
+                propagate_nb(x_lin[k - 1], dt, mu, j2, re, third, max_step, mu_sun, mu_moon,
+                             eph, t0_j2000 + t_s[k - 1], True, x1, Phi)
+                for i in range(6):
+                    s = x1[i]
+                    for j in range(6):
+                        s += Phi[i, j] * (x[j] - x_lin[k - 1, j])
+                    T[0, i] = s
+                for i in range(6):
+                    x[i] = T[0, i]
+            else:
+                propagate_nb(x, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph,
+                             t0_j2000 + t_s[k - 1], True, x1, Phi)
+                for i in range(6):
+                    x[i] = x1[i]
             # P <- Phi P Phi^T + Q
             _sandwich(Phi, P, T, P)
             qpp, qpv, qvv = process_noise_terms(dt, q)
@@ -208,7 +225,14 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
             r0 = g_row0[g]
             dim = g_dim[g]
             for jm in range(g_nmeas[g]):   # one measurement at a time, as the numpy EKF
-                m = _rows(code, x, m_data[r0 + jm], m_B[r0 + jm], m_sigma[r0 + jm], A, b, 0)
+                if lin:   # rows at x_lin, the innovation at x: b - A (x - x_lin)
+                    m = _rows(code, x_lin[k], m_data[r0 + jm], m_B[r0 + jm], m_sigma[r0 + jm],
+                              A, b, 0)
+                    for i in range(max(m, 0)):
+                        for j in range(6):
+                            b[i] -= A[i, j] * (x[j] - x_lin[k, j])
+                else:
+                    m = _rows(code, x, m_data[r0 + jm], m_B[r0 + jm], m_sigma[r0 + jm], A, b, 0)
                 if m < 0:
                     return r0 + jm
                 # AP = A P ; S = AP A^T + I
@@ -335,7 +359,8 @@ def pack_pass(p) -> Packed:
 
 # ----------------------------------------------------------------------------- driver
 
-def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False) -> Solution:
+def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
+                  x_lin: np.ndarray | None = None) -> Solution:
     """Filter the pass forward with the numba kernel; the same :class:`Solution` as
     ``fgnav.solvers.ekf.run_ekf`` (filtered states/covariances, innovations as residuals).
 
@@ -344,6 +369,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     step_latency : time every epoch separately (one kernel call per epoch from Python, so
         ``latency_s`` includes the call overhead a Python host loop would pay); otherwise
         the pass runs in one call and ``latency_s`` is the mean step time at every epoch.
+    x_lin : (N, 6) a trajectory to linearize about (the linearized filter, :func:`ekf_kernel`).
     """
     if options is None:
         options = SmootherOptions()
@@ -363,7 +389,8 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False)
     if not q > 0.0:
         raise ValueError(f"q_m2_s3 must be positive (m^2/s^3), got {q!r}")
     args = (t_s, t0_j2000, mu, j2, re, third, hmax, mus, mum, eph, q, pk.g_ptr, pk.g_code,
-            pk.g_row0, pk.g_nmeas, pk.g_dim, pk.g_prior, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov)
+            pk.g_row0, pk.g_nmeas, pk.g_dim, pk.g_prior, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov,
+            np.zeros((0, 6)) if x_lin is None else np.ascontiguousarray(x_lin[:, :6], dtype=float))
     latency = np.empty(N)
     t_load = time.perf_counter()
     ekf_kernel(0, 0, *args)   # an empty range: loads (or compiles) the kernel outside the timing

@@ -10,6 +10,10 @@ with ``f`` and ``Phi_k`` the motion model's flow and transition matrix from the 
 ``x_k`` and ``Q_k`` its process noise. It is linearized about the filtered states, so it is
 not the batch solution, but close to it: Gauss-Newton from the smoothed states takes one
 iteration fewer than from the filtered ones (their error is quadratic in the distance).
+Filtered and smoothed again with the motion and the measurements linearized about the
+smoothed states (``x_lin``), the pass is the iterated smoother, whose step is a
+Gauss-Newton step (Bell 1994): from there the batch smoother's first update already passes
+its convergence test (one elimination in GTSAM instead of two).
 Worked backward in chunks of epochs: no (N, 6, 6) array beyond the filter's own covariances.
 """
 
@@ -41,15 +45,23 @@ def _backward(x_f, f_pred, C, k0, x_s):
 
 
 def rts_smooth(t_s: np.ndarray, x_f: np.ndarray, P_f: np.ndarray, model: MotionModel,
-               q_m2_s3: float, t0_j2000_s: float) -> np.ndarray | None:
+               q_m2_s3: float, t0_j2000_s: float,
+               x_lin: np.ndarray | None = None) -> np.ndarray | None:
     """Smoothed states (N, 6) from the filtered ``x_f`` (N, 6) and ``P_f`` (N, 6, 6) at
-    ``t_s`` (s from the epoch at ``t0_j2000_s``), or None where a gain is not finite."""
+    ``t_s`` (s from the epoch at ``t0_j2000_s``), or None where a gain is not finite.
+    ``x_lin`` (N, 6): the motion linearized about it, ``f(x) ~ f(x_lin) + Phi (x - x_lin)``,
+    as the filter was (:func:`fgnav.solvers.ekf_numba.ekf_kernel`)."""
     N = len(t_s)
     x_s = np.array(x_f, dtype=float)
     dt = np.diff(np.asarray(t_s, dtype=float))
     for k1 in range(N - 1, 0, -CHUNK):   # steps k0..k1-1, the last chunk first
         k0 = max(0, k1 - CHUNK)
-        f_pred, Phi = propagate_many(x_f[k0:k1], dt[k0:k1], model, t0_j2000_s + t_s[k0:k1])
+        if x_lin is None:
+            f_pred, Phi = propagate_many(x_f[k0:k1], dt[k0:k1], model, t0_j2000_s + t_s[k0:k1])
+        else:
+            f_pred, Phi = propagate_many(x_lin[k0:k1, :6], dt[k0:k1], model,
+                                         t0_j2000_s + t_s[k0:k1])
+            f_pred += np.einsum("kij,kj->ki", Phi, x_f[k0:k1] - x_lin[k0:k1, :6])
         PPhiT = P_f[k0:k1] @ np.swapaxes(Phi, 1, 2)
         P_pred = Phi @ PPhiT + process_noise(dt[k0:k1], q_m2_s3)
         # C = P Phi^T P_pred^-1, from P_pred C^T = Phi P (P_pred and P symmetric)
