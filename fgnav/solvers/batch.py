@@ -471,7 +471,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
             # when every update is below tol_sigma of its own marginal sigma. On the first
             # update from the filter's states, sigma_above (N, 6) bounds the orbit's sigmas
             # from above: an update beyond tol_sigma of twice that bound cannot pass the
-            # test, and its marginals (1,000,000 epochs: ~2 s) are not formed.
+            # test, and its marginals (1,000,000 epochs: ~2 s) are not formed. (Not from the
+            # iterated guess, whose first update passes the test.)
             tol = options.tol_sigma * tol_scale
             if not (it == 0 and sigma_above is not None and chart is None
                     and np.max(np.abs(dx[:, :6]) / (2.0 * sigma_above)) >= tol):
@@ -604,7 +605,7 @@ def _ekf_guess(p: Pass, options: SmootherOptions):
         if not np.all(np.isfinite(x)):
             return None
         sigma = None
-        if p_orbit is p:
+        if p_orbit is p and not (ITERATED_GUESS and sol_compiled):   # (see converge)
             sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2)).astype(np.float32)
         t0_j2000 = float(j2000_seconds(p.epoch0))
         if RTS_FIRST_GUESS:
