@@ -567,8 +567,9 @@ ITERATED_GUESS = True
 
 
 def _ekf_first_guess(p: Pass, options: SmootherOptions):
-    """The numba EKF's states, smoothed backward (:mod:`fgnav.solvers.rts`), as a first
-    guess, or None where it does not apply (measurement kinds it does not model,
+    """The numba EKF's states, smoothed backward (:mod:`fgnav.solvers.rts`) and, on the
+    compiled route, filtered and smoothed once more about them (the iterated smoother), as a
+    first guess, or None where it does not apply (measurement kinds it does not model,
     ``init="prior"``, or a filter that fails). See :func:`_ekf_guess`."""
     guess = _ekf_guess(p, options)
     return None if guess is None else guess[0]
