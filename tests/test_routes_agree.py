@@ -93,9 +93,9 @@ def test_every_declared_variable_is_covered():
 
 
 def _cases():
-    for case, (_, _, kinds, _) in CASES.items():
-        for kind in kinds:
-            yield pytest.param(case, kind, id=f"{case}-{kind}")
+    """The (case, kind) parameters as a list (pytest >= 9.1 refuses a generator)."""
+    return [pytest.param(case, kind, id=f"{case}-{kind}")
+            for case, (_, _, kinds, _) in CASES.items() for kind in kinds]
 
 
 @pytest.mark.parametrize("case, kind", _cases())
