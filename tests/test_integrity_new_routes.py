@@ -40,3 +40,66 @@ def test_a_heliocentric_prior_inside_the_sun_fails_without_a_traceback(cruise_lo
         assert summary["integrity"]["status"] == "failed", summary["integrity"]
     else:
         assert rc == 2 and "line" in err, err
+
+
+def _keep_star_epochs(lines: list[str], every: int) -> list[str]:
+    """The log with star_direction_body rows kept at one epoch in ``every`` only."""
+    head = [ln for ln in lines if ln.startswith("#") or ln.startswith("epoch,")]
+    rows = [ln for ln in lines if ln not in head]
+    epochs = sorted({r.split(",", 1)[0] for r in rows})
+    keep = set(epochs[::every])
+    return head + [r for r in rows
+                   if r.split(",")[1] != "star_direction_body" or r.split(",", 1)[0] in keep]
+
+
+@pytest.fixture(scope="module")
+def raw_star_pass(tmp_path_factory):
+    """2 h of geo-limb with raw stars (every 60 s), seeds 0 and 3."""
+    out = {}
+    for seed in (0, 3):
+        d = tmp_path_factory.mktemp(f"raw{seed}")
+        assert main(["simulate", "geo-limb", "--raw-stars", "--duration-h", "2", "--seed",
+                     str(seed), "--out", str(d), "--quiet"]) == 0
+        out[seed] = d
+    return out
+
+
+@pytest.mark.parametrize("seed, every", [(0, 20), (3, 30)])
+def test_ekf_constant_rate_with_sparse_stars_is_not_called_ok(raw_star_pass, tmp_path, seed,
+                                                             every):
+    """The EKF's constant-rate attitude with stars at one epoch in 20 ended at orbit NEES 29 and
+    roll 46 sigma off with the verdict ok (the integrity issue, item 2): its innovations were
+    normalized by a covariance rebuilt with the attitude's random walk (4 deg per minute), so
+    every star looked small. The verdict now takes the filter's own normalized innovations,
+    which show the stars' misfit."""
+    d = raw_star_pass[seed]
+    log = tmp_path / "sparse.csv"
+    log.write_text("\n".join(_keep_star_epochs((d / "measurements.csv").read_text().splitlines(),
+                                               every)) + "\n")
+    args = ["--attitude", "estimate", "--attitude-motion", "constant-rate", "--third-body",
+            "--truth", str(d / "truth.oem"), "--quiet"]
+    assert main(["smooth", str(log), "--method", "ekf", "--out", str(tmp_path / "ekf"), *args]) == 0
+    ekf = json.loads((tmp_path / "ekf" / "summary.json").read_text())
+    # inconsistent against truth (NEES of 6 dof beyond its 95 % bound) exactly when not ok
+    consistent = ekf["nees_mean"] < 12.6
+    assert (ekf["integrity"]["status"] == "ok") == consistent, (ekf["nees_mean"],
+                                                              ekf["integrity"]["reasons"])
+    if not consistent:
+        assert ekf["integrity"]["families"]["star_direction_body"]["status"] != "ok"
+    # the batch on the same log is consistent and called ok
+    assert main(["smooth", str(log), "--out", str(tmp_path / "batch"), *args]) == 0
+    batch = json.loads((tmp_path / "batch" / "summary.json").read_text())
+    assert batch["integrity"]["status"] == "ok" and batch["nees_mean"] < 12.6
+
+
+def test_ekf_constant_rate_with_every_star_epoch_stays_ok(raw_star_pass, tmp_path):
+    """No false alarm from the filter's own innovations: stars at every epoch, NEES ~3, ok."""
+    d = raw_star_pass[0]
+    assert main(["smooth", str(d / "measurements.csv"), "--method", "ekf", "--out",
+                 str(tmp_path / "ekf"), "--attitude", "estimate", "--attitude-motion",
+                 "constant-rate", "--third-body", "--truth", str(d / "truth.oem"),
+                 "--quiet"]) == 0
+    s = json.loads((tmp_path / "ekf" / "summary.json").read_text())
+    assert s["integrity"]["status"] == "ok" and s["nees_mean"] < 12.6
+    star = s["integrity"]["families"]["star_direction_body"]
+    assert 0.7 < star["normalized"] < 1.4
