@@ -35,13 +35,10 @@ import math
 
 import numpy as np
 
-from factors.dynamics import accel_third_body, process_noise, propagate_many
+from factors.dynamics import accel_third_body
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import CHUNK, rows_at_first_state
-from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family
-from fgnav.models.registry import model as model_of
-from fgnav.initial_orbit import has_prior
-from fgnav.measurements import prior_covariance
+from fgnav.graph import PRIOR_KINDS, block_values
 from fgnav.time import j2000_seconds
 
 
@@ -158,7 +155,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring).
 
     ``model``: the :class:`factors.dynamics.MotionModel` of the solve (enables the
-    manoeuvre and omitted-force tests, and an EKF's normalized innovations).
+    manoeuvre and omitted-force tests; an EKF solution brings its own normalized innovations).
     ``normalized_residuals``: kind -> (M, m) residuals that are N(0, I) when the model is
     right, where they differ from ``sol.residuals``. Returns the ``"integrity"`` object of
     summary.json.
@@ -167,13 +164,12 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     notes: list[str] = []
     res = normalized_residuals
     if res is None and sol.method == "ekf":
-        # the filter's own S^-1/2 b (numpy EKF): exact, with its cross-covariances and the
-        # further variables' true process (a constant-rate attitude is no random walk)
-        res = sol.extras.get("normalized_innovations")
-        if res is not None:
-            res = {**sol.residuals, **res}
-    if res is None and sol.method == "ekf" and model is not None:
-        res = filter_normalized_innovations(p, sol, model)
+        # the filter's own normalized innovations S^-1/2 b, from the covariance it used
+        # (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.4.1-1): both EKFs return them
+        if "normalized_innovations" not in sol.extras:
+            raise ValueError("an EKF solution without its normalized innovations "
+                             "(extras['normalized_innovations'])")
+        res = {**sol.residuals, **sol.extras["normalized_innovations"]}
     if res is None:
         res = sol.residuals
     families: dict[str, dict] = {}
@@ -617,81 +613,3 @@ def third_body_sensitivity(m: _Mapped, sol, model) -> dict | None:
     return {"mean_nees": float(np.mean(nees)), "expected_z": norm, "z": z,
             "position_rms_m": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
             "max_accel_mps2": float(np.max(np.linalg.norm(a, axis=1)))}
-
-
-def filter_normalized_innovations(p, sol, model) -> dict:
-    """A filter's innovations normalized by their own covariance, ``S^-1/2 b`` with
-    ``S = A P^- A^T + I`` (whitened rows ``A``), so that they are N(0, I) when the filter is
-    consistent (Bar-Shalom, Li & Kirubarajan 2001, eq. 5.4.1-1, normalized innovation).
-
-    ``P^-_k = Phi_k P_{k-1} Phi_k^T + Q_k`` is rebuilt from the filtered covariances and the
-    measurement Jacobians are taken at the predicted states; rows sharing an epoch all use
-    the epoch's prediction (the sequential updates make the later ones smaller: the test
-    stays conservative). The innovations themselves are the filter's (``sol.residuals``).
-    Further variables (a bias, an attitude) are predicted by their random walk,
-    ``P^-_k = P_{k-1} + psd dt``, block-diagonal with the orbit (the filter's cross-covariance
-    is not kept in the solution); rows that measure them alone (attitude rows) update that
-    prediction before the later families of their epoch, as in the filter (without it the
-    attitude's random walk made every body-frame innovation look small, and a misaligned
-    attitude passed).
-    """
-    X, P = sol.x_eci, sol.P_eci
-    N = p.n_epochs
-    X_pred = X.copy()
-    P_pred = np.empty_like(P)
-    # epoch 0: the log's prior where the filter started from it, else (a start from the
-    # initial orbit) its own filtered covariance, which makes that test conservative
-    started_from_log = (sol.extras.get("initial_orbit") or {}).get("prior", "log") == "log"
-    P_pred[0] = prior_covariance(p) if started_from_log and has_prior(p) else P[0]
-    if N > 1:
-        dt = np.diff(p.t_s)
-        X1, Phi = propagate_many(X[:-1], dt, model, float(j2000_seconds(p.epoch0)) + p.t_s[:-1])
-        X_pred[1:] = X1
-        P_pred[1:] = Phi @ P[:-1] @ np.swapaxes(Phi, 1, 2) + process_noise(dt, sol.extras.get(
-            "q_m2_s3", 0.0) or 1e-30)
-    lay = p.layout
-    P_blk = np.zeros((N, lay.n, lay.n))
-    P_blk[:, :6, :6] = P_pred
-    V_pred = {}
-    for v in lay.extra:
-        if v.name not in sol.variables:
-            continue
-        vals, Pv = sol.variables[v.name]
-        sl = lay.slices[v.name]
-        V_pred[v.name] = (np.concatenate([vals[:1], vals[:-1]]), None)
-        P_blk[0, sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
-        if N > 1:
-            P_blk[1:, sl, sl] = Pv[:-1] + np.eye(v.dim) * (v.step_sigma(dt) ** 2)[:, None, None]
-    out = {}
-    order = [kind for kind in p.families if kind in sol.residuals]   # the filter's order
-    for kind in order + [kind for kind in sol.residuals if kind not in order]:
-        r = sol.residuals[kind]
-        if not enters(p, kind) or kind in PRIOR_KINDS or kind not in p.families or \
-                model_of(kind).between:
-            out[kind] = r
-            continue
-        fam = p.families[kind]
-        _, A, _, _ = linearize_family(p, kind, fam, block_values(p, X_pred, V_pred))
-        S = A @ P_blk[fam.k] @ np.swapaxes(A, 1, 2) + np.eye(A.shape[1])
-        b = np.asarray(r, dtype=float)
-        ok = np.all(np.isfinite(b), axis=1)
-        z = np.full_like(b, np.nan)
-        if ok.any():
-            L = np.linalg.cholesky(S[ok])
-            z[ok] = np.linalg.solve(L, b[ok][..., None])[..., 0]
-        out[kind] = z
-        if not model_of(kind).variables or model_of(kind).weak_orbit_dependence:
-            _update_with_rows(P_blk, fam.k[ok], A[ok])
-    return out
-
-
-def _update_with_rows(P_blk, k, A):
-    """The epochs' predicted covariances after rows that measure further variables alone
-    (attitude rows: the filter processes them before the body-frame rows of their epoch,
-    whose innovations are then those of the attitude they give, not of its random walk):
-    a Kalman update ``P - P A^T S^-1 A P`` per row, in place."""
-    for kk, a in zip(k.tolist(), A):
-        P = P_blk[kk]
-        S = a @ P @ a.T + np.eye(len(a))
-        K = np.linalg.solve(S, a @ P).T
-        P_blk[kk] = P - K @ a @ P

@@ -50,6 +50,12 @@ def _assert_same(a, b):
         # innovations are whitened (O(1)); compare absolutely at the same relative level
         assert np.nanmax(np.abs(ra - rb)) < 1e-7 * max(1.0, np.nanmax(np.abs(ra)))
     assert b.chi2 == pytest.approx(a.chi2, rel=1e-9)
+    # the normalized innovations (the verdict's input) too: L^-1 b with S = L L^T per row
+    za, zb = a.extras["normalized_innovations"], b.extras["normalized_innovations"]
+    assert set(zb) == set(b.residuals) and set(za) <= set(zb)
+    for kind in za:
+        np.testing.assert_array_equal(np.isnan(za[kind]), np.isnan(zb[kind]))
+        assert np.nanmax(np.abs(za[kind] - zb[kind])) < 1e-7 * max(1.0, np.nanmax(np.abs(za[kind])))
     assert b.method == "ekf" and b.iterations == a.iterations
     np.testing.assert_array_equal(b.t_s, a.t_s)
     np.testing.assert_array_equal(b.online_x_eci, b.x_eci)

@@ -188,16 +188,26 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
         parts = [getattr(s, name) for s in sols]
         return None if any(v is None for v in parts) else np.concatenate(parts)
 
-    residuals = {}
-    for kind, fam in p.families.items():
-        for s, r in zip(sols, rows):
-            if kind in s.residuals and kind in r:
-                res = s.residuals[kind]
-                if kind not in residuals:
-                    residuals[kind] = np.full((len(fam), res.shape[1]), np.nan)
-                keep = r[kind] >= 0
-                residuals[kind][r[kind][keep]] = res[keep]
+    def join_rows(per_arc: list[dict]) -> dict:
+        """kind -> (M_arc, m) arrays of the arcs -> kind -> (M, m) in the order of ``p``."""
+        out = {}
+        for kind, fam in p.families.items():
+            for arc, r in zip(per_arc, rows):
+                if kind in arc and kind in r:
+                    res = arc[kind]
+                    if kind not in out:
+                        out[kind] = np.full((len(fam), res.shape[1]), np.nan)
+                    keep = r[kind] >= 0
+                    out[kind][r[kind][keep]] = res[keep]
+        return out
+
+    residuals = join_rows([s.residuals for s in sols])
     extras = dict(sols[0].extras)
+    if all("normalized_innovations" in s.extras for s in sols):   # a filter's, per row
+        extras["normalized_innovations"] = join_rows(
+            [s.extras["normalized_innovations"] for s in sols])
+    else:
+        extras.pop("normalized_innovations", None)
     weights = {}  # robust weights / gate decisions of every row, in the order of p
     for s, r in zip(sols, rows):
         for kind, w in (s.extras.get("row_weights") or {}).items():

@@ -167,7 +167,7 @@ def _sandwich(M, P, T, out):
 @njit(cache=True)
 def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, q,
                g_ptr, g_code, g_row0, g_nmeas, g_dim, g_prior, m_data, m_B, m_sigma, x, P, xs,
-               Ps, innov, x_lin):
+               Ps, innov, innov_norm, x_lin):
     """Filter epochs ``k_begin <= k < k_end`` in place; returns -1, or the failing measurement.
 
     ``x_lin`` (N, 6), or (0, 6) for the extended filter: a trajectory to linearize the motion
@@ -180,7 +180,10 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
     of the model with kernel code ``g_code[g]`` (``g_dim[g]`` rows each; ``g_prior[g]``: a
     prior, skipped at epoch 0) from packed row ``g_row0[g]``; ``m_data (M,3)`` their values,
     ``m_B (M,2,3)`` tangent bases, ``m_sigma (M,)`` 1-sigma; innovations ``-b`` go to
-    ``innov (M,3)``. Writes xs[k], Ps[k].
+    ``innov (M,3)``, and, unless ``innov_norm`` is (0, 3), the normalized innovations
+    ``L^-1 b`` (``S = L L^T`` the innovation covariance of the whitened rows: N(0, I) for a
+    consistent filter; Bar-Shalom, Li & Kirubarajan 2001, eq. 5.4.1-1) to ``innov_norm (M,3)``.
+    Writes xs[k], Ps[k].
     """
     x1 = np.empty(6)
     Phi = np.empty((6, 6))
@@ -252,6 +255,12 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
                     S[i, i] += 1.0
                 if not _chol_solve_inplace(S, Kt, m, 6):
                     return r0 + jm
+                if innov_norm.shape[0] > 0:   # L z = b with S's Cholesky factor, now in S
+                    for i in range(m):
+                        s = b[i]
+                        for p in range(i):
+                            s -= S[i, p] * innov_norm[r0 + jm, p]
+                        innov_norm[r0 + jm, i] = s / S[i, i]
                 # K = Kt^T (6 x m); x += K b
                 for j in range(6):
                     s = 0.0
@@ -360,7 +369,7 @@ def pack_pass(p) -> Packed:
 # ----------------------------------------------------------------------------- driver
 
 def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
-                  x_lin: np.ndarray | None = None) -> Solution:
+                  x_lin: np.ndarray | None = None, normalized: bool | None = None) -> Solution:
     """Filter the pass forward with the numba kernel; the same :class:`Solution` as
     ``fgnav.solvers.ekf.run_ekf`` (filtered states/covariances, innovations as residuals).
 
@@ -370,6 +379,8 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
         ``latency_s`` includes the call overhead a Python host loop would pay); otherwise
         the pass runs in one call and ``latency_s`` is the mean step time at every epoch.
     x_lin : (N, 6) a trajectory to linearize about (the linearized filter, :func:`ekf_kernel`).
+    normalized : keep the normalized innovations (``extras["normalized_innovations"]``, for
+        the verdict); default: when the filter runs as a method (``x_lin`` None).
     """
     if options is None:
         options = SmootherOptions()
@@ -383,6 +394,9 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
     xs = np.empty((N, 6))
     Ps = np.empty((N, 6, 6))
     innov = np.full((len(pk.m_sigma), 3), np.nan)
+    if normalized is None:
+        normalized = x_lin is None
+    innov_norm = np.full((len(pk.m_sigma) if normalized else 0, 3), np.nan)
     mu, j2, re, third, hmax, mus, mum, eph = model.args()
     t_s = np.ascontiguousarray(p.t_s, dtype=float)
     q = float(options.q_m2_s3)
@@ -390,7 +404,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
         raise ValueError(f"q_m2_s3 must be positive (m^2/s^3), got {q!r}")
     args = (t_s, t0_j2000, mu, j2, re, third, hmax, mus, mum, eph, q, pk.g_ptr, pk.g_code,
             pk.g_row0, pk.g_nmeas, pk.g_dim, pk.g_prior, pk.m_data, pk.m_B, pk.m_sigma, x, P, xs, Ps, innov,
-            np.zeros((0, 6)) if x_lin is None else np.ascontiguousarray(x_lin[:, :6], dtype=float))
+            innov_norm, np.zeros((0, 6)) if x_lin is None else np.ascontiguousarray(x_lin[:, :6], dtype=float))
     latency = np.empty(N)
     t_load = time.perf_counter()
     ekf_kernel(0, 0, *args)   # an empty range: loads (or compiles) the kernel outside the timing
@@ -427,6 +441,13 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
         if MODELS[kind].prior and np.all(np.isnan(r)):
             continue  # only the epoch-0 prior: never an update (as in run_ekf)
         residuals[kind] = r
+    normalized_innovations = {}
+    if normalized:
+        for kind in residuals:
+            r0, order = pk.spans[kind]
+            z = np.full((len(order), MODELS[kind].dim), np.nan)
+            z[order] = innov_norm[r0:r0 + len(order), :MODELS[kind].dim]
+            normalized_innovations[kind] = z
     wall = time.perf_counter() - t_start
     return Solution(method="ekf", epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=xs, P_eci=Ps,
                     iterations=N, chi2=float(sum(np.nansum(r * r) for r in residuals.values())),
@@ -436,4 +457,6 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
                             "latency_p50_s": float(np.median(latency)),
                             "ekf_kernel": "numba", "ekf_step_mean_s": run_s / max(N, 1),
                             "ekf_kernel_load_s": load_s,
-                            "latency_is": "per step" if step_latency else "mean of the run"})
+                            "latency_is": "per step" if step_latency else "mean of the run",
+                            **({"normalized_innovations": normalized_innovations}
+                               if normalized else {})})
