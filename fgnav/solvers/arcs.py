@@ -70,7 +70,7 @@ def _filter(p: Pass, options):
     plain = dataclasses.replace(options, gate_probability=None, robust=None)
     if numba_supports(p):
         try:
-            return run_ekf_numba(p, plain)
+            return run_ekf_numba(p, plain, normalized=False)
         except ValueError:
             pass
     return run_ekf(p, plain)

@@ -595,7 +595,7 @@ def _ekf_guess(p: Pass, options: SmootherOptions):
     try:
         sol_compiled = numba_supports(p_orbit) and not interpret.active()
         if sol_compiled:  # compiled: long passes
-            sol = run_ekf_numba(p_orbit, options)
+            sol = run_ekf_numba(p_orbit, options, normalized=False)
         elif p.inserted is not None and p.inserted.any():
             sol = run_ekf(p_orbit, replace(options, gate_probability=None, robust=None))
         else:
