@@ -68,8 +68,8 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
-from fgnav.io.oem import (_check_meta_value, _epoch, _header_line, _kvn, _kvn_header, _number,
-                          _read_lines, format_ccsds_epoch)
+from fgnav.io.kvn import (check_meta_value, epoch_value, format_ccsds_epoch, header_line,
+                          kvn_header, number_value, read_kvn_lines, split_kvn)
 from fgnav.time import add_seconds, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat, quat_from_matrix
 
@@ -151,14 +151,14 @@ def write_aem(path, epoch0, t_s, R_eci_from_body, *, object_name="FGNAV", object
                         f"({', '.join(INERTIAL_FRAMES)}), found {ref_frame_a!r}")
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME_A": ref_frame_a, "REF_FRAME_B": ref_frame_b, "ORIGINATOR": originator}
-    names = {k: _check_meta_value(k, v) for k, v in names.items()}
+    names = {k: check_meta_value(k, v) for k, v in names.items()}
     if names["REF_FRAME_B"] in INERTIAL_FRAMES:
         raise UserError(f"write_aem: ref_frame_b is the body frame (e.g. SC_BODY_1), found "
                         f"{ref_frame_b!r}")
     ep = [format_ccsds_epoch(t) for t in t64]
     Q = aem_quaternions(R)
 
-    out = _kvn_header("CCSDS_AEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
+    out = kvn_header("CCSDS_AEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME_A", "REF_FRAME_B"):
         out.append(f"{k} = {names[k]}\n")
@@ -196,7 +196,7 @@ def _segment_meta(path, lineno, key, val, segment, version):
     if key == "QUATERNION_TYPE" and val not in ("FIRST", "LAST"):
         raise InputFormatError(path, lineno, key, "QUATERNION_TYPE = FIRST or LAST", val)
     if key in _EPOCH_KEYS:
-        segment[key + "_ns"] = int(_epoch(path, lineno, key, val).astype(np.int64))
+        segment[key + "_ns"] = int(epoch_value(path, lineno, key, val).astype(np.int64))
     segment[key] = val
     segment["lines"][key] = lineno
 
@@ -235,7 +235,7 @@ def _close_meta(path, lineno, segment, version, meta):
 
 def read_aem(path) -> AemData:
     """Read an AEM (KVN) file (see the module docstring for what is accepted)."""
-    lines = _read_lines(path)
+    lines = read_kvn_lines(path)
     it = iter([(n, t) for n, t in lines if t.strip()])
     meta: dict = {"comments": [], "segments": []}
     first = next(it, None)
@@ -243,7 +243,7 @@ def read_aem(path) -> AemData:
         raise InputFormatError(path, 1, "CCSDS_AEM_VERS", "an AEM starting with "
                                "'CCSDS_AEM_VERS = 2.0'", "empty file")
     n0, t0 = first
-    key, version = _kvn(path, n0, t0, "the first line is CCSDS_AEM_VERS = 2.0")
+    key, version = split_kvn(path, n0, t0, "the first line is CCSDS_AEM_VERS = 2.0")
     if key != "CCSDS_AEM_VERS":
         raise InputFormatError(path, n0, key, "CCSDS_AEM_VERS = 2.0 as the first line", t0.strip())
     if version not in _TYPES:
@@ -263,7 +263,7 @@ def read_aem(path) -> AemData:
             (segment or meta)["comments"].append(s[7:].strip())
             continue
         if state == "header":
-            if _header_line(path, lineno, s, meta, keys=_HEADER_KEYS):
+            if header_line(path, lineno, s, meta, keys=_HEADER_KEYS):
                 state = "meta"
                 segment = {"comments": [], "line": lineno, "lines": {}}
             continue
@@ -273,7 +273,7 @@ def read_aem(path) -> AemData:
                 meta["segments"].append(segment)
                 state = "before_data"
                 continue
-            key, val = _kvn(path, lineno, text, "AEM metadata")
+            key, val = split_kvn(path, lineno, text, "AEM metadata")
             _segment_meta(path, lineno, key, val, segment, version)
             continue
         if state == "before_data":
@@ -291,7 +291,7 @@ def read_aem(path) -> AemData:
                 state = "after_data"
                 continue
             quats.append(_data_line(path, lineno, s, segment))
-            t = int(_epoch(path, lineno, "EPOCH", s.split()[0]).astype(np.int64))
+            t = int(epoch_value(path, lineno, "EPOCH", s.split()[0]).astype(np.int64))
             if seg_epochs and t <= seg_epochs[-1]:
                 raise InputFormatError(path, lineno, "EPOCH", "epochs increasing within a "
                                        "segment (no repeats)", s.split()[0])
@@ -343,7 +343,7 @@ def _data_line(path, lineno, s, segment) -> np.ndarray:
                                f"{' '.join(order)}' with {n} values for ATTITUDE_TYPE = "
                                f"{segment['ATTITUDE_TYPE']}, or DATA_STOP",
                                f"{len(parts)} fields: {s[:60]!r}")
-    vals = [_number(path, lineno, order[j] if j < 4 else f"value {j + 1}", p)
+    vals = [number_value(path, lineno, order[j] if j < 4 else f"value {j + 1}", p)
             for j, p in enumerate(parts[1:])]
     q = dict(zip(order, vals[:4]))
     wxyz = np.array([q["QC"], q["Q1"], q["Q2"], q["Q3"]])

@@ -54,16 +54,17 @@ lxml and reports errors without line numbers; this small module is used instead.
 
 from __future__ import annotations
 
-import math
-import re
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
+from fgnav.io.kvn import (ccsds_epochs, check_meta_value, epoch_value, format_ccsds_epoch,
+                          header_line, kvn_header, number_value, parse_ccsds_epoch,
+                          read_kvn_lines, split_kvn)
 from fgnav.io.number_text import render_rows
-from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
+from fgnav.time import add_seconds, parse_utc, seconds_since
 
 __all__ = ["OemData", "write_oem", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch", "oem_frame"]
 
@@ -77,17 +78,12 @@ def oem_frame(centre: str) -> dict:
     the defaults, EARTH / EME2000; ``"sun"``: SUN / ICRF, the heliocentric frame of a cruise,
     whose axes fgnav takes equal to EME2000's)."""
     return {} if centre == "earth" else {"center_name": "SUN", "ref_frame": "ICRF"}
+
+
 _META_REQUIRED = ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM",
                   "START_TIME", "STOP_TIME")
 _META_OPTIONAL = ("REF_FRAME_EPOCH", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
                   "INTERPOLATION", "INTERPOLATION_DEGREE")
-_HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
-
-_EPOCH_RE = re.compile(
-    r"^(\d{4})-(?:(\d{2})-(\d{2})|(\d{3}))T(\d{2}):(\d{2}):(\d{2})(?:\.(\d+))?Z?$")
-_NUMBER_RE = re.compile(r"^[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?$")
-_KVN_RE = re.compile(r"^([A-Z][A-Z0-9_]*)\s*=\s*(.*?)\s*$")
-_EPOCH_EXPECTED = "a CCSDS epoch YYYY-MM-DDThh:mm:ss[.f] or YYYY-DDDThh:mm:ss[.f]"
 
 
 @dataclass
@@ -102,116 +98,12 @@ class OemData:
     meta: dict = field(default_factory=dict)
 
 
-def parse_ccsds_epoch(text: str) -> np.datetime64:
-    """CCSDS ASCII time (calendar or day-of-year form, optional ``Z``) -> datetime64[ns].
-
-    Fractions beyond nanoseconds are truncated. Raises ``ValueError`` if malformed.
-    """
-    m = _EPOCH_RE.match(text.strip())
-    if m is None:
-        raise ValueError(f"not a CCSDS epoch: {text!r}")
-    year, month, day, doy, hh, mm, ss, frac = m.groups()
-    if doy is not None:
-        d = int(doy)
-        try:
-            base = np.datetime64(f"{year}-01-01", "D")
-        except ValueError:
-            raise ValueError(f"not a valid date: {text!r}") from None
-        date = base + np.timedelta64(d - 1, "D")
-        if d < 1 or str(date)[:4] != year:
-            raise ValueError(f"day of year out of range: {text!r}")
-        day_text = str(date)
-    else:
-        day_text = f"{year}-{month}-{day}"
-    frac_text = f".{frac[:9]}" if frac else ""
-    try:  # leap seconds (23:59:60) included, see fgnav.time
-        return parse_utc(f"{day_text}T{hh}:{mm}:{ss}{frac_text}Z")
-    except (UtcRangeError, OverflowError):  # datetime64[ns] wraps outside 1678..2261
-        raise ValueError(f"epoch out of range (years 1678..2261): {text!r}") from None
-
-
-def format_ccsds_epoch(t64) -> str:
-    """datetime64 -> ``YYYY-MM-DDThh:mm:ss.ffffff`` (UTC, microseconds; ns when needed)."""
-    t = np.datetime64(t64, "ns")
-    return format_utc(t, "us" if int(t.astype(np.int64)) % 1000 == 0 else "ns")[:-1]
-
-
-def _read_lines(path) -> list[tuple[int, str]]:
-    """(line number, text without line end) of every line; UTF-8 (ASCII in practice)."""
-    try:
-        with open(path, "rb") as f:
-            data = f.read()
-    except OSError as exc:
-        raise UserError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    if data.startswith(b"\xef\xbb\xbf"):
-        data = data[3:]
-    out = []
-    for i, raw in enumerate(data.split(b"\n")):
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise InputFormatError(path, i + 1, None, "ASCII/UTF-8 text",
-                                   f"byte 0x{raw[exc.start]:02x}") from None
-        out.append((i + 1, text.rstrip("\r")))
-    return out
-
-
-def _kvn(path, lineno, text, context):
-    """Split ``KEY = value``; raise naming the line if it is not one."""
-    m = _KVN_RE.match(text.strip())
-    if m is None:
-        raise InputFormatError(path, lineno, None, f"a 'KEYWORD = value' line ({context})",
-                               text.strip())
-    return m.group(1), m.group(2)
-
-
-def _epoch(path, lineno, column, text):
-    try:
-        return parse_ccsds_epoch(text)
-    except ValueError:
-        raise InputFormatError(path, lineno, column, _EPOCH_EXPECTED, text) from None
-
-
-def _number(path, lineno, column, text, scale=1.0):
-    """Parse a decimal number and multiply by ``scale`` (unit conversion); finite or raise."""
-    if not _NUMBER_RE.match(text):
-        raise InputFormatError(path, lineno, column, "a decimal number", text)
-    x = float(text) * scale  # Python floats: overflow gives inf, no warning
-    if not math.isfinite(x):
-        raise InputFormatError(path, lineno, column, "a finite number (in range for SI units)",
-                               text)
-    return x
-
-
 _STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
-
-
-def _header_line(path, lineno, s, meta, keys=_HEADER_KEYS) -> bool:
-    """One line of a CCSDS KVN message header (OEM, TDM, AEM) before the first META_START.
-
-    Stores the header keywords ``keys`` (CREATION_DATE / ORIGINATOR / MESSAGE_ID, and for an
-    AEM also CLASSIFICATION) in ``meta`` (CREATION_DATE checked as an epoch); at META_START
-    checks that the required keywords came first and returns True.
-    """
-    if s == "META_START":
-        for k in ("CREATION_DATE", "ORIGINATOR"):
-            if k not in meta:
-                raise InputFormatError(path, lineno, k, f"header keyword {k} before "
-                                       "META_START", "META_START")
-        return True
-    m = _KVN_RE.match(s)
-    if m is None or m.group(1) not in keys:
-        raise InputFormatError(path, lineno, m.group(1) if m else None,
-                               f"a header keyword ({', '.join(keys)}, COMMENT) or META_START", s)
-    if m.group(1) == "CREATION_DATE":
-        _epoch(path, lineno, "CREATION_DATE", m.group(2))
-    meta[m.group(1)] = m.group(2)
-    return False
 
 
 def read_oem(path) -> OemData:
     """Read an OEM (KVN) file into SI arrays (see the module docstring for what is accepted)."""
-    lines = _read_lines(path)
+    lines = read_kvn_lines(path)
     it = iter([(n, t) for n, t in lines if t.strip()])
     meta: dict = {"comments": [], "segments": []}
 
@@ -221,7 +113,7 @@ def read_oem(path) -> OemData:
         raise InputFormatError(path, 1, "CCSDS_OEM_VERS", "an OEM starting with "
                                "'CCSDS_OEM_VERS = 2.0'", "empty file")
     n0, t0 = first
-    key, val = _kvn(path, n0, t0, "the first line is CCSDS_OEM_VERS = 2.0")
+    key, val = split_kvn(path, n0, t0, "the first line is CCSDS_OEM_VERS = 2.0")
     if key != "CCSDS_OEM_VERS":
         raise InputFormatError(path, n0, key, "CCSDS_OEM_VERS = 2.0 as the first line", t0.strip())
     if val not in ("1.0", "2.0", "3.0"):
@@ -264,7 +156,7 @@ def read_oem(path) -> OemData:
                 (segment or meta).setdefault("comments", []).append(s[7:].strip())
                 continue
         if state == "header":
-            if _header_line(path, lineno, s, meta):
+            if header_line(path, lineno, s, meta):
                 state = "meta"
                 segment = {"comments": [], "line": lineno}
             continue
@@ -278,7 +170,7 @@ def read_oem(path) -> OemData:
                 seg_epochs = []
                 meta["segments"].append(segment)
                 continue
-            key, val = _kvn(path, lineno, text, "OEM metadata")
+            key, val = split_kvn(path, lineno, text, "OEM metadata")
             if key not in _META_REQUIRED + _META_OPTIONAL:
                 raise InputFormatError(path, lineno, key, "an OEM metadata keyword "
                                        f"({', '.join(_META_REQUIRED + _META_OPTIONAL)})", s)
@@ -297,7 +189,7 @@ def read_oem(path) -> OemData:
                                        val)
             if key in ("START_TIME", "STOP_TIME", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
                        "REF_FRAME_EPOCH"):
-                segment[key + "_ns"] = int(_epoch(path, lineno, key, val).astype(np.int64))
+                segment[key + "_ns"] = int(epoch_value(path, lineno, key, val).astype(np.int64))
             segment[key] = val
             continue
         if s == "META_START" and state in ("data", "cov_done"):
@@ -318,8 +210,8 @@ def read_oem(path) -> OemData:
                                        "Y_DOT Z_DOT' (7 fields, or 10 with accelerations), "
                                        "META_START or COVARIANCE_START",
                                        f"{len(parts)} fields: {s[:60]!r}")
-            t = int(_epoch(path, lineno, "epoch", parts[0]).astype(np.int64))
-            vals = [_number(path, lineno, _STATE_COLS[j], p, _M_PER_KM)
+            t = int(epoch_value(path, lineno, "epoch", parts[0]).astype(np.int64))
+            vals = [number_value(path, lineno, _STATE_COLS[j], p, _M_PER_KM)
                     for j, p in enumerate(parts[1:])]
             if seg_epochs and t <= seg_epochs[-1]:
                 raise InputFormatError(path, lineno, "epoch", "epochs increasing within a "
@@ -339,10 +231,10 @@ def read_oem(path) -> OemData:
                 state = "cov_done"
                 continue
             if "=" in s:
-                key, val = _kvn(path, lineno, text, "OEM covariance section")
+                key, val = split_kvn(path, lineno, text, "OEM covariance section")
                 if key == "EPOCH":
                     finish_cov_block(lineno)
-                    cov_epoch = int(_epoch(path, lineno, key, val).astype(np.int64))
+                    cov_epoch = int(epoch_value(path, lineno, key, val).astype(np.int64))
                     cov_line = lineno
                     cov_vals = []
                     continue
@@ -372,7 +264,7 @@ def read_oem(path) -> OemData:
                                        if k < 6 else "EPOCH or COVARIANCE_STOP after 6 rows",
                                        f"{len(parts)} values")
             for j, p in enumerate(parts):
-                cov_vals.append(_number(path, lineno, f"covariance row {k + 1}, value {j + 1}", p,
+                cov_vals.append(number_value(path, lineno, f"covariance row {k + 1}, value {j + 1}", p,
                                         _M_PER_KM**2))
             continue
         if state == "cov_done":
@@ -419,43 +311,8 @@ def read_oem(path) -> OemData:
     return OemData(epoch0=epoch0, t_s=t_s, x_eci=X, P_eci=P, meta=meta)
 
 
-def _check_meta_value(name, value):
-    value = str(value)
-    if not value.strip() or any(c in value for c in "\r\n="):
-        raise UserError(f"write_oem: {name} must be a non-empty single-line value without "
-                        f"'=', found {value!r}")
-    return value.strip()
-
-
-def _kvn_header(version_line, comments, creation_date, originator) -> list[str]:
-    """The header of a CCSDS KVN message (OEM, AEM) as lines: the version, one ``COMMENT``
-    line per comment line, ``CREATION_DATE`` (``None``: now) and ``ORIGINATOR``, a blank line."""
-    if creation_date is None:
-        creation_date = np.datetime64("now", "us")
-    out = [version_line + "\n"]
-    for c in comments:
-        for part in str(c).splitlines() or [""]:
-            out.append(f"COMMENT {part}\n")
-    out.append(f"CREATION_DATE = {format_ccsds_epoch(creation_date)}\n")
-    out.append(f"ORIGINATOR = {originator}\n\n")
-    return out
-
-
 _CHUNK = 20000
 """Epochs formatted and written at a time by :func:`write_oem` (bounded memory)."""
-
-
-def _ccsds_epochs(t64) -> list[str]:
-    """:func:`format_ccsds_epoch` of every epoch of a datetime64 array, vectorized."""
-    ns = np.asarray(t64).astype("datetime64[ns]").astype(np.int64)
-    us = ns % 1000 == 0
-    out = [""] * len(ns)
-    for sel, unit in ((us, "us"), (~us, "ns")):
-        idx = np.flatnonzero(sel)
-        if len(idx):
-            for i, t in zip(idx.tolist(), format_utc(ns[idx].astype("datetime64[ns]"), unit)):
-                out[i] = t[:-1]
-    return out
 
 
 def _symmetric(P: np.ndarray) -> np.ndarray:
@@ -495,10 +352,10 @@ def write_oem(path, epoch0, t_s, x_eci, P_eci=None, *, object_name="FGNAV",
         raise UserError(f"write_oem: only TIME_SYSTEM = UTC is supported, found {time_system!r}")
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME": ref_frame, "TIME_SYSTEM": time_system, "ORIGINATOR": originator}
-    names = {k: _check_meta_value(k, v) for k, v in names.items()}
-    ep = _ccsds_epochs(t64)
+    names = {k: check_meta_value(k, v) for k, v in names.items()}
+    ep = ccsds_epochs(t64)
 
-    out = _kvn_header("CCSDS_OEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
+    out = kvn_header("CCSDS_OEM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
     out.append("META_START\n")
     for k in ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME", "TIME_SYSTEM"):
         out.append(f"{k} = {names[k]}\n")

@@ -46,7 +46,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE, _sort_rows
-from fgnav.io.oem import _KVN_RE, _epoch, _header_line, _number, _read_lines
+from fgnav.io.kvn import KVN_RE, epoch_value, header_line, number_value, read_kvn_lines
 from fgnav.models.registry import EARTH_DIRECTION
 from fgnav.time import seconds_since
 
@@ -61,7 +61,7 @@ def _sigma_from_comment(path, lineno, comment):
     if m is None:
         return None
     try:
-        s = _number(path, lineno, "sigma_deg", m.group(1))
+        s = number_value(path, lineno, "sigma_deg", m.group(1))
     except InputFormatError:
         raise InputFormatError(path, lineno, "sigma_deg", "COMMENT sigma_deg=<1-sigma in deg, "
                                "a number > 0>", m.group(1)) from None
@@ -84,12 +84,12 @@ def read_tdm(path, sigma_rad: float | None = None):
         if not (math.isfinite(sigma_rad) and sigma_rad > 0.0):
             raise UserError(f"read_tdm: sigma_rad must be a finite number > 0, found {sigma_rad}")
 
-    lines = [(n, t.strip()) for n, t in _read_lines(path) if t.strip()]
+    lines = [(n, t.strip()) for n, t in read_kvn_lines(path) if t.strip()]
     if not lines:
         raise InputFormatError(path, 1, "CCSDS_TDM_VERS", "a TDM starting with "
                                "'CCSDS_TDM_VERS = 2.0'", "empty file")
     n0, t0 = lines[0]
-    m = _KVN_RE.match(t0)
+    m = KVN_RE.match(t0)
     if m is None or m.group(1) != "CCSDS_TDM_VERS":
         raise InputFormatError(path, n0, "CCSDS_TDM_VERS", "'CCSDS_TDM_VERS = 2.0' as the first "
                                "line", t0[:60])
@@ -141,7 +141,7 @@ def read_tdm(path, sigma_rad: float | None = None):
                 meta.setdefault("comments", []).append(text)
             continue
         if state == "header":
-            if _header_line(path, lineno, s, meta):
+            if header_line(path, lineno, s, meta):
                 state = "meta"
                 seg = {"line": lineno, "comments": [], "sigma": None, "pending": {},
                        "rows": [], "n_angles": 0, "keys": {}, "paired": {}}
@@ -155,7 +155,7 @@ def read_tdm(path, sigma_rad: float | None = None):
                 state = "between"
                 meta["segments"].append(seg["keys"])
                 continue
-            m = _KVN_RE.match(s)
+            m = KVN_RE.match(s)
             if m is None:
                 raise InputFormatError(path, lineno, None, "a 'KEYWORD = value' metadata line or "
                                        "META_STOP", s[:60])
@@ -192,15 +192,15 @@ def read_tdm(path, sigma_rad: float | None = None):
             key, ep, val = m.groups()
             if key not in ("ANGLE_1", "ANGLE_2"):
                 skipped[key] = skipped.get(key, 0) + 1
-                _epoch(path, lineno, key, ep)
+                epoch_value(path, lineno, key, ep)
                 continue
             for k, want in (("ANGLE_TYPE", "RADEC"), ("REFERENCE_FRAME", "EME2000")):
                 if k not in seg["keys"]:
                     raise InputFormatError(path, lineno, k, f"metadata keyword {k} = {want} in "
                                            f"this segment (line {seg['line']}) for {key} data",
                                            "missing")
-            t = int(_epoch(path, lineno, key, ep).astype(np.int64))
-            deg = _number(path, lineno, key, val)
+            t = int(epoch_value(path, lineno, key, ep).astype(np.int64))
+            deg = number_value(path, lineno, key, val)
             lo, hi = (-180.0, 360.0) if key == "ANGLE_1" else (-90.0, 90.0)
             if not (lo <= deg < hi or (key == "ANGLE_2" and deg == hi)):
                 raise InputFormatError(path, lineno, key, f"an angle in [{lo:g}, {hi:g}"
