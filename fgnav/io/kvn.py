@@ -156,10 +156,11 @@ def number_value(path, lineno, column, text, scale=1.0):
     return x
 
 
-def version_line(path, lines, message: str, versions) -> tuple[int, str]:
+def version_line(path, lines, message: str, versions, name_found=True) -> tuple[int, str]:
     """The first non-blank line of a KVN message, ``CCSDS_<message>_VERS = v`` with ``v`` in
     ``versions``: (line number, v). An XML message (``<?xml ...``), an empty file or another
-    first line is an error naming the file, the line and the keyword."""
+    first line is an error naming the file, the line and the keyword (another first keyword:
+    that one if ``name_found``, else the one expected)."""
     key = f"CCSDS_{message}_VERS"
     first = next(((n, t.strip()) for n, t in lines if t.strip()), None)
     if first is None:
@@ -172,7 +173,7 @@ def version_line(path, lines, message: str, versions) -> tuple[int, str]:
                                t0[:60])
     m = KVN_RE.match(t0)
     if m is None or m.group(1) != key:
-        raise InputFormatError(path, n0, m.group(1) if m else key,
+        raise InputFormatError(path, n0, m.group(1) if m and name_found else key,
                                f"{key} = {versions[-1]} as the first line", t0[:60])
     if m.group(2) not in versions:
         raise InputFormatError(path, n0, key, f"version {', '.join(versions[:-1])} or "
