@@ -129,7 +129,8 @@ TDM_ERRORS = {
                   "CCSDS_OEM_VERS", "CCSDS_TDM_VERS", "CCSDS_TDM_VERS"),
     "path_spacecraft_seen_from_earth": (lambda s: s.replace("PATH = 2,1", "PATH = 1,2"),
                                         "PATH = 1,2", "PATH",
-                                        "PARTICIPANT_1 = FGNAV-SAT seen from PARTICIPANT_2 = EARTH"),
+                                        "PARTICIPANT_1 = FGNAV-SAT seen from "
+                                        "PARTICIPANT_2 = EARTH"),
     "ground_telescope": (lambda s: s.replace("PARTICIPANT_2 = EARTH", "PARTICIPANT_2 = TFRM"),
                          "PATH = 2,1", "PATH", "PARTICIPANT_2 = TFRM seen from"),
     "no_path": (lambda s: s.replace("PATH = 2,1\n", ""), "META_START", "PATH", "no PATH"),

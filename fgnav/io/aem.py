@@ -73,7 +73,8 @@ from fgnav.io.kvn import (check_meta_value, epoch_value, format_ccsds_epoch, hea
 from fgnav.time import add_seconds, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat, quat_from_matrix
 
-__all__ = ["AemData", "write_aem", "write_aem_data", "read_aem", "aem_quaternions", "INERTIAL_FRAMES"]
+__all__ = ["AemData", "write_aem", "write_aem_data", "read_aem", "aem_quaternions",
+           "INERTIAL_FRAMES"]
 
 INERTIAL_FRAMES = ("EME2000", "GCRF", "ICRF", "J2000")
 _HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID", "CLASSIFICATION")
@@ -151,7 +152,7 @@ def write_aem(path, epoch0, t_s, R_eci_from_body, *, object_name="FGNAV", object
                         f"({', '.join(INERTIAL_FRAMES)}), found {ref_frame_a!r}")
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME_A": ref_frame_a, "REF_FRAME_B": ref_frame_b, "ORIGINATOR": originator}
-    names = {k: check_meta_value(k, v) for k, v in names.items()}
+    names = {k: check_meta_value(k, v, "write_aem") for k, v in names.items()}
     if names["REF_FRAME_B"] in INERTIAL_FRAMES:
         raise UserError(f"write_aem: ref_frame_b is the body frame (e.g. SC_BODY_1), found "
                         f"{ref_frame_b!r}")

@@ -23,7 +23,8 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.time import UtcRangeError, format_utc, parse_utc
 
 __all__ = ["KVN_RE", "EPOCH_EXPECTED", "parse_ccsds_epoch", "format_ccsds_epoch",
-           "ccsds_epochs", "read_kvn_lines", "split_kvn", "version_line", "epoch_value", "number_value",
+           "ccsds_epochs", "read_kvn_lines", "split_kvn", "version_line", "epoch_value",
+           "number_value",
            "header_line", "kvn_header", "check_meta_value", "HEADER_KEYS"]
 
 HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
@@ -209,11 +210,12 @@ def header_line(path, lineno, s, meta, keys=HEADER_KEYS) -> bool:
     return False
 
 
-def check_meta_value(name, value):
-    """A keyword value to write: non-empty, one line, no ``=``; stripped. UserError if not."""
+def check_meta_value(name, value, writer="write_oem"):
+    """A keyword value to write: non-empty, one line, no ``=``; stripped. UserError (naming
+    the ``writer`` and the keyword) if not."""
     value = str(value)
     if not value.strip() or any(c in value for c in "\r\n="):
-        raise UserError(f"write_oem: {name} must be a non-empty single-line value without "
+        raise UserError(f"{writer}: {name} must be a non-empty single-line value without "
                         f"'=', found {value!r}")
     return value.strip()
 

@@ -87,7 +87,8 @@ from fgnav.io.kvn import (HEADER_KEYS, ccsds_epochs, check_meta_value, epoch_val
 from fgnav.io.number_text import render_rows
 from fgnav.time import add_seconds, parse_utc, seconds_since
 
-__all__ = ["OemData", "write_oem", "write_oem_data", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch", "oem_frame"]
+__all__ = ["OemData", "write_oem", "write_oem_data", "read_oem", "parse_ccsds_epoch",
+           "format_ccsds_epoch", "oem_frame"]
 
 _M_PER_KM = 1000.0
 _INERTIAL_FRAMES = ("EME2000", "J2000", "GCRF", "ICRF")

@@ -397,7 +397,7 @@ def write_tdm(path, epoch0, t_s, u_eci, sigma_rad=None, *, spacecraft="FGNAV",
         raise UserError("write_tdm: u_eci must be unit vectors and t_s non-decreasing")
     sig = (np.full(n, np.nan) if sigma_rad is None else
            np.broadcast_to(np.asarray(sigma_rad, dtype=float), (n,)))
-    names = {k: check_meta_value(k, v) for k, v in (("PARTICIPANT_2", spacecraft),
+    names = {k: check_meta_value(k, v, "write_tdm") for k, v in (("PARTICIPANT_2", spacecraft),
                                                     ("ORIGINATOR", originator))}
     ep = ccsds_epochs(add_seconds(epoch0, t_s))
     ra = np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360.0
