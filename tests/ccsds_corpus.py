@@ -14,9 +14,7 @@ from fgnav.errors import InputFormatError
 from fgnav.io.aem import read_aem
 from fgnav.io.oem import read_oem
 from fgnav.io.tdm import read_tdm
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from shared_data import SHARED  # noqa: E402
+from shared_data import SHARED
 
 CANDIDATES = (SHARED, Path(__file__).resolve().parents[2] / "shared", Path("/work/shared"))
 CORPUS = next((p / "data" / "ccsds" for p in CANDIDATES if (p / "data" / "ccsds").is_dir()),
