@@ -1,3 +1,6 @@
-"""fgnav: spacecraft celestial navigation by factor-graph smoothing (GTSAM)."""
+"""fgnav: spacecraft celestial navigation by factor-graph smoothing (GTSAM).
 
-__version__ = "0.1.0"
+The version is written once, here; pyproject.toml reads it (``[tool.setuptools.dynamic]``).
+"""
+
+__version__ = "0.2.0"

@@ -10,6 +10,7 @@ on a cold cache, once per process, and never on a warm run.
 from __future__ import annotations
 
 import sys
+from factors.jit import when_numba_loads
 
 MESSAGE = "fgnav: compiling numerical kernels (first run only, ~20 s)..."
 
@@ -33,7 +34,6 @@ def announce_first_compile(stream=None, packages=PACKAGES) -> None:
     if _installed:
         return
     _installed = True
-    from factors.jit import when_numba_loads
 
     # numba is imported at the first compiled call (factors.jit), not before: listen from then
     when_numba_loads(lambda: _listen(stream, packages))

@@ -36,6 +36,7 @@ from typing import NamedTuple
 import numpy as np
 
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from factors.planets import MU_THIRD_M3_S2, third_body_positions_m
 from fgnav.constants import (
     AU_M, J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, OMEGA_EARTH_RAD_S, R_EARTH_M,
 )
@@ -309,7 +310,6 @@ def _truth_accel(r, v, t_s, j2, third_body, drag, srp, t0_j2000_s, mu, re):
 
 def _helio_accel(r, t_j2000_s, third_body):
     """Heliocentric acceleration (3,) m/s^2: the Sun, and the planets with the indirect term."""
-    from factors.planets import MU_THIRD_M3_S2, third_body_positions_m
 
     a = -MU_SUN_M3_S2 / np.linalg.norm(r) ** 3 * r
     if third_body:

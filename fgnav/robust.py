@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgnav.chi2 import chi2_ppf
 from fgnav.errors import UserError
 
 DEFAULT_K = {"huber": 1.345, "cauchy": 2.3849}
@@ -61,7 +62,6 @@ class RobustKernel:
 
 def chi2_gate(dim: int, probability: float) -> float:
     """The NIS threshold of a ``dim``-row measurement at the given acceptance probability."""
-    from fgnav.chi2 import chi2_ppf
 
     if not 0.0 < probability < 1.0:
         raise UserError(f"gate probability must be in (0, 1), got {probability}")

@@ -29,8 +29,15 @@ from dataclasses import replace
 import numpy as np
 
 from factors.dynamics import MotionModel, propagate, propagate_many
+from factors.dynamics import accel_j2
 from factors.elements import cartesian_from_mee, mee_from_cartesian
+from factors.elements import gauss_propagate
 from fgnav.measurements import build_pass
+from fgnav.orbit import integrate_truth
+from fgnav.pipeline import accuracy_metrics, crb_metrics, prepare_pass, solve
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.options import SmootherOptions
 
 SCENARIO = "gto-transfer"
@@ -45,10 +52,6 @@ def pass_rows(step_s: float, seed: int, methods=METHODS, prior_scale: float = 1.
     times ``prior_scale``) solved by each method in each state: one row per (method, state)
     with position RMS (m), NEES (mean over the epochs, 6 dof), velocity RMS, final position
     error, iterations, and the CRB position RMS (m) along the truth."""
-    from fgnav.pipeline import accuracy_metrics, crb_metrics, prepare_pass, solve
-    from fgnav.scenarios import load_scenario
-    from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.ekf import run_ekf
 
     scn = load_scenario(SCENARIO).with_options(step_s=step_s)
     if prior_scale != 1.0:
@@ -140,9 +143,6 @@ def propagation_errors(x0: np.ndarray, duration_s: float = 4 * 3600.0,
     Gauss's variational equations in the elements (:func:`factors.elements.gauss_propagate`),
     at each sub-step (s): ``{substep: {"cartesian": m, "elements": m}}``. The two integrate the
     same flow; they differ by their integration error only."""
-    from factors.dynamics import accel_j2
-    from factors.elements import gauss_propagate
-    from fgnav.orbit import integrate_truth
 
     x_ref = integrate_truth(x0, np.array([0.0, duration_s]))[-1]
     mu = MotionModel().mu

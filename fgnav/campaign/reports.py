@@ -16,7 +16,9 @@ from typing import Callable, Mapping
 
 from fgnav.campaign.storage import RunsTable, csv_line, format_cell, safe_name
 from fgnav.campaign.tasks import positive
+from fgnav.constants import DEG
 from fgnav.errors import UserError
+from fgnav.io.atomic import atomic_write_text, atomic_writer
 
 __all__ = ["Report", "REPORTS", "write_report", "NoiseReference", "PeriodReference",
            "ObservabilityReference", "VisibilityReference", "Table5Reference", "NeesReference"]
@@ -109,8 +111,6 @@ def _mean(rows, key):
 
 
 def _write_table(out: Path, rows: list[dict], title: str, notes: list[str]) -> list[Path]:
-    from fgnav.io.atomic import atomic_write_text
-
     cols = list(rows[0]) if rows else []
     text = csv_line(cols) + "".join(csv_line([format_cell(r.get(c)) for c in cols]) for r in rows)
     atomic_write_text(out / "table.csv", text)
@@ -129,8 +129,6 @@ def _write_table(out: Path, rows: list[dict], title: str, notes: list[str]) -> l
 
 
 def _save_plot(fig, path: Path) -> Path:
-    from fgnav.io.atomic import atomic_writer
-
     with atomic_writer(path, "wb") as f:
         fig.savefig(f, format="png", dpi=110, bbox_inches="tight")
     import matplotlib.pyplot as plt
@@ -269,7 +267,6 @@ def report_visibility(study, rows, out):
     import numpy as np
 
     from fgnav.analysis.visibility import SEED_RING_DEG, limb_half_angle_rad, visibility_band_m
-    from fgnav.constants import DEG
 
     ref: VisibilityReference = study.reference
     ring = tuple(study.fixed.get("ring_deg") or SEED_RING_DEG)

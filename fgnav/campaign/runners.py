@@ -25,6 +25,8 @@ from fgnav.campaign.spec import RunSpec, Study, run_columns, study_runs
 from fgnav.campaign.storage import RunsTable, safe_name
 from fgnav.campaign.tasks import TASKS, RunParams
 from fgnav.errors import UserError
+from fgnav.io.atomic import atomic_write_text, atomic_writer
+from fgnav.progress import progress
 
 __all__ = ["CampaignResult", "execute_run", "read_runs", "run_campaign"]
 
@@ -89,7 +91,6 @@ class CampaignResult:
 
 def _prepare_out(study: Study, out: Path, resume: bool) -> set:
     """Create/validate the output directory; return the run ids already finished."""
-    from fgnav.io.atomic import atomic_write_text
 
     out.mkdir(parents=True, exist_ok=True)
     table, spec = _table(out, study), out / "study.json"
@@ -158,8 +159,6 @@ def _results_dask(task, todo, scheduler, client):
 def _save_curves(out: Path, spec: RunSpec, arrays: dict) -> None:
     import numpy as np
 
-    from fgnav.io.atomic import atomic_writer
-
     (out / "curves").mkdir(exist_ok=True)
     with atomic_writer(out / "curves" / f"{safe_name(spec.run_id)}.npz", "wb") as g:
         np.savez(g, **arrays)
@@ -175,7 +174,6 @@ def run_campaign(study: Study, out_dir, *, workers: int = 1, scheduler: str | No
     (takes precedence over ``workers``). ``on_result(row)`` is called after each row is
     durably on disk (a ``KeyboardInterrupt`` raised there stops the campaign like Ctrl-C).
     """
-    from fgnav.progress import progress
 
     t_start = time.perf_counter()
     out = Path(out_dir)

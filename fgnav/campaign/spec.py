@@ -35,6 +35,7 @@ from typing import Any, Mapping
 from fgnav.campaign.reports import REPORTS
 from fgnav.campaign.tasks import TASKS, Column, RunParams
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.text import load_toml
 from fgnav.paths import data_dir
 
 __all__ = ["Study", "RunSpec", "load_study", "builtin_studies", "study_runs", "run_columns",
@@ -222,7 +223,6 @@ def load_study(name_or_path) -> Study:
             raise UserError(f"unknown study '{name_or_path}'; built-in: {', '.join(builtin_studies())}")
     if not path.exists():
         raise UserError(f"{path}: no such study file")
-    from fgnav.io.text import load_toml
 
     return study_from_dict(load_toml(path, "a study TOML file"), path)
 

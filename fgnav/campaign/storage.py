@@ -21,6 +21,7 @@ from typing import Iterable, Sequence
 
 from fgnav.campaign.tasks import Column
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.atomic import atomic_write_text
 
 __all__ = ["RunsTable", "csv_line", "format_cell", "parse_cell", "safe_name"]
 
@@ -78,7 +79,6 @@ class RunsTable:
 
     def create(self) -> None:
         """A new table holding only the header."""
-        from fgnav.io.atomic import atomic_write_text
 
         atomic_write_text(self.path, csv_line(self.names))
 

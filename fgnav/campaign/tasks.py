@@ -12,6 +12,18 @@ from __future__ import annotations
 import time
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Callable
+from factors.constants import DEG, R_LIMB_UV_M
+from fgnav.analysis.limb_method_study import direct_position_error_mc, table5 as closed_forms
+from fgnav.analysis.visibility import SEED_RING_DEG, ring_sees_limb, visibility_scenario
+from fgnav.constants import DEG, R_EARTH_M
+from fgnav.errors import UserError
+from fgnav.io.log_csv import log_from_arrays
+from fgnav.measurements import build_pass
+from fgnav.models.registry import MODELS, prior_kinds
+from fgnav.pipeline import accuracy_metrics, solve
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.solvers.options import SmootherOptions
 
 __all__ = ["Column", "Task", "TASKS", "RunParams", "NavigateParams", "ObservabilityParams",
            "VisibilityParams", "Table5Params", "TIMING_COLUMNS"]
@@ -102,9 +114,6 @@ def _scenario(name: str, *, step_s=None, duration_h=None, sigma_deg=None, prior_
     """A built-in scenario with options replaced; ``sigma_deg`` sets every Earth-direction sensor."""
     from dataclasses import replace
 
-    from fgnav.models.registry import MODELS
-    from fgnav.scenarios import load_scenario
-
     scn = load_scenario(name).with_options(step_s=step_s, duration_h=duration_h,
                                            prior_position_sigma_m=prior_position_sigma_m,
                                            prior_velocity_sigma_mps=prior_velocity_sigma_mps,
@@ -117,8 +126,6 @@ def _scenario(name: str, *, step_s=None, duration_h=None, sigma_deg=None, prior_
 
 
 def _smoother_options(q_m2_s3: float | None, third_body: bool | None):
-    from fgnav.solvers.options import SmootherOptions
-
     kw = {}
     if q_m2_s3 is not None:
         kw["q_m2_s3"] = float(q_m2_s3)
@@ -143,9 +150,6 @@ def navigate(p: NavigateParams):
     from fgnav.analysis.consistency import nees, nis_ekf, nis_smoother, nis_summary
     from fgnav.analysis.crb import cramer_rao_bound
     from fgnav.analysis.observability import weakest_directions
-    from fgnav.measurements import build_pass
-    from fgnav.pipeline import accuracy_metrics, solve
-    from fgnav.simulate.pass_sim import simulate_pass
 
     scn = _scenario(p.scenario, step_s=p.step_s, duration_h=p.duration_h, sigma_deg=p.sigma_deg,
                     prior_position_sigma_m=p.prior_position_sigma_m,
@@ -187,7 +191,6 @@ def observability(p: ObservabilityParams):
 
     from fgnav.analysis.observability import (analyze_observability, observability_matrix,
                                               weakest_directions, window_information)
-    from fgnav.constants import DEG
 
     scn = _scenario(p.scenario, step_s=p.step_s, sigma_deg=p.sigma_deg)
     x0 = np.array(scn.x0_eci)
@@ -211,15 +214,6 @@ def visibility(p: VisibilityParams):
     """Fraction of the pass with the whole limb inside the ring, the longest gap, and the
     navigation errors with every epoch vs with the visible epochs only."""
     import numpy as np
-
-    from fgnav.analysis.visibility import SEED_RING_DEG, ring_sees_limb, visibility_scenario
-    from fgnav.constants import R_EARTH_M
-    from fgnav.errors import UserError
-    from fgnav.io.log_csv import log_from_arrays
-    from fgnav.measurements import build_pass
-    from fgnav.models.registry import prior_kinds
-    from fgnav.pipeline import accuracy_metrics, solve
-    from fgnav.simulate.pass_sim import simulate_pass
 
     scn = visibility_scenario(p.orbit)
     options = _smoother_options(p.q_m2_s3, p.third_body)
@@ -268,9 +262,6 @@ def table5(p: Table5Params):
     """Direct positioning error from one geocentric vector: the closed forms of
     ``fgnav.analysis.limb_method_study.table5`` and a 2000-draw Monte Carlo of r = -(R / sin rho) u."""
     import numpy as np
-
-    from factors.constants import DEG, R_LIMB_UV_M
-    from fgnav.analysis.limb_method_study import direct_position_error_mc, table5 as closed_forms
 
     rows = [r for r in closed_forms(alts_km=(p.alt_km,)) if abs(r["angle_error_deg"] - p.angle_error_deg) < 1e-12]
     if not rows:

@@ -24,9 +24,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from factors.geometry import so3_log
 from fgnav.errors import UserError
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, log_from_arrays
+from fgnav.io.log_csv import write_log
 from fgnav.io.log_spacecraft import ID_COLUMNS
+from fgnav.io.oem import oem_frame, write_oem
+from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
+                                   TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv)
 from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
@@ -223,9 +228,6 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
     ``out_dir``. Returns the paths written; an unwritable directory is a :class:`UserError`."""
     from pathlib import Path
 
-    from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import oem_frame, write_oem
-
     out, scn = Path(out_dir), sim.scenario
     try:
         write_log(out / "measurements.csv", sim.log)
@@ -235,8 +237,6 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
                             "scipy DOP853 rtol 1e-12 (independent of the estimator's propagator)"))
         written = [out / "measurements.csv", out / "truth.oem"]
         if "refraction_bias_m" in sim.truth_params:
-            from fgnav.io.truth_params import TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv
-
             written.append(out / TRUTH_REFRACTION_BIAS_CSV)
             write_truth_params_csv(
                 written[-1], sim.epoch0, sim.t_s,
@@ -245,18 +245,12 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
                           "tangent-height shift against the refraction model, m",))
         align = ("align_x", "align_y", "align_z")   # = registry.CAMERA_ALIGNMENT.components
         if align[0] in sim.truth_params:
-            from fgnav.io.truth_params import write_truth_params_csv
-
             written.append(out / "truth_camera_alignment.csv")
             write_truth_params_csv(
                 written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
                 comments=(f"scenario {scn.name}, seed {sim.seed}: the star camera's mounting "
                           "R_body_from_starcam as a rotation vector, rad (constant)",))
         if any(str(k).endswith("_body") for k in set(sim.log.kind)):
-            from factors.geometry import so3_log
-            from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
-                                               write_truth_params_csv)
-
             written.append(out / TRUTH_ATTITUDE_CSV)
             w = so3_log(sim.truth_attitude())
             write_truth_params_csv(

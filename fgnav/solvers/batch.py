@@ -32,6 +32,7 @@ from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
 from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
 from factors import interpret
+from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.rts import rts_smooth
 from fgnav.solvers.first_guess import initial_guess
@@ -596,8 +597,6 @@ def _ekf_guess(p: Pass, options: SmootherOptions):
         if sol_compiled:  # compiled: long passes
             sol = run_ekf_numba(p_orbit, options)
         elif p.inserted is not None and p.inserted.any():
-            from fgnav.solvers.ekf import run_ekf
-
             sol = run_ekf(p_orbit, replace(options, gate_probability=None, robust=None))
         else:
             return None

@@ -68,6 +68,7 @@ from fgnav.measurements import Pass, rows_by_epoch
 from fgnav.solution import Solution, latency_summary
 from fgnav.measurements import prior_covariance
 from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
+from fgnav.solvers.batch import outlier_mask
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.solvers.first_guess import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
@@ -390,7 +391,6 @@ def _reject_exposed(p, x, lin, P, options, model, t0_j2000_s, kernel, gated, *, 
 
     Returns ``(x, lin, P, row_weights, iterations)``: ``row_weights`` the kernel's weights,
     0 for the rejected rows."""
-    from fgnav.solvers.batch import outlier_mask
 
     exposed = outlier_mask(lin.residuals, options.reject_probability)
     dropped = {kind: gated[kind] | exposed[kind] if kind in exposed else gated[kind]

@@ -42,7 +42,9 @@ import numpy as np
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.aem import read_aem
 from fgnav.io.atomic import atomic_write_text, atomic_writer
+from fgnav.io.attitude_covariance import read_attitude_covariance
 from fgnav.io.oem import read_oem
 from fgnav.io.outputs import commit_outputs
 from fgnav.io.summary import read_summary
@@ -255,8 +257,6 @@ def _shift_s(epoch0, ref_epoch0) -> float:
 def _load_attitude(d: Path, data: ResultData, truth_oem: Path | None) -> None:
     """``attitude.aem``, ``attitude_covariance.csv`` and, beside the truth OEM,
     ``truth_attitude.csv`` (:func:`fgnav.viz.rerun_log.read_truth_attitude`) into ``data``."""
-    from fgnav.io.aem import read_aem
-    from fgnav.io.attitude_covariance import read_attitude_covariance
 
     aem = read_aem(d / "attitude.aem")
     data.attitude_t_s = np.asarray(aem.t_s, float) + _shift_s(aem.epoch0, data.epoch0)

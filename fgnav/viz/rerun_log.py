@@ -45,9 +45,11 @@ import numpy as np
 
 from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
+from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV, read_truth_params_csv
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, eci_ray_kinds
 from fgnav.orbit import rtn_frame
 from fgnav.time import format_utc
+from fgnav.time import seconds_since
 
 #: WGS-84 flattening, for the drawn Earth only (the physics uses ``J2``).
 _F_WGS84 = 1.0 / 298.257223563
@@ -659,9 +661,6 @@ def read_truth_attitude(truth_oem_path, epoch0, t_s) -> np.ndarray | None:
     spherical linear interpolation between its epochs); None when there is no such file or
     it does not cover ``t_s``."""
     from scipy.spatial.transform import Rotation, Slerp
-
-    from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV, read_truth_params_csv
-    from fgnav.time import seconds_since
 
     path = Path(truth_oem_path).parent / TRUTH_ATTITUDE_CSV
     if not path.is_file():
