@@ -249,8 +249,45 @@ ERRORS = {
     "epoch_after_stop_time": (lambda s: (_edit(s, _key("STOP_TIME"), lambda ln, _: ln[:-8] +
                                                "0.000000")[0], _data_lines(s.splitlines())[-1] + 1),
                               "epoch", "STOP_TIME"),
-    "cov_ref_frame_rtn": (lambda s: _edit(s, _key("COV_REF_FRAME"), lambda ln, _: ln.replace(
-        "EME2000", "RTN")), "COV_REF_FRAME", "REF_FRAME"),
+    "cov_ref_frame_twice": (lambda s: _edit(s, _key("COV_REF_FRAME"), lambda ln, _: ln + "\n" +
+                                            ln)[0:1] + (s.splitlines().index(
+                                                "COV_REF_FRAME = EME2000") + 2,),
+                            "COV_REF_FRAME", "once"),
+    "header_keyword_twice": (lambda s: _edit(s, _key("ORIGINATOR"), lambda ln, _: ln + "\nORIGINATOR"
+                                             " = B")[0:1] + (s.splitlines().index(
+                                                 "ORIGINATOR = FGNAV") + 2,),
+                             "ORIGINATOR", "once"),
+    "interpolation_degree_not_integer": (lambda s: _edit(s, _key("STOP_TIME"), lambda ln, _: ln +
+                                         "\nINTERPOLATION = HERMITE\nINTERPOLATION_DEGREE = 7.1")
+                                         [0:1] + (s.splitlines().index("META_STOP") + 2,),
+                                         "INTERPOLATION_DEGREE", "integer"),
+    "interpolation_without_degree": (lambda s: _edit(s, _key("STOP_TIME"), lambda ln, _: ln +
+                                     "\nINTERPOLATION = HERMITE")[0:1] + (
+                                         s.splitlines().index("META_STOP") + 1,),
+                                     "INTERPOLATION_DEGREE", "with INTERPOLATION"),
+    "useable_start_alone": (lambda s: _edit(s, _key("STOP_TIME"), lambda ln, _: ln.replace(
+        "STOP_TIME", "USEABLE_START_TIME") + "\n" + ln)[0:1] + (
+            s.splitlines().index("META_STOP"),), "USEABLE_START_TIME", "together"),
+    "useable_start_after_stop": (lambda s: _edit(s, _key("STOP_TIME"), lambda ln, lines: ln.replace(
+        "STOP_TIME", "USEABLE_START_TIME") + "\n" + next(x for x in lines if x.startswith(
+            "START_TIME")).replace("START_TIME", "USEABLE_STOP_TIME") + "\n" + ln)[0:1] + (
+            s.splitlines().index("META_STOP") + 1,), "USEABLE_STOP_TIME", "not before"),
+    "classification_in_2_0": (lambda s: _edit(s, _key("ORIGINATOR"), lambda ln, _: ln +
+                              "\nCLASSIFICATION = public")[0:1] + (
+                                  s.splitlines().index("ORIGINATOR = FGNAV") + 2,),
+                              "CLASSIFICATION", "header keyword"),
+    "accelerations_mixed": (lambda s: _edit(s, _second_data, lambda ln, _: ln + " 0.1 0.2 0.3"),
+                            None, "mix"),
+    "accelerations_in_1_0": (lambda s: _edit(s.replace("CCSDS_OEM_VERS = 2.0", "CCSDS_OEM_VERS"
+                                                       " = 1.0").replace("\nCOVARIANCE_START",
+                                                                        "\nCOVARIANCE_STAR"),
+                                             _first_data, lambda ln, _: ln + " 0.1 0.2 0.3"),
+                             "X_DDOT", "OEM 1.0"),
+    "covariance_in_1_0": (lambda s: (s.replace("CCSDS_OEM_VERS = 2.0", "CCSDS_OEM_VERS = 1.0"),
+                                     s.splitlines().index("COVARIANCE_START") + 1),
+                          "COVARIANCE_START", "OEM 1.0"),
+    "xml_form": (lambda s: ('<?xml version="1.0" encoding="UTF-8"?>\n<oem id="CCSDS_OEM_VERS" '
+                            'version="2.0"/>\n', 1), "CCSDS_OEM_VERS", "XML"),
     "cov_row_too_long": (lambda s: _edit(s, _cov_row2, lambda ln, _: ln + " 1.0"),
                          "covariance row 2", "2 values"),
     "cov_row_missing": (lambda s: _edit(s, _cov_row2, lambda ln, _: None), "covariance row 2",

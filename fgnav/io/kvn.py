@@ -10,8 +10,12 @@ ignored, epochs in CCSDS ASCII time code A or B (``YYYY-MM-DDThh:mm:ss[.f][Z]`` 
 
 from __future__ import annotations
 
+import bz2
+import gzip
+import lzma
 import math
 import re
+import zlib
 
 import numpy as np
 
@@ -19,7 +23,7 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.time import UtcRangeError, format_utc, parse_utc
 
 __all__ = ["KVN_RE", "EPOCH_EXPECTED", "parse_ccsds_epoch", "format_ccsds_epoch",
-           "ccsds_epochs", "read_kvn_lines", "split_kvn", "epoch_value", "number_value",
+           "ccsds_epochs", "read_kvn_lines", "split_kvn", "version_line", "epoch_value", "number_value",
            "header_line", "kvn_header", "check_meta_value", "HEADER_KEYS"]
 
 HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
@@ -80,13 +84,37 @@ def ccsds_epochs(t64) -> list[str]:
     return out
 
 
+def _decompressed(path, data: bytes) -> bytes:
+    """``data`` itself, or its content if it is a gzip, bzip2, xz or (by the ``.lzma``
+    suffix) legacy LZMA file, recognised by its magic bytes (the ``oem`` package's samples
+    include all four)."""
+    kind = None
+    if data[:2] == b"\x1f\x8b":
+        kind, fn = "gzip", gzip.decompress
+    elif data[:3] == b"BZh":
+        kind, fn = "bzip2", bz2.decompress
+    elif data[:6] == b"\xfd7zXZ\x00":
+        kind, fn = "xz", lzma.decompress
+    elif str(path).lower().endswith(".lzma"):
+        kind, fn = "lzma", lambda b: lzma.decompress(b, format=lzma.FORMAT_ALONE)
+    if kind is None:
+        return data
+    try:
+        return fn(data)
+    except (OSError, EOFError, ValueError, lzma.LZMAError, zlib.error) as exc:
+        raise InputFormatError(path, None, None, f"a readable {kind}-compressed file",
+                               str(exc) or type(exc).__name__) from None
+
+
 def read_kvn_lines(path) -> list[tuple[int, str]]:
-    """(line number, text without line end) of every line; UTF-8 (ASCII in practice)."""
+    """(line number, text without line end) of every line; UTF-8 (ASCII in practice).
+    A gzip, bzip2, xz or LZMA file is decompressed first (line numbers are its content's)."""
     try:
         with open(path, "rb") as f:
             data = f.read()
     except OSError as exc:
         raise UserError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    data = _decompressed(path, data)
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
     out = []
@@ -128,12 +156,38 @@ def number_value(path, lineno, column, text, scale=1.0):
     return x
 
 
+def version_line(path, lines, message: str, versions) -> tuple[int, str]:
+    """The first non-blank line of a KVN message, ``CCSDS_<message>_VERS = v`` with ``v`` in
+    ``versions``: (line number, v). An XML message (``<?xml ...``), an empty file or another
+    first line is an error naming the file, the line and the keyword."""
+    key = f"CCSDS_{message}_VERS"
+    first = next(((n, t.strip()) for n, t in lines if t.strip()), None)
+    if first is None:
+        raise InputFormatError(path, 1, key, f"an {message} starting with '{key} = "
+                               f"{versions[-1]}'", "empty file")
+    n0, t0 = first
+    if t0.startswith("<"):
+        raise InputFormatError(path, n0, key, f"a KVN {message} starting with '{key} = ...' "
+                               "(fgnav reads the KVN form of CCSDS messages, not the XML form)",
+                               t0[:60])
+    m = KVN_RE.match(t0)
+    if m is None or m.group(1) != key:
+        raise InputFormatError(path, n0, m.group(1) if m else key,
+                               f"{key} = {versions[-1]} as the first line", t0[:60])
+    if m.group(2) not in versions:
+        raise InputFormatError(path, n0, key, f"version {', '.join(versions[:-1])} or "
+                               f"{versions[-1]}" if len(versions) > 1 else
+                               f"version {versions[0]}", m.group(2))
+    return n0, m.group(2)
+
+
 def header_line(path, lineno, s, meta, keys=HEADER_KEYS) -> bool:
     """One line of a CCSDS KVN message header (OEM, TDM, AEM) before the first META_START.
 
     Stores the header keywords ``keys`` (CREATION_DATE / ORIGINATOR / MESSAGE_ID, and for an
-    AEM also CLASSIFICATION) in ``meta`` (CREATION_DATE checked as an epoch); at META_START
-    checks that the required keywords came first and returns True.
+    AEM or an OEM 3.0 also CLASSIFICATION) in ``meta`` (CREATION_DATE checked as an epoch;
+    each keyword at most once); at META_START checks that the required keywords came first
+    and returns True.
     """
     if s == "META_START":
         for k in ("CREATION_DATE", "ORIGINATOR"):
@@ -145,6 +199,9 @@ def header_line(path, lineno, s, meta, keys=HEADER_KEYS) -> bool:
     if m is None or m.group(1) not in keys:
         raise InputFormatError(path, lineno, m.group(1) if m else None,
                                f"a header keyword ({', '.join(keys)}, COMMENT) or META_START", s)
+    if m.group(1) in meta:
+        raise InputFormatError(path, lineno, m.group(1), "each header keyword once",
+                               f"{m.group(1)} repeated")
     if m.group(1) == "CREATION_DATE":
         epoch_value(path, lineno, "CREATION_DATE", m.group(2))
     meta[m.group(1)] = m.group(2)
