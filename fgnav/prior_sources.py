@@ -17,7 +17,8 @@ first epoch and the ``prior_position`` / ``prior_velocity`` rows a log would car
 
 Covariance: the file's where it has one (an OMM's or OPM's at its epoch, propagated with
 the integrator's state transition matrix by central differences, ``P1 = Phi P0 Phi^T``;
-an OEM's at the covariance epoch nearest the log's first epoch), an RTN covariance rotated
+an OEM's block nearest the log's first epoch, as given: the standard defines no
+interpolation of covariances, and over an ephemeris step they change little), an RTN covariance rotated
 to EME2000 with the state's RTN axes. Prior rows carry one sigma per row, so the covariance
 enters as its covering sphere (:func:`fgnav.measurements.covering_sigmas`). Without one, the
 default of the source (:data:`DEFAULT_SIGMAS`). ``--prior-sigma-km`` / ``--prior-sigma-mps``
@@ -35,7 +36,7 @@ import numpy as np
 from fgnav.errors import UserError
 from fgnav.io.oem import read_oem
 from fgnav.io.omm import MeanElements, read_omm
-from fgnav.io.opm import OpmData, read_opm
+from fgnav.io.opm import OPM_FRAMES, OpmData, read_opm
 from fgnav.io.tle import looks_like_tle, read_tle
 from fgnav.measurements import covering_sigmas
 from fgnav.models.registry import PRIOR_POSITION, PRIOR_VELOCITY
@@ -57,6 +58,9 @@ per day of age, so 10 km and 10 m/s (the velocity of 10 km of along-track error 
 an OPM or OEM comes from an orbit determination but carries no age or quality, so 1 km and
 1 m/s. All are loose against what the measurements give: a prior only starts the solvers
 and weighs little against a pass of data."""
+
+INERTIAL_FRAMES = tuple(f for f in OPM_FRAMES if f != "TEME")
+"""Covariance frames taken as EME2000 (one inertial frame in fgnav)."""
 
 _JD_J2000 = 2451545.0
 _SGP4_EPOCH0 = _dt.datetime(1949, 12, 31)
@@ -252,12 +256,19 @@ def _from_oem(path, t_log, centre):
         raise UserError(f"--prior {path}: the ephemeris ({format_utc(oem.epoch0)} + "
                         f"{oem.t_s[0]:.1f}..{oem.t_s[-1]:.1f} s) does not cover the log's first "
                         f"epoch {format_utc(t_log)}")
-    x = truth_at(np.asarray(oem.t_s, float), np.asarray(oem.x_eci, float), np.array([t]))[0]
+    t_eph, x_eph = np.asarray(oem.t_s, float), np.asarray(oem.x_eci, float)
+    x = truth_at(t_eph, x_eph, np.array([t]))[0]
     P = None
-    if oem.P_eci is not None:
-        ok = np.flatnonzero(np.all(np.isfinite(oem.P_eci.reshape(len(oem.t_s), -1)), axis=1))
-        if len(ok):
-            P = oem.P_eci[ok[np.argmin(np.abs(oem.t_s[ok] - t))]]
+    if oem.cov_P is not None and len(oem.cov_P):   # every block, at any epoch
+        j = int(np.argmin(np.abs(np.asarray(oem.cov_t_s, float) - t)))
+        P = np.asarray(oem.cov_P[j], float)
+        frame = (oem.cov_frame[j] if oem.cov_frame else None) or oem.meta.get("REF_FRAME")
+        if str(frame).upper() in ("RTN", "RSW"):
+            t_cov = float(np.clip(oem.cov_t_s[j], t_eph[0], t_eph[-1]))
+            P = _rtn_to_inertial(P, truth_at(t_eph, x_eph, np.array([t_cov]))[0])
+        elif str(frame).upper() not in INERTIAL_FRAMES:
+            raise UserError(f"--prior {path}: a covariance in COV_REF_FRAME = {frame}; fgnav "
+                            f"reads {', '.join(INERTIAL_FRAMES)}, RTN or RSW")
     return x, P, t_log, str(oem.meta.get("OBJECT_NAME", ""))
 
 

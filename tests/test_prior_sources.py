@@ -216,6 +216,13 @@ def test_oem_prior_is_the_ephemeris_at_the_log_first_epoch(tmp_path):
     assert (prior.sigma_position_m, prior.sigma_from) == (DEFAULT_SIGMAS["oem"][0], "default")
     with pytest.raises(UserError, match="does not cover"):
         prior_from_file(path, add_seconds(t0, np.array([4000.0]))[0])
+    # with covariances: the block nearest the log's first epoch (600 s), its covering sphere
+    P = np.array([np.diag([(100.0 + k) ** 2] * 3 + [0.1 ** 2] * 3) for k in range(len(t))])
+    write_oem(path, t0, t, x, P)
+    prior = prior_from_file(path, t_log)
+    assert prior.sigma_from == "file"
+    assert prior.sigma_position_m == pytest.approx(110.0) and \
+        prior.sigma_velocity_mps == pytest.approx(0.1)
 
 
 @needs_glonass
