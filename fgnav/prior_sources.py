@@ -52,9 +52,9 @@ SOURCES = ("omm", "tle", "opm", "oem")
 DEFAULT_SIGMAS = {"omm": (10e3, 10.0), "tle": (10e3, 10.0), "opm": (1e3, 1.0),
                   "oem": (1e3, 1.0)}
 """1-sigma (position m, velocity m/s) of a prior whose file has no covariance. SGP4 element
-sets (OMM, TLE) state no accuracy: SGP4's own theory error is about 1 km over a GLONASS
-pass (measured in tests/test_prior_sources.py) and a set's fit error grows by kilometres
-per day of age, so 10 km and 10 m/s (the velocity of 10 km of along-track error in LEO);
+sets (OMM, TLE) state no accuracy: SGP4's own theory error against a numerical orbit
+through the same elements is 68 m to 1.24 km over 7 h on 28 GLONASS sets (measured in
+tests/test_prior_sources.py) and a set's fit error grows by kilometres per day of age, so 10 km and 10 m/s (the velocity of 10 km of along-track error in LEO);
 an OPM or OEM comes from an orbit determination but carries no age or quality, so 1 km and
 1 m/s. All are loose against what the measurements give: a prior only starts the solvers
 and weighs little against a pass of data."""

@@ -293,3 +293,24 @@ def test_cli_refusals_exit_2_without_traceback(tmp_path, capsys):
         assert rc == 2 and "Traceback" not in err, err
         for w in words:
             assert w in err, (w, err)
+
+
+CCSDS_ANNEX = next((d for d in (SHARED_DATA / "ccsds" / "annex-examples" / "kvn",
+                                Path("/work/shared/data/ccsds/annex-examples/kvn")) if d.is_dir()),
+                   None)
+
+
+@pytest.mark.skipif(CCSDS_ANNEX is None, reason="the ODM annex examples of ../shared/data/ccsds "
+                    "are not beside this checkout")
+def test_omm_covariance_of_the_blue_book_annex_is_used_and_propagated():
+    # ODM annex G-8: GOES 9's SGP4 elements with a TEME covariance (km**2 ..., 18-26 m)
+    path = CCSDS_ANNEX / "omm_g8.kvn"
+    el = read_omm(path)
+    at_epoch = prior_from_file(path, el.epoch)
+    assert at_epoch.sigma_from == "file" and at_epoch.age_s == 0.0
+    # a rotation leaves the covering sphere as it is
+    assert at_epoch.sigma_position_m == pytest.approx(
+        np.sqrt(np.linalg.eigvalsh(el.P_teme[:3, :3])[-1]), rel=1e-9)
+    later = prior_from_file(path, add_seconds(el.epoch, np.array([3600.0]))[0])
+    assert later.sigma_position_m > 2 * at_epoch.sigma_position_m   # the velocity's 1 h
+    np.testing.assert_allclose(later.P_eci, later.P_eci.T, rtol=1e-9, atol=1e-12)
