@@ -165,6 +165,19 @@ def test_a_pass_started_from_a_real_element_set_is_solved(glonass_pass, source, 
     assert s["nees_mean"] < 9.0
 
 
+def test_another_satellites_element_set_is_caught_not_solved_silently(glonass_pass, capsys):
+    # COSMOS 2434's OMM for COSMOS 2433's pass: 24,000 km off. The prior test (the initial
+    # orbit of the measurements) finds it inconsistent and the verdict fails the run.
+    g = glonass_pass
+    out = g["dir"] / "out-wrong"
+    rc = main(["smooth", str(g["log"]), "--prior", str(GLONASS / "xml" / "32276.xml"),
+               "--third-body", "--out", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["initial_orbit"]["prior_consistent"] is False
+    assert s["integrity"]["status"] != "ok"
+
+
 def test_opm_state_and_rtn_covariance_are_propagated_to_the_log(tmp_path):
     t_file = parse_utc("2025-03-01T00:00:00Z")
     x_file = np.array([7000e3, 100e3, 200e3, -50.0, 6500.0, 3500.0])
