@@ -100,8 +100,13 @@ def aberrate(u, beta):
 def aberrate_row_kernel(u, beta, ua, Ju, Jb):
     """:func:`aberrate` of one row, for compiled kernels: the apparent direction ``ua`` (3,)
     of the unit ``u`` (3,) for ``beta`` (3,), ``Jb = dua/dbeta`` (3, 3) as there, and also
-    ``Ju = dua/du = (g I + beta beta^T/(1 + g))/d - ua beta^T/d`` (3, 3), ``d = 1 + u.beta``."""
+    ``Ju = dua/du = (g I + beta beta^T/(1 + g))/d - ua beta^T/d`` (3, 3), ``d = 1 + u.beta``.
+    Returns 1.0, or -1.0 (outputs untouched) outside the model's domain ``|beta| < 1``: an
+    observer at or beyond the speed of light, as a diverging iterate can be (a prior inside
+    the Sun, a geocentric log read as heliocentric)."""
     bb = beta[0] * beta[0] + beta[1] * beta[1] + beta[2] * beta[2]
+    if not bb < 1.0:
+        return -1.0
     g = math.sqrt(1.0 - bb)
     w = u[0] * beta[0] + u[1] * beta[1] + u[2] * beta[2]
     a = 1.0 + w / (1.0 + g)
@@ -116,6 +121,7 @@ def aberrate_row_kernel(u, beta, ua, Ju, Jb):
             dg = -beta[j] / g
             da = u[j] / (1.0 + g) + w * beta[j] / (g * (1.0 + g) ** 2)
             Jb[i, j] = (u[i] * dg + beta[i] * da + a * eye) / d - ni * u[j] / (d * d)
+    return 1.0
 
 
 def apparent_direction(u, v_observer_bcrs_mps):

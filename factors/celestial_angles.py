@@ -140,15 +140,18 @@ def _apparent_angle(u, Du, beta_u, s, Ds, beta_s, H, sign, on):
     """The angle (rad) between the unit lines of sight ``u``, ``s`` (3,) aberrated by
     ``beta_u``, ``beta_s``; adds ``sign`` times its gradient to ``H[0, :3]`` (through
     ``Du = du/dr``, ``Ds = ds/dr``) and, when ``on``, to ``H[0, 3:6]`` (``dbeta/dv = I/c``).
-    Returns -1.0 where the two apparent lines are parallel."""
+    Returns -1.0 where the two apparent lines are parallel or a velocity is not below the
+    speed of light (outside the aberration model's domain)."""
     au = np.empty(3)
     Jau = np.empty((3, 3))
     Jbu = np.empty((3, 3))
-    aberrate_row_kernel(u, beta_u, au, Jau, Jbu)
+    if aberrate_row_kernel(u, beta_u, au, Jau, Jbu) < 0.0:
+        return -1.0
     as_ = np.empty(3)
     Jas = np.empty((3, 3))
     Jbs = np.empty((3, 3))
-    aberrate_row_kernel(s, beta_s, as_, Jas, Jbs)
+    if aberrate_row_kernel(s, beta_s, as_, Jas, Jbs) < 0.0:
+        return -1.0
     gu = np.empty(3)
     gs = np.empty(3)
     a = _angle_between(au, as_, gu, gs)

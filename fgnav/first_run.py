@@ -10,6 +10,7 @@ on a cold cache, once per process, and never on a warm run.
 from __future__ import annotations
 
 import sys
+
 from factors.jit import when_numba_loads
 
 MESSAGE = "fgnav: compiling numerical kernels (first run only, ~20 s)..."

@@ -166,6 +166,12 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     reasons: list[tuple[str, str, str]] = []  # (severity, text, advice key)
     notes: list[str] = []
     res = normalized_residuals
+    if res is None and sol.method == "ekf":
+        # the filter's own S^-1/2 b (numpy EKF): exact, with its cross-covariances and the
+        # further variables' true process (a constant-rate attitude is no random walk)
+        res = sol.extras.get("normalized_innovations")
+        if res is not None:
+            res = {**sol.residuals, **res}
     if res is None and sol.method == "ekf" and model is not None:
         res = filter_normalized_innovations(p, sol, model)
     if res is None:

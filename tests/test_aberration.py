@@ -207,3 +207,18 @@ def test_the_compiled_row_kernel_is_aberrate_row_by_row():
         # aberrate normalizes u first: compare on the tangent plane, where a unit u moves
         P = np.eye(3) - np.outer(u[i], u[i])
         np.testing.assert_allclose(Ju @ P, num @ P, atol=1e-8)
+
+
+def test_the_row_kernel_refuses_an_observer_at_or_beyond_light_speed():
+    """|beta| >= 1 lies outside the model: the kernel says so (-1.0, outputs untouched) rather
+    than raising ``math domain error`` in the solver (the integrity issue, item 4); inside the
+    domain it returns 1.0."""
+    from factors.aberration import aberrate_row_kernel
+
+    u = np.array([0.0, 0.6, 0.8])
+    for beta, expected in ((np.array([1e-4, 0.0, 0.0]), 1.0), (np.array([1.0, 0.0, 0.0]), -1.0),
+                           (np.array([0.6, 0.9, 0.0]), -1.0), (np.array([np.nan, 0.0, 0.0]), -1.0)):
+        ua, Ju, Jb = np.full(3, 7.0), np.full((3, 3), 7.0), np.full((3, 3), 7.0)
+        assert aberrate_row_kernel(u, beta, ua, Ju, Jb) == expected
+        if expected < 0:
+            assert (ua == 7.0).all() and (Ju == 7.0).all() and (Jb == 7.0).all()

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -178,20 +179,60 @@ def test_killed_subprocess_resumes(tiny, reference, tmp_path):
     assert _results(out) == _results(reference[0])
 
 
-def test_failed_runs_are_recorded_and_cli_json(tmp_path, capsys):
+def test_a_study_whose_runs_cannot_start_is_refused_whole(tmp_path, capsys):
+    """Unknown scenario, formation scenario, a pass beyond the simulator's limits, a negative
+    seed: exit 2 before any run, the file and the failing runs named, even with --quiet, and
+    nothing written (the integrity issue's campaign defect)."""
     from fgnav.cli import main
 
+    base = TINY.replace("seeds = [0, 1]", "seeds = [0]").replace('["batch", "ekf"]', '["ekf"]')
+    cases = {
+        "unknown": (base.replace('scenario = "gto-transfer"\n', "").replace(
+            "sigma_deg = [0.01, 0.05]",
+            'sigma_deg = [0.01]\nscenario = ["gto-transfer", "no-such-scenario"]'),
+            "scenario=no-such-scenario;method=ekf: unknown scenario 'no-such-scenario'"),
+        "formation": (base.replace('scenario = "gto-transfer"', 'scenario = "formation-gto"'),
+                      "is a formation of several spacecraft"),
+        "too long": (base.replace("duration_h = 1.0", "duration_h = 1e6"),
+                     "exceeds the limit of 744 h"),
+        "seed": (base.replace("seeds = [0]", "seeds = { start = -2, count = 3 }"),
+                 "seeds.start': expected an integer >= 0, found -2"),
+    }
+    for name, (text, message) in cases.items():
+        study = tmp_path / f"{name.replace(' ', '_')}.toml"
+        study.write_text(text)
+        out = tmp_path / f"o_{study.stem}"
+        rc = main(["campaign", str(study), "--out", str(out), "--workers", "1", "--quiet"])
+        err = capsys.readouterr().err
+        assert rc == 2, name
+        assert str(study) in err and message in err, (name, err)
+        assert not (out / "runs.csv").exists(), name
+
+
+def test_failed_runs_are_recorded_and_cli_json(tmp_path, capsys, monkeypatch):
+    """A run that fails while it runs (past the checks) is recorded with its error, the others
+    go on, and the command exits 3 (results written, not all runs done)."""
+    from fgnav.campaign import tasks
+    from fgnav.cli import main
+
+    navigate = tasks.TASKS["navigate"]
+
+    def fails_at_0_05(p):
+        if p.sigma_deg == 0.05:
+            raise FloatingPointError("a numerical failure of this run")
+        return navigate.run(p)
+
+    monkeypatch.setitem(tasks.TASKS, "navigate", replace(navigate, run=fails_at_0_05))
     study = tmp_path / "f.toml"
-    study.write_text(TINY.replace('scenario = "gto-transfer"\n', "").replace(
-        "sigma_deg = [0.01, 0.05]", 'sigma_deg = [0.01]\nscenario = ["gto-transfer", "no-such-scenario"]')
-        .replace("seeds = [0, 1]", "seeds = [0]").replace('["batch", "ekf"]', '["ekf"]'))
+    study.write_text(TINY.replace("seeds = [0, 1]", "seeds = [0]").replace('["batch", "ekf"]', '["ekf"]'))
     rc = main(["campaign", str(study), "--out", str(tmp_path / "o"), "--workers", "1", "--json", "--quiet"])
     out = capsys.readouterr().out
     d = json.loads(out)
-    assert rc == 1 and d["n_ran"] == 2 and d["n_failed"] == 1
-    assert d["failed_runs"] == ["sigma_deg=0.01;scenario=no-such-scenario;method=ekf;seed=0"]
+    assert rc == 3 and d["n_ran"] == 2 and d["n_failed"] == 1
+    assert d["failed_runs"] == ["sigma_deg=0.05;method=ekf;seed=0"]
     rows = {r["run_id"]: r for r in read_runs(tmp_path / "o")}
-    assert "unknown scenario" in rows[d["failed_runs"][0]]["error"]
+    assert "a numerical failure of this run" in rows[d["failed_runs"][0]]["error"]
+    assert rows["sigma_deg=0.01;method=ekf;seed=0"]["status"] == "ok"
     assert not (tmp_path / "o" / "table.csv").exists()
 
 

@@ -153,6 +153,32 @@ def test_cli_limb_errors(tmp_path, capsys):
     assert "error" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("seed, kind", [(0, "gaussian"), (1, "gaussian-bright"), (2, "uniform"),
+                                        (3, "gradient")])
+def test_a_frame_without_a_limb_is_refused(tmp_path, capsys, seed, kind):
+    """Pure noise (and noise on a smooth sky gradient) has no limb: its Otsu blobs gave a fix
+    with an 80 arcsec sigma (the integrity issue, item 8). The edge's drop is compared with
+    the pixel noise, and a real limb at low signal still passes."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    shape = (512, 640)
+    img = {"gaussian": lambda: rng.normal(20.0, 5.0, shape),
+           "gaussian-bright": lambda: rng.normal(128.0, 40.0, shape),
+           "uniform": lambda: rng.uniform(0.0, 255.0, shape),
+           "gradient": lambda: np.linspace(10.0, 200.0, shape[1])[None, :] + rng.normal(0, 8, shape)}[kind]()
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    with pytest.raises(UserError, match="no limb in the frame"):
+        extract_limb_points(img)
+    path = tmp_path / "noise.png"
+    assert cv2.imwrite(str(path), img)
+    assert main(["limb", str(path), "--focal-mm", "18", "--pixel-um", "11", "--json"]) == 2
+    assert "no limb in the frame" in capsys.readouterr().err
+    scene = scene_from_altitude(20_000e3, CAM.pixel_to_ray(np.array([450.0, 440.0])))
+    faint = render_limb(CAM, scene, rng, radiance=LimbRadiance(signal_e=100.0))
+    assert extract_limb_points(faint.image_dn).uv_px.shape[0] > 100
+
+
 GEO_ALT_M = 42_164e3 - R_LIMB_UV_M
 """Geostationary radius minus the limb sphere: R_px = f tan(rho) = 250 px on CAM."""
 

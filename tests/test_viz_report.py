@@ -184,6 +184,11 @@ def test_report_command_errors(tmp_path, capsys):
     assert "summary.json" in capsys.readouterr().err
     with pytest.raises(UserError):
         report.load_result(tmp_path / "r")
+    # --out naming an existing file: a message naming the option, not a FileExistsError
+    (tmp_path / "file").write_text("")
+    assert main(["report", str(tmp_path / "r"), "--out", str(tmp_path / "file")]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "not a directory" in err and "Traceback" not in err
 
 
 def _write_oem(path, epoch0, t, x, P=None):

@@ -2,7 +2,8 @@
 
 Builds the wheel from this checkout (``pip wheel``, build isolation as a user's pip would),
 installs it without dependencies into a new venv that sees this interpreter's packages
-(gtsam, numba, ... are the same; the fgnav under test is the wheel's), and runs the commands
+(gtsam, numba, ... are the same, also when the tests run in a virtual environment; the fgnav
+under test is the wheel's), and runs the commands
 that need the data shipped inside the package from a directory outside the checkout:
 ``fgnav demo``, ``fgnav simulate``, ``fgnav campaign --list`` and ``fgnav stars`` (the star
 catalogue). The first run in the new location compiles the numba kernels (~30 s).
@@ -37,7 +38,16 @@ def installed(tmp_path_factory):
           str(ROOT)], base, env)
     wheel, = (base / "dist").glob("fgnav-*.whl")
     venv = base / "venv"
-    _run([sys.executable, "-m", "venv", "--system-site-packages", str(venv)], base, env)
+    _run([sys.executable, "-m", "venv", str(venv)], base, env)
+    # the new venv sees this interpreter's packages (its own venv's, where the tests run in
+    # one: --system-site-packages would see only the base interpreter's): a .pth file naming
+    # them, which puts them after the venv's own site-packages, where the wheel goes; the
+    # .pth files inside them (an editable fgnav's finder) are not read from there
+    purelib = subprocess.run([str(venv / "bin" / "python"), "-c",
+                              "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+                             capture_output=True, text=True, check=True).stdout.strip()
+    outer = [p for p in sys.path if p.endswith("site-packages") and Path(p).is_dir()]
+    (Path(purelib) / "_fgnav_test_outer.pth").write_text("\n".join(outer) + "\n")
     _run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", "--no-deps", str(wheel)],
          base, env)
     work = base / "elsewhere"

@@ -27,7 +27,7 @@ from collections import abc
 import math
 import types
 import typing
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields, replace
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
@@ -234,6 +234,8 @@ def _seeds(path, v) -> tuple[int, ...]:
             raise InputFormatError(path, None, f"seeds.{sorted(extra)[0]}", "only the keys start and count",
                                    sorted(extra)[0])
         start = typed_value(path, "seeds.start", v.get("start", 0), int)
+        if start < 0:
+            raise InputFormatError(path, None, "seeds.start", "an integer >= 0", start)
         if "count" not in v:
             raise InputFormatError(path, None, "seeds.count", "this key (seeds = {start = .., count = ..})")
         count = typed_value(path, "seeds.count", v["count"], int, positive=True)
@@ -242,6 +244,8 @@ def _seeds(path, v) -> tuple[int, ...]:
         raise InputFormatError(path, None, "seeds", "a non-empty list of integers or {start = .., count = ..}", v)
     if len(set(v)) != len(v):
         raise InputFormatError(path, None, "seeds", "distinct seeds", v)
+    if min(v) < 0:
+        raise InputFormatError(path, None, "seeds", "integers >= 0", min(v))
     return tuple(v)
 
 
@@ -326,9 +330,34 @@ def study_from_dict(d: dict, path) -> Study:
                                f"keys {tuple(f.name for f in fields(report.reference))})")
     else:
         reference = None
-    return Study(name=name, task=task.name, report=report.name, description=description, methods=methods,
-                 seeds=seeds, fixed=MappingProxyType(fixed), grid=MappingProxyType(grid), save_curves=save_curves,
-                 reference=reference, source=str(path))
+    study = Study(name=name, task=task.name, report=report.name, description=description,
+                  methods=methods, seeds=seeds, fixed=MappingProxyType(fixed),
+                  grid=MappingProxyType(grid), save_curves=save_curves, reference=reference,
+                  source=str(path))
+    check_runs(study)
+    return study
+
+
+def check_runs(study: Study, shown: int = 10) -> None:
+    """Refuse a study whole, before any run, when one of its runs cannot start (an unknown
+    scenario, a formation, a pass beyond the simulator's limits, ...): ``task.check`` on each
+    grid point and method (the seeds were checked with the file). ``UserError`` naming the
+    study file and the first ``shown`` runs with their reasons."""
+    task = TASKS[study.task]
+    bad = []
+    for run in study_runs(replace(study, seeds=study.seeds[:1])):
+        try:
+            task.check(run.params)
+        except UserError as exc:
+            reason = str(exc)
+            where = ";".join(x for x in run.run_id.split(";") if not x.startswith("seed="))
+            bad.append(f"{where or 'every run'}: {reason}")
+    if bad:
+        n = len(study.seeds)
+        lines = "\n".join(f"  {b}" for b in bad[:shown])
+        more = f"\n  ... and {len(bad) - shown} more" if len(bad) > shown else ""
+        raise UserError(f"{study.source}: {len(bad) * n} of {len(study_runs(study))} run(s) cannot "
+                        f"start, so none was started:\n{lines}{more}")
 
 
 def _fmt(v) -> str:

@@ -3,8 +3,8 @@ the typed columns it adds to the runs table.
 
 A run is a pure function of its parameters (the noise seed among them), so it gives the same
 numbers in this process, in a worker process or on a Dask worker. The functions run in
-workers: they live at module level (picklable by reference), take one frozen parameter
-object and import the heavy modules lazily.
+workers: they live at module level (picklable by reference) and take one frozen parameter
+object.
 """
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from __future__ import annotations
 import time
 from dataclasses import MISSING, dataclass, field, fields
 from typing import Callable
-from factors.constants import DEG, R_LIMB_UV_M
+
+from factors.constants import R_LIMB_UV_M
 from fgnav.analysis.limb_method_study import direct_position_error_mc, table5 as closed_forms
 from fgnav.analysis.visibility import SEED_RING_DEG, ring_sees_limb, visibility_scenario
 from fgnav.constants import DEG, R_EARTH_M
@@ -21,7 +22,7 @@ from fgnav.io.log_csv import log_from_arrays
 from fgnav.measurements import build_pass
 from fgnav.models.registry import MODELS, prior_kinds
 from fgnav.pipeline import accuracy_metrics, solve
-from fgnav.scenarios import load_scenario
+from fgnav.scenarios import check_size, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.options import SmootherOptions
 
@@ -276,21 +277,58 @@ def table5(p: Table5Params):
 
 # ---- the registry --------------------------------------------------------------------
 
+# ---- the checks a run passes before any run of its study starts -------------------------
+
+def _check_seed(p: RunParams) -> None:
+    if isinstance(p.seed, bool) or not isinstance(p.seed, int) or p.seed < 0:
+        raise UserError(f"seed: expected an integer >= 0, found {p.seed!r}")
+
+
+def check_navigate(p: NavigateParams) -> None:
+    """What would stop :func:`navigate` before it solves: the seed, the scenario (known, one
+    spacecraft: a formation's runs are not a task here) and the size of its pass."""
+    _check_seed(p)
+    scn = _scenario(p.scenario, step_s=p.step_s, duration_h=p.duration_h, sigma_deg=p.sigma_deg,
+                    prior_position_sigma_m=p.prior_position_sigma_m,
+                    prior_velocity_sigma_mps=p.prior_velocity_sigma_mps, prior_mode=p.prior_mode)
+    if scn.formation is not None:
+        raise UserError(f"scenario '{p.scenario}' is a formation of several spacecraft: the "
+                        "navigate task simulates and solves one spacecraft (use fgnav simulate "
+                        "and fgnav smooth for a formation)")
+    check_size(scn)
+    _smoother_options(p.q_m2_s3, p.third_body)
+
+
+def check_observability(p: ObservabilityParams) -> None:
+    _check_seed(p)
+    _scenario(p.scenario, step_s=p.step_s, sigma_deg=p.sigma_deg)
+
+
+def check_visibility(p: VisibilityParams) -> None:
+    _check_seed(p)
+    check_size(visibility_scenario(p.orbit))
+    _smoother_options(p.q_m2_s3, p.third_body)
+
+
 @dataclass(frozen=True)
 class Task:
-    """A kind of run: its parameter type, its result columns and its function
-    ``run(params) -> (row {column: value}, arrays {name: ndarray})``."""
+    """A kind of run: its parameter type, its result columns, its function
+    ``run(params) -> (row {column: value}, arrays {name: ndarray})``, and ``check(params)``,
+    which raises :class:`UserError` for a run that cannot start, in well under a second, so
+    that a study is refused whole before any run."""
     name: str
     params: type
     columns: tuple[Column, ...]
     run: Callable
     takes_method: bool
+    check: Callable = _check_seed
 
 
 TASKS = {t.name: t for t in (
-    Task("navigate", NavigateParams, NAVIGATE_COLUMNS, navigate, True),
-    Task("observability", ObservabilityParams, OBSERVABILITY_COLUMNS, observability, False),
-    Task("visibility", VisibilityParams, VISIBILITY_COLUMNS, visibility, True),
+    Task("navigate", NavigateParams, NAVIGATE_COLUMNS, navigate, True, check_navigate),
+    Task("observability", ObservabilityParams, OBSERVABILITY_COLUMNS, observability, False,
+         check_observability),
+    Task("visibility", VisibilityParams, VISIBILITY_COLUMNS, visibility, True, check_visibility),
     Task("seed000-table5", Table5Params, TABLE5_COLUMNS, table5, False),
 )}
 

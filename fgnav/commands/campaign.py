@@ -10,7 +10,11 @@ def register(sub):
                     "processes or on a Dask distributed cluster. Each finished run is appended to "
                     "OUT/runs.csv at once, so an interrupted campaign loses nothing; --resume skips "
                     "the finished runs. When all runs are done the study's table (table.csv, "
-                    "table.md) and plot (plot.png) are written to OUT.")
+                    "table.md) and plot (plot.png) are written to OUT. The study is checked "
+                    "whole before any run: a run that cannot start (unknown or formation "
+                    "scenario, negative seed, a pass beyond the simulator's limits) refuses "
+                    "it (exit 2). Exit 3: some run failed while running (its error is in "
+                    "runs.csv).")
     p.add_argument("study", nargs="?", help="built-in study name (e.g. seed002-noise: Pan & Yao 2017, "
                                             "table 2; --list shows all) or a study .toml")
     p.add_argument("--out", help="(required) output directory (runs.csv, table.csv/.md, plot.png)")
@@ -67,4 +71,4 @@ def run(args) -> int:
         if (res.out_dir / "table.md").exists() and res.report_files:
             print()
             print((res.out_dir / "table.md").read_text())
-    return 1 if failed else 0
+    return 3 if failed else 0   # results written, not every run done (README, exit codes)

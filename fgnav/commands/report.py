@@ -43,10 +43,13 @@ def run(args) -> int:
 
     matplotlib.use("Agg")
     from fgnav.errors import UserError
+    from fgnav.io.outputs import check_output_paths
     from fgnav.viz.report import report_result_dir
 
     if not args.sigma > 0:
         raise UserError(f"--sigma must be > 0, found {args.sigma}")
+    if args.out is not None:   # before any plot: an existing file or an unwritable folder
+        check_output_paths(args.out)
     res = report_result_dir(args.result_dir, args.out, truth_path=args.truth, k_sigma=args.sigma)
     info = {"markdown": str(res["markdown"]), "html": str(res["html"]),
             "images": {k: str(v) for k, v in res["images"].items()}, "notes": res["notes"]}

@@ -65,6 +65,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
     chart = chart_of(options)   # the orbit's coordinates when not Cartesian (--state elements)
     if chart is not None:
+        chart.check_filter_start(x)
         P = chart.covariance_from_cartesian(x, P)
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))

@@ -1,0 +1,105 @@
+"""No confident wrong answer, no traceback, on the routes added last (the integrity issue:
+formations, attitude, the cruise, campaigns): each defect the adversary found, with a variant
+that is not its reproducer, the verdict asserted."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fgnav.cli import main
+
+
+@pytest.fixture(scope="module")
+def cruise_log(tmp_path_factory):
+    """A week of the mars-cruise scenario (angles every 4 h, no prior rows)."""
+    d = tmp_path_factory.mktemp("cruise")
+    assert main(["simulate", "mars-cruise", "--out", str(d), "--duration-h", "168", "--quiet"]) == 0
+    return (d / "measurements.csv").read_text().splitlines()
+
+
+@pytest.mark.parametrize("position_m", ["1.0e7,2.0e7,0.5e7", "-3.0e8,1.0e8,2.0e8"])
+def test_a_heliocentric_prior_inside_the_sun_fails_without_a_traceback(cruise_log, tmp_path,
+                                                                        capsys, position_m):
+    """A '# centre: sun' log whose prior lies inside the Sun drives the iterates beyond the
+    speed of light, where the aberration model is undefined (it raised 'math domain error');
+    now those rows are outside the model's domain and the verdict says the solution failed."""
+    head = cruise_log[:3]
+    assert head[1] == "# centre: sun" and head[2].startswith("epoch,kind")
+    t0 = cruise_log[3].split(",")[0]
+    rows = [f"{t0},prior_position,{position_m},1.0e4,,,,,",
+            f"{t0},prior_velocity,10.0,20.0,0.0,100.0,,,,,"]
+    log = tmp_path / "inside_sun.csv"
+    log.write_text("\n".join(head + rows + cruise_log[3:]) + "\n")
+    rc = main(["smooth", str(log), "--out", str(tmp_path / "r"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "domain error" not in err
+    if rc == 0:
+        summary = json.loads((tmp_path / "r" / "summary.json").read_text())
+        assert summary["integrity"]["status"] == "failed", summary["integrity"]
+    else:
+        assert rc == 2 and "line" in err, err
+
+
+def _keep_star_epochs(lines: list[str], every: int) -> list[str]:
+    """The log with star_direction_body rows kept at one epoch in ``every`` only."""
+    head = [ln for ln in lines if ln.startswith("#") or ln.startswith("epoch,")]
+    rows = [ln for ln in lines if ln not in head]
+    epochs = sorted({r.split(",", 1)[0] for r in rows})
+    keep = set(epochs[::every])
+    return head + [r for r in rows
+                   if r.split(",")[1] != "star_direction_body" or r.split(",", 1)[0] in keep]
+
+
+@pytest.fixture(scope="module")
+def raw_star_pass(tmp_path_factory):
+    """2 h of geo-limb with raw stars (every 60 s), seeds 0 and 3."""
+    out = {}
+    for seed in (0, 3):
+        d = tmp_path_factory.mktemp(f"raw{seed}")
+        assert main(["simulate", "geo-limb", "--raw-stars", "--duration-h", "2", "--seed",
+                     str(seed), "--out", str(d), "--quiet"]) == 0
+        out[seed] = d
+    return out
+
+
+@pytest.mark.parametrize("seed, every", [(0, 20), (3, 30)])
+def test_ekf_constant_rate_with_sparse_stars_is_not_called_ok(raw_star_pass, tmp_path, seed,
+                                                             every):
+    """The EKF's constant-rate attitude with stars at one epoch in 20 ended at orbit NEES 29 and
+    roll 46 sigma off with the verdict ok (the integrity issue, item 2): its innovations were
+    normalized by a covariance rebuilt with the attitude's random walk (4 deg per minute), so
+    every star looked small. The verdict now takes the filter's own normalized innovations,
+    which show the stars' misfit."""
+    d = raw_star_pass[seed]
+    log = tmp_path / "sparse.csv"
+    log.write_text("\n".join(_keep_star_epochs((d / "measurements.csv").read_text().splitlines(),
+                                               every)) + "\n")
+    args = ["--attitude", "estimate", "--attitude-motion", "constant-rate", "--third-body",
+            "--truth", str(d / "truth.oem"), "--quiet"]
+    assert main(["smooth", str(log), "--method", "ekf", "--out", str(tmp_path / "ekf"), *args]) == 0
+    ekf = json.loads((tmp_path / "ekf" / "summary.json").read_text())
+    # inconsistent against truth (NEES of 6 dof beyond its 95 % bound) exactly when not ok
+    consistent = ekf["nees_mean"] < 12.6
+    assert (ekf["integrity"]["status"] == "ok") == consistent, (ekf["nees_mean"],
+                                                              ekf["integrity"]["reasons"])
+    if not consistent:
+        assert ekf["integrity"]["families"]["star_direction_body"]["status"] != "ok"
+    # the batch on the same log is consistent and called ok
+    assert main(["smooth", str(log), "--out", str(tmp_path / "batch"), *args]) == 0
+    batch = json.loads((tmp_path / "batch" / "summary.json").read_text())
+    assert batch["integrity"]["status"] == "ok" and batch["nees_mean"] < 12.6
+
+
+def test_ekf_constant_rate_with_every_star_epoch_stays_ok(raw_star_pass, tmp_path):
+    """No false alarm from the filter's own innovations: stars at every epoch, NEES ~3, ok."""
+    d = raw_star_pass[0]
+    assert main(["smooth", str(d / "measurements.csv"), "--method", "ekf", "--out",
+                 str(tmp_path / "ekf"), "--attitude", "estimate", "--attitude-motion",
+                 "constant-rate", "--third-body", "--truth", str(d / "truth.oem"),
+                 "--quiet"]) == 0
+    s = json.loads((tmp_path / "ekf" / "summary.json").read_text())
+    assert s["integrity"]["status"] == "ok" and s["nees_mean"] < 12.6
+    star = s["integrity"]["families"]["star_direction_body"]
+    assert 0.7 < star["normalized"] < 1.4
