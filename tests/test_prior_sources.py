@@ -327,3 +327,23 @@ def test_omm_covariance_of_the_blue_book_annex_is_used_and_propagated():
     later = prior_from_file(path, add_seconds(el.epoch, np.array([3600.0]))[0])
     assert later.sigma_position_m > 2 * at_epoch.sigma_position_m   # the velocity's 1 h
     np.testing.assert_allclose(later.P_eci, later.P_eci.T, rtol=1e-9, atol=1e-12)
+
+
+def test_a_geocentric_element_set_for_a_cruise_or_several_spacecraft_is_refused(tmp_path):
+    from fgnav.io.log_csv import MeasurementLog
+    from fgnav.prior_sources import prior_for_log
+
+    tle = tmp_path / "sat.tle"
+    tle.write_text(TLE_00005)
+    rows = dict(path="cruise.csv", epoch0=parse_utc("2000-06-28T00:00:00Z"),
+                t_s=np.array([0.0, 60.0]), kind=np.array(["earth_direction"] * 2),
+                xyz=np.array([[1.0, 0.0, 0.0]] * 2), sigma=np.array([1e-4, 1e-4]),
+                line=np.array([2, 3]))
+    with pytest.raises(UserError, match="geocentric.*about the sun"):
+        prior_for_log(MeasurementLog(**rows, centre="sun"), tle)
+    with pytest.raises(UserError, match="2 spacecraft"):
+        prior_for_log(MeasurementLog(**rows, spacecraft=("a", "b")), tle)
+    log, prior = prior_for_log(MeasurementLog(**rows), tle)
+    assert list(log.kind[:2]) == ["prior_position", "prior_velocity"] and len(log.t_s) == 4
+    np.testing.assert_array_equal(log.xyz[0], prior.x_eci[:3])
+    assert list(log.line) == [0, 0, 2, 3] and log.sigma[0] == DEFAULT_SIGMAS["tle"][0]
