@@ -347,3 +347,21 @@ def test_a_geocentric_element_set_for_a_cruise_or_several_spacecraft_is_refused(
     assert list(log.kind[:2]) == ["prior_position", "prior_velocity"] and len(log.t_s) == 4
     np.testing.assert_array_equal(log.xyz[0], prior.x_eci[:3])
     assert list(log.line) == [0, 0, 2, 3] and log.sigma[0] == DEFAULT_SIGMAS["tle"][0]
+
+
+def test_a_teme_opm_is_rotated_like_sgp4_states(tmp_path):
+    # Vallado 2013, Example 3-15's TEME state as an OPM at its epoch: the prior is its J2000
+    # state (age 0, no propagation), to the example's printed 0.1 m and 0.1 mm/s
+    path = tmp_path / "teme.opm"
+    path.write_text(
+        "CCSDS_OPM_VERS = 3.0\nCREATION_DATE = 2004-04-06T00:00:00\nORIGINATOR = TEST\n"
+        "OBJECT_NAME = EX3-15\nOBJECT_ID = 2004-000A\nCENTER_NAME = EARTH\nREF_FRAME = TEME\n"
+        "TIME_SYSTEM = UTC\nEPOCH = 2004-04-06T07:51:28.386009\n"
+        "X = 5094.18016210 [km]\nY = 6127.64465950 [km]\nZ = 6380.34453270 [km]\n"
+        "X_DOT = -4.746131487 [km/s]\nY_DOT = 0.785818041 [km/s]\nZ_DOT = 5.531931288 [km/s]\n")
+    prior = prior_from_file(path, parse_utc("2004-04-06T07:51:28.386009Z"))
+    np.testing.assert_allclose(prior.x_eci[:3] / 1e3, [5102.5096, 6123.01152, 6378.1363],
+                               atol=1e-4)
+    np.testing.assert_allclose(prior.x_eci[3:] / 1e3, [-4.7432196, 0.7905366, 5.53375619],
+                               atol=1e-7)
+    assert (prior.sigma_position_m, prior.sigma_from) == (DEFAULT_SIGMAS["opm"][0], "default")
