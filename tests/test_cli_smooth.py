@@ -15,7 +15,7 @@ EPOCH0 = "2025-03-01T00:00:00Z"
 X0 = np.array([6509244.371304875, 0.0, 3713244.835519765, -3737.397235776740, 0.0, 8790.602460568101])
 
 
-def _hand_written_log(tmp_path, t_dir, with_limb=True, with_priors=True):
+def hand_written_log(tmp_path, t_dir, with_limb=True, with_priors=True):
     """A log typed the way a user would: comments, uneven epochs, rows sharing an epoch."""
     rng = np.random.default_rng(5)
     t_all = np.unique(np.concatenate([[0.0], t_dir]))
@@ -47,7 +47,7 @@ def _hand_written_log(tmp_path, t_dir, with_limb=True, with_priors=True):
 @pytest.mark.parametrize("method", ["batch", "isam2", "ekf"])
 def test_smooth_a_hand_written_log(tmp_path, method, capsys):
     t_dir = np.concatenate([np.arange(0, 3600, 30.0), np.arange(3600, 7200, 120.0)])  # uneven
-    log, truth = _hand_written_log(tmp_path, t_dir)
+    log, truth = hand_written_log(tmp_path, t_dir)
     out = tmp_path / "result"
     rc = main(["smooth", str(log), "--method", method, "--out", str(out), "--truth", str(truth), "--quiet"])
     assert rc == 0
@@ -85,7 +85,7 @@ def test_log_without_direction_data_is_a_clear_error(tmp_path, capsys):
 
 
 def test_too_few_epochs_to_observe_the_orbit_is_a_clear_error(tmp_path, capsys):
-    log, _ = _hand_written_log(tmp_path, np.array([0.0, 60.0]), with_limb=False)
+    log, _ = hand_written_log(tmp_path, np.array([0.0, 60.0]), with_limb=False)
     rc = main(["smooth", str(log), "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err
     assert rc == 2
@@ -95,7 +95,7 @@ def test_too_few_epochs_to_observe_the_orbit_is_a_clear_error(tmp_path, capsys):
 def test_direction_rows_without_priors_start_from_the_initial_orbit(tmp_path, capsys):
     # No prior rows: the orbit comes from the directions and limb ranges alone
     # (fgnav.initial_orbit); the answer is checked against the DOP853 truth.
-    log, truth = _hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
+    log, truth = hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
     out = tmp_path / "r"
     rc = main(["smooth", str(log), "--out", str(out), "--truth", str(truth), "--quiet"])
     assert rc == 0, capsys.readouterr().err
@@ -105,7 +105,7 @@ def test_direction_rows_without_priors_start_from_the_initial_orbit(tmp_path, ca
 
 
 def test_without_priors_and_without_directions_asks_for_a_prior(tmp_path, capsys):
-    log, _ = _hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
+    log, _ = hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
     log.write_text("".join(l + "\n" for l in log.read_text().splitlines() if "earth_direction" not in l))
     rc = main(["smooth", str(log), "--out", str(tmp_path / "r")])
     err = capsys.readouterr().err

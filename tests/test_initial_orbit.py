@@ -165,7 +165,8 @@ def _write_tdm(path, sim, every):
     sigma_deg = math.degrees(float(np.asarray(log.sigma)[i[0]]))
     lines = ["CCSDS_TDM_VERS = 2.0", "CREATION_DATE = 2025-03-01T00:00:00",
              "ORIGINATOR = FGNAV-TEST", "META_START", f"COMMENT sigma_deg={sigma_deg!r}",
-             "TIME_SYSTEM = UTC", "PARTICIPANT_1 = FGNAV-SAT", "ANGLE_TYPE = RADEC",
+             "TIME_SYSTEM = UTC", "PARTICIPANT_1 = FGNAV-SAT",
+             "PARTICIPANT_2 = EARTH", "PATH = 2,1", "ANGLE_TYPE = RADEC",
              "REFERENCE_FRAME = EME2000", "META_STOP", "DATA_START"]
     for j, t in enumerate(np.asarray(log.t_s, dtype=float)[i]):
         ep = format_utc(sim.epoch0 + np.timedelta64(int(round(t * 1e9)), "ns")).rstrip("Z")

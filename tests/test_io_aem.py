@@ -12,7 +12,7 @@ import pytest
 
 from factors.geometry import so3_exp, so3_log
 from fgnav.errors import InputFormatError, UserError
-from fgnav.io.aem import read_aem, write_aem
+from fgnav.io.aem import read_aem, write_aem, write_aem_data
 from fgnav.io.attitude_covariance import read_attitude_covariance, write_attitude_covariance
 from fgnav.time import add_seconds, parse_utc
 
@@ -236,6 +236,15 @@ def test_version_1_keywords_and_directions(tmp_path, quaternion_type, attitude_d
     stated = gtsam.Rot3.AxisAngle(gtsam.Point3(*e), 2 * half).matrix()
     np.testing.assert_allclose(a.R_eci_from_body()[0], stated.T if invert else stated, atol=1e-14)
     assert a.meta["body_frame"] == "SC_BODY_1"
+    # written back in the AEM 2.0 form (inertial A, body B, scalar last): the same rotation
+    q = tmp_path / "v2.aem"
+    write_aem_data(q, a)
+    text = q.read_text()
+    assert "ATTITUDE_DIR" not in text and "QUATERNION_TYPE" not in text
+    assert f"REF_FRAME_A = {frame_a if frame_a != 'SC_BODY_1' else frame_b}" in text
+    b = read_aem(q)
+    np.testing.assert_array_equal(b.t_s, a.t_s)
+    np.testing.assert_allclose(b.q_wxyz, a.q_wxyz, rtol=0, atol=2e-16)
 
 
 GOOD = HAND_WRITTEN_V2

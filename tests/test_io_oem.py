@@ -253,8 +253,8 @@ ERRORS = {
                                             ln)[0:1] + (s.splitlines().index(
                                                 "COV_REF_FRAME = EME2000") + 2,),
                             "COV_REF_FRAME", "once"),
-    "header_keyword_twice": (lambda s: _edit(s, _key("ORIGINATOR"), lambda ln, _: ln + "\nORIGINATOR"
-                                             " = B")[0:1] + (s.splitlines().index(
+    "header_keyword_twice": (lambda s: _edit(s, _key("ORIGINATOR"), lambda ln, _: ln +
+                                             "\nORIGINATOR = B")[0:1] + (s.splitlines().index(
                                                  "ORIGINATOR = FGNAV") + 2,),
                              "ORIGINATOR", "once"),
     "interpolation_degree_not_integer": (lambda s: _edit(s, _key("STOP_TIME"), lambda ln, _: ln +

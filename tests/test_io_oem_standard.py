@@ -13,9 +13,10 @@ from fgnav.io.oem import read_oem, write_oem, write_oem_data
 from fgnav.orbit import integrate_truth
 from fgnav.time import parse_utc
 
-from test_cli_smooth import _hand_written_log
+from test_cli_smooth import hand_written_log
 
-ROW = ["3.3313494e-04", "4.6189273e-04 6.7824216e-04", "-3.0700078e-04 -4.2212341e-04 3.2319319e-04",
+ROW = ["3.3313494e-04", "4.6189273e-04 6.7824216e-04",
+       "-3.0700078e-04 -4.2212341e-04 3.2319319e-04",
        "-3.3493650e-07 -4.6860842e-07 2.4849495e-07 4.2960228e-10",
        "-2.2118325e-07 -2.8641868e-07 1.7980986e-07 2.6088992e-10 1.7675147e-10",
        "-3.0413460e-07 -4.9894969e-07 3.5403109e-07 1.8692631e-10 1.0088625e-10 6.2244443e-10"]
@@ -109,7 +110,7 @@ def test_oem_3_and_j2000_are_accepted_as_truth(tmp_path, edit):
     """`fgnav smooth --truth` with an OEM 3.0 carrying CLASSIFICATION and MESSAGE_ID, and with
     REF_FRAME = J2000: the same errors as with fgnav's own OEM 2.0 truth."""
     t_dir = np.arange(0, 1800, 30.0)
-    log, truth = _hand_written_log(tmp_path, t_dir)
+    log, truth = hand_written_log(tmp_path, t_dir)
     text = truth.read_text()
     if edit == "j2000":
         new = text.replace("REF_FRAME = EME2000", "REF_FRAME = J2000")
@@ -130,7 +131,7 @@ def test_oem_3_and_j2000_are_accepted_as_truth(tmp_path, edit):
 
 
 def test_a_truth_about_another_centre_is_refused(tmp_path, capsys):
-    log, truth = _hand_written_log(tmp_path, np.arange(0, 600, 60.0))
+    log, truth = hand_written_log(tmp_path, np.arange(0, 600, 60.0))
     mars = tmp_path / "mars.oem"
     mars.write_text(truth.read_text().replace("CENTER_NAME = EARTH", "CENTER_NAME = MARS"))
     assert main(["smooth", str(log), "--out", str(tmp_path / "r"), "--truth", str(mars),

@@ -25,7 +25,7 @@ TIME_SYSTEM = UTC
 PARTICIPANT_1 = FGNAV-SAT
 PARTICIPANT_2 = EARTH
 MODE = SEQUENTIAL
-PATH = 1,2
+PATH = 2,1
 ANGLE_TYPE = RADEC
 REFERENCE_FRAME = EME2000
 INTEGRATION_INTERVAL = 1.0
@@ -127,6 +127,31 @@ TDM_ERRORS = {
                           "incomplete"),
     "not_a_tdm": (lambda s: s.replace("CCSDS_TDM_VERS = 2.0", "CCSDS_OEM_VERS = 2.0"),
                   "CCSDS_OEM_VERS", "CCSDS_TDM_VERS", "CCSDS_TDM_VERS"),
+    "path_spacecraft_seen_from_earth": (lambda s: s.replace("PATH = 2,1", "PATH = 1,2"),
+                                        "PATH = 1,2", "PATH",
+                                        "PARTICIPANT_1 = FGNAV-SAT seen from "
+                                        "PARTICIPANT_2 = EARTH"),
+    "ground_telescope": (lambda s: s.replace("PARTICIPANT_2 = EARTH", "PARTICIPANT_2 = TFRM"),
+                         "PATH = 2,1", "PATH", "PARTICIPANT_2 = TFRM seen from"),
+    "no_path": (lambda s: s.replace("PATH = 2,1\n", ""), "META_START", "PATH", "no PATH"),
+    "path_unknown_participant": (lambda s: s.replace("PATH = 2,1", "PATH = 3,1"), "PATH = 3,1",
+                                 "PATH", "defined in the segment"),
+    "single_diff_mode": (lambda s: s.replace("MODE = SEQUENTIAL", "MODE = SINGLE_DIFF"),
+                         "MODE = SINGLE_DIFF", "MODE", "SEQUENTIAL"),
+    "unknown_meta_keyword": (lambda s: s.replace("PATH = 2,1", "PATHS = 2,1"), "PATHS", "PATHS",
+                             "table 3-3"),
+    "correction_without_applied": (lambda s: s.replace("META_STOP", "CORRECTION_ANGLE_1 = 1.0\n"
+                                                       "META_STOP"), "META_STOP",
+                                   "CORRECTIONS_APPLIED", "3.4.15.3"),
+    "corrections_applied_maybe": (lambda s: s.replace("META_STOP", "CORRECTIONS_APPLIED = MAYBE\n"
+                                                      "META_STOP"), "MAYBE",
+                                  "CORRECTIONS_APPLIED", "YES or NO"),
+    "aberration_not_applied": (lambda s: s.replace("META_STOP", "CORRECTION_ABERRATION_YEARLY = "
+                                                   "0.0057\nCORRECTIONS_APPLIED = NO\nMETA_STOP"),
+                               "CORRECTION_ABERRATION_YEARLY", "CORRECTION_ABERRATION_YEARLY",
+                               "aberration"),
+    "xml_form": (lambda s: '<?xml version="1.0"?>\n<tdm id="CCSDS_TDM_VERS" version="2.0"/>\n',
+                 "<?xml", "CCSDS_TDM_VERS", "XML"),
     "no_angles": (lambda s: "\n".join(ln for ln in s.splitlines() if not ln.startswith("ANGLE"))
                   + "\n", "DATA_STOP", "ANGLE_1", "no measurements"),
 }
@@ -167,3 +192,24 @@ def test_a_sigma_outside_the_direction_range_is_refused(tmp_path, sigma_deg):
     line = TDM.splitlines().index("COMMENT sigma_deg=0.01") + 1
     with pytest.raises(InputFormatError, match=rf"line {line}, column 'sigma_deg'.*within"):
         read_tdm(p)
+
+
+@pytest.mark.parametrize("applied", ["NO", "YES"])
+def test_angle_corrections_not_applied_are_added(tmp_path, applied):
+    """503.0-B-2 table 3-3 (item 37) and 3.4.15: CORRECTION_ANGLE_n is the value "to be added
+    to each data point"; with CORRECTIONS_APPLIED = NO fgnav adds it, with YES the data
+    already has it."""
+    p = tmp_path / "c.tdm"
+    p.write_text(TDM.replace("META_STOP", "CORRECTION_ANGLE_1 = 1.0\nCORRECTION_ANGLE_2 = "
+                             f"-0.5\nCORRECTIONS_APPLIED = {applied}\nMETA_STOP"))
+    log = read_tdm(p)
+    shift = (1.0, -0.5) if applied == "NO" else (0.0, 0.0)
+    want = np.array([_u_from_radec(ra + shift[0], dec + shift[1]) for ra, dec in RADEC_DEG])
+    np.testing.assert_allclose(log.xyz, want, rtol=0, atol=1e-15)
+    plain = read_tdm(_write(tmp_path / "p.tdm", TDM))
+    assert (np.abs(log.xyz - plain.xyz).max() > 1e-3) == (applied == "NO")
+
+
+def _write(p, text):
+    p.write_text(text)
+    return p

@@ -174,6 +174,10 @@ def register(sub):
                    help=f"epochs between checkpoints (default {DEFAULT_CHECKPOINT_EVERY})")
     p.add_argument("--resume", action="store_true",
                    help="isam2: continue from --checkpoint (same log and options)")
+    p.add_argument("--sigma-deg", type=T.number(0.0, 45.0, lo_open=True, unit="deg"),
+                   default=None, metavar="DEG",
+                   help="TDM only: 1-sigma angle noise, deg (default: the file's "
+                        "'COMMENT sigma_deg=...')")
     p.add_argument("--ignore-prior", action="store_true",
                    help="leave the log's prior_position/prior_velocity rows out and start from the "
                         "orbit the measurements give (angles-only initial orbit determination; "
@@ -276,6 +280,30 @@ class StageLines:
         return stage(what, self.quiet, show=size >= self.BIG)
 
 
+def _tdm_with_sigma(args):
+    """``smooth_file`` for a TDM read with ``--sigma-deg`` (as ``fgnav check`` reads it)."""
+    from pathlib import Path
+
+    from fgnav.errors import UserError
+    from fgnav.io.tdm import read_tdm
+    from fgnav.pipeline import smooth_log
+
+    if Path(args.log).suffix.lower() not in (".tdm", ".kvn"):
+        raise UserError(f"--sigma-deg applies to a CCSDS TDM (.tdm, .kvn) only; {args.log} is "
+                        "read as a CSV log, whose rows carry their own sigma")
+
+    def smooth(log_path, method, options, **kw):
+        import time
+        from contextlib import nullcontext
+
+        t0 = time.perf_counter()
+        stage = kw.get("stage") or (lambda what, size: nullcontext())
+        with stage(f"reading {log_path}", 0):
+            log = read_tdm(log_path, sigma_rad=math.radians(args.sigma_deg))
+        return smooth_log(log, method, options, t0=t0, **kw)
+    return smooth
+
+
 def run(args) -> int:
     import json
 
@@ -296,8 +324,9 @@ def run(args) -> int:
         check_readable_file(args.prior, "--prior")
     check_output_paths(args.out, rerun=args.rerun, checkpoint=args.checkpoint, resume=args.resume)
     bar = ProgressCallback(args.method, args.quiet)
+    smooth = smooth_file if args.sigma_deg is None else _tdm_with_sigma(args)
     try:
-        res, p = smooth_file(args.log, args.method, solver_options(args), truth_path=args.truth,
+        res, p = smooth(args.log, args.method, solver_options(args), truth_path=args.truth,
                              lag_s=args.lag_s, checkpoint=args.checkpoint,
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
                              ignore_prior=args.ignore_prior, progress=bar,

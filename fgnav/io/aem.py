@@ -69,11 +69,12 @@ import numpy as np
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.io.kvn import (check_meta_value, epoch_value, format_ccsds_epoch, header_line,
-                          kvn_header, number_value, read_kvn_lines, split_kvn)
+                          kvn_header, number_value, read_kvn_lines, split_kvn, version_line)
 from fgnav.time import add_seconds, parse_utc, seconds_since
 from fgnav.vision.attitude import matrix_from_quat, quat_from_matrix
 
-__all__ = ["AemData", "write_aem", "read_aem", "aem_quaternions", "INERTIAL_FRAMES"]
+__all__ = ["AemData", "write_aem", "write_aem_data", "read_aem", "aem_quaternions",
+           "INERTIAL_FRAMES"]
 
 INERTIAL_FRAMES = ("EME2000", "GCRF", "ICRF", "J2000")
 _HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID", "CLASSIFICATION")
@@ -151,7 +152,7 @@ def write_aem(path, epoch0, t_s, R_eci_from_body, *, object_name="FGNAV", object
                         f"({', '.join(INERTIAL_FRAMES)}), found {ref_frame_a!r}")
     names = {"OBJECT_NAME": object_name, "OBJECT_ID": object_id, "CENTER_NAME": center_name,
              "REF_FRAME_A": ref_frame_a, "REF_FRAME_B": ref_frame_b, "ORIGINATOR": originator}
-    names = {k: check_meta_value(k, v) for k, v in names.items()}
+    names = {k: check_meta_value(k, v, "write_aem") for k, v in names.items()}
     if names["REF_FRAME_B"] in INERTIAL_FRAMES:
         raise UserError(f"write_aem: ref_frame_b is the body frame (e.g. SC_BODY_1), found "
                         f"{ref_frame_b!r}")
@@ -236,18 +237,9 @@ def _close_meta(path, lineno, segment, version, meta):
 def read_aem(path) -> AemData:
     """Read an AEM (KVN) file (see the module docstring for what is accepted)."""
     lines = read_kvn_lines(path)
-    it = iter([(n, t) for n, t in lines if t.strip()])
+    n0, version = version_line(path, lines, "AEM", tuple(sorted(_TYPES)))
+    it = iter([(n, t) for n, t in lines if t.strip() and n > n0])
     meta: dict = {"comments": [], "segments": []}
-    first = next(it, None)
-    if first is None:
-        raise InputFormatError(path, 1, "CCSDS_AEM_VERS", "an AEM starting with "
-                               "'CCSDS_AEM_VERS = 2.0'", "empty file")
-    n0, t0 = first
-    key, version = split_kvn(path, n0, t0, "the first line is CCSDS_AEM_VERS = 2.0")
-    if key != "CCSDS_AEM_VERS":
-        raise InputFormatError(path, n0, key, "CCSDS_AEM_VERS = 2.0 as the first line", t0.strip())
-    if version not in _TYPES:
-        raise InputFormatError(path, n0, "CCSDS_AEM_VERS", "version 1.0 or 2.0", version)
     meta["CCSDS_AEM_VERS"] = version
 
     epochs: list[int] = []
@@ -289,6 +281,7 @@ def read_aem(path) -> AemData:
                     raise InputFormatError(path, lineno, "DATA_STOP", "at least one attitude "
                                            "data line between DATA_START and DATA_STOP", s)
                 state = "after_data"
+                segment["rows"] = (len(epochs) - len(seg_epochs), len(epochs))
                 continue
             quats.append(_data_line(path, lineno, s, segment))
             t = int(epoch_value(path, lineno, "EPOCH", s.split()[0]).astype(np.int64))
@@ -355,3 +348,39 @@ def _data_line(path, lineno, s, segment) -> np.ndarray:
     if segment["invert"]:
         wxyz[1:] = -wxyz[1:]
     return wxyz
+
+
+_META_ORDER = ("OBJECT_NAME", "OBJECT_ID", "CENTER_NAME", "REF_FRAME_A", "REF_FRAME_B",
+               "TIME_SYSTEM", "START_TIME", "USEABLE_START_TIME", "USEABLE_STOP_TIME",
+               "STOP_TIME", "ATTITUDE_TYPE", "INTERPOLATION_METHOD", "INTERPOLATION_DEGREE")
+
+
+def write_aem_data(path, data: AemData) -> None:
+    """Write an :class:`AemData` as read by :func:`read_aem` back as an AEM 2.0 KVN file,
+    atomically: its header keywords and comments, every segment with its metadata, in the
+    AEM 2.0 form of the module docstring -- ``REF_FRAME_A`` the segment's inertial frame,
+    ``REF_FRAME_B`` its body frame, ``ATTITUDE_TYPE = QUATERNION``, ``EPOCH Q1 Q2 Q3 QC``
+    with the quaternion as read (an AEM 1.0's ATTITUDE_DIR / QUATERNION_TYPE and a body-to-
+    inertial quaternion already resolved; rates, which fgnav does not read, are not written).
+    Numbers as the shortest text that reads back to the same double (``repr``)."""
+    meta = data.meta
+    ep = [format_ccsds_epoch(t) for t in add_seconds(data.epoch0, np.asarray(data.t_s, float))]
+    out = ["CCSDS_AEM_VERS = 2.0\n"] + [f"COMMENT {c}\n" for c in meta.get("comments", [])]
+    for k in ("CLASSIFICATION", "CREATION_DATE", "ORIGINATOR", "MESSAGE_ID"):
+        if k in meta:
+            out.append(f"{k} = {meta[k]}\n")
+    for sg in meta["segments"]:
+        a, b = sg["REF_FRAME_A"], sg["REF_FRAME_B"]
+        inertial, body = (a, b) if a in INERTIAL_FRAMES else (b, a)
+        keys = {**sg, "REF_FRAME_A": inertial, "REF_FRAME_B": body,
+                "ATTITUDE_TYPE": "QUATERNION"}
+        out.append("\nMETA_START\n")
+        out += [f"COMMENT {c}\n" for c in sg.get("comments", [])]
+        out += [f"{k} = {keys[k]}\n" for k in _META_ORDER if k in keys]
+        out.append("META_STOP\n\nDATA_START\n")
+        for i in range(*sg["rows"]):
+            w, x, y, z = data.q_wxyz[i].tolist()
+            out.append(f"{ep[i]} {x!r} {y!r} {z!r} {w!r}\n")
+        out.append("DATA_STOP\n")
+    with atomic_writer(path) as f:
+        f.write("".join(out))

@@ -23,7 +23,8 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.time import UtcRangeError, format_utc, parse_utc
 
 __all__ = ["KVN_RE", "EPOCH_EXPECTED", "parse_ccsds_epoch", "format_ccsds_epoch",
-           "ccsds_epochs", "read_kvn_lines", "split_kvn", "version_line", "epoch_value", "number_value",
+           "ccsds_epochs", "read_kvn_lines", "split_kvn", "version_line", "epoch_value",
+           "number_value",
            "header_line", "kvn_header", "check_meta_value", "HEADER_KEYS"]
 
 HEADER_KEYS = ("CREATION_DATE", "ORIGINATOR", "MESSAGE_ID")
@@ -156,10 +157,11 @@ def number_value(path, lineno, column, text, scale=1.0):
     return x
 
 
-def version_line(path, lines, message: str, versions) -> tuple[int, str]:
+def version_line(path, lines, message: str, versions, name_found=True) -> tuple[int, str]:
     """The first non-blank line of a KVN message, ``CCSDS_<message>_VERS = v`` with ``v`` in
     ``versions``: (line number, v). An XML message (``<?xml ...``), an empty file or another
-    first line is an error naming the file, the line and the keyword."""
+    first line is an error naming the file, the line and the keyword (another first keyword:
+    that one if ``name_found``, else the one expected)."""
     key = f"CCSDS_{message}_VERS"
     first = next(((n, t.strip()) for n, t in lines if t.strip()), None)
     if first is None:
@@ -172,7 +174,7 @@ def version_line(path, lines, message: str, versions) -> tuple[int, str]:
                                t0[:60])
     m = KVN_RE.match(t0)
     if m is None or m.group(1) != key:
-        raise InputFormatError(path, n0, m.group(1) if m else key,
+        raise InputFormatError(path, n0, m.group(1) if m and name_found else key,
                                f"{key} = {versions[-1]} as the first line", t0[:60])
     if m.group(2) not in versions:
         raise InputFormatError(path, n0, key, f"version {', '.join(versions[:-1])} or "
@@ -208,11 +210,12 @@ def header_line(path, lineno, s, meta, keys=HEADER_KEYS) -> bool:
     return False
 
 
-def check_meta_value(name, value):
-    """A keyword value to write: non-empty, one line, no ``=``; stripped. UserError if not."""
+def check_meta_value(name, value, writer="write_oem"):
+    """A keyword value to write: non-empty, one line, no ``=``; stripped. UserError (naming
+    the ``writer`` and the keyword) if not."""
     value = str(value)
     if not value.strip() or any(c in value for c in "\r\n="):
-        raise UserError(f"write_oem: {name} must be a non-empty single-line value without "
+        raise UserError(f"{writer}: {name} must be a non-empty single-line value without "
                         f"'=', found {value!r}")
     return value.strip()
 

@@ -87,7 +87,8 @@ from fgnav.io.kvn import (HEADER_KEYS, ccsds_epochs, check_meta_value, epoch_val
 from fgnav.io.number_text import render_rows
 from fgnav.time import add_seconds, parse_utc, seconds_since
 
-__all__ = ["OemData", "write_oem", "write_oem_data", "read_oem", "parse_ccsds_epoch", "format_ccsds_epoch", "oem_frame"]
+__all__ = ["OemData", "write_oem", "write_oem_data", "read_oem", "parse_ccsds_epoch",
+           "format_ccsds_epoch", "oem_frame"]
 
 _M_PER_KM = 1000.0
 _INERTIAL_FRAMES = ("EME2000", "J2000", "GCRF", "ICRF")
@@ -121,8 +122,21 @@ class OemData:
     meta: dict = field(default_factory=dict)
     a_eci: np.ndarray | None = None
     cov_t_s: np.ndarray | None = None
-    cov_P: np.ndarray | None = None
     cov_frame: list = field(default_factory=list)
+    cov_row: np.ndarray | None = None     # (K,) the row of P_eci holding block k, or -1
+    cov_other: np.ndarray | None = None   # the blocks with cov_row -1, in file order
+
+    @property
+    def cov_P(self) -> np.ndarray | None:
+        """(K, 6, 6) every covariance block in file order, SI (assembled from ``P_eci`` and
+        ``cov_other``, so that a file of fgnav's, a block per epoch, is held once)."""
+        if self.cov_row is None:
+            return None
+        out = np.empty((len(self.cov_row), 6, 6))
+        mine = self.cov_row >= 0
+        out[mine] = self.P_eci[self.cov_row[mine]]
+        out[~mine] = self.cov_other
+        return out
 
 
 _STATE_COLS = ("X", "Y", "Z", "X_DOT", "Y_DOT", "Z_DOT", "X_DDOT", "Y_DDOT", "Z_DDOT")
@@ -405,7 +419,7 @@ def read_oem(path) -> OemData:
     A = np.array(accels, dtype=float)
     epoch0 = np.datetime64(int(ns[0]), "ns")
     t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
-    P = cov_t = cov_P = None
+    P = cov_t = cov_row = cov_other = None
     cov_frames: list = []
     if covs:
         P = np.full((len(ns), 6, 6), np.nan)
@@ -413,30 +427,39 @@ def read_oem(path) -> OemData:
         for i, sg in enumerate(meta["segments"]):
             if "covs" in sg:
                 seg_of_cov[sg["covs"][0]:sg["covs"][1]] = i
-        unmatched = other_frame = 0
-        for (t, _line, Pk, frame), i in zip(covs, seg_of_cov.tolist()):
-            i0, i1 = meta["segments"][i]["rows"]
-            js = np.flatnonzero(ns[i0:i1] == t) + i0
-            if not len(js):
-                unmatched += 1
-            elif not _inertial(frame):
-                other_frame += 1
-            else:
-                P[js[0]] = Pk  # already in m**2, m**2/s, m**2/s**2
+        cov_ns = np.array([c[0] for c in covs], dtype=np.int64)
+        inertial = np.array([_inertial(c[3]) for c in covs])
+        row = np.full(len(covs), -1)
+        for i, sg in enumerate(meta["segments"]):   # epochs increase within a segment
+            sel = np.flatnonzero(seg_of_cov == i)
+            if not len(sel):
+                continue
+            i0, i1 = sg["rows"]
+            j = np.clip(np.searchsorted(ns[i0:i1], cov_ns[sel]), 0, i1 - i0 - 1)
+            hit = ns[i0:i1][j] == cov_ns[sel]
+            row[sel[hit]] = i0 + j[hit]
+        use = (row >= 0) & inertial
+        last = np.zeros(len(covs), dtype=bool)   # of blocks at one epoch the last one counts
+        idx = np.flatnonzero(use)
+        _, first_rev = np.unique(row[idx][::-1], return_index=True)
+        last[idx[::-1][first_rev]] = True
+        P[row[last]] = np.array([covs[k][2] for k in np.flatnonzero(last)]).reshape(-1, 6, 6)
+        unmatched = int((row < 0).sum())
+        other_frame = int(((row >= 0) & ~inertial).sum())
         meta["covariance_missing"] = int(np.isnan(P[:, 0, 0]).sum())
         meta["covariance_unmatched"] = unmatched
         meta["covariance_other_frame"] = other_frame
-        cov_t = seconds_since(np.array([c[0] for c in covs], dtype=np.int64).astype(
-            "datetime64[ns]"), epoch0)
-        cov_P = np.array([c[2] for c in covs])
+        cov_t = seconds_since(cov_ns.astype("datetime64[ns]"), epoch0)
+        cov_row = np.where(last, row, -1)
+        cov_other = np.array([covs[k][2] for k in np.flatnonzero(~last)]).reshape(-1, 6, 6)
         cov_frames = [c[3] for c in covs]
     first_seg = meta["segments"][0]
     for k in _META_REQUIRED + _META_OPTIONAL:
         if k in first_seg:
             meta.setdefault(k, first_seg[k])
     return OemData(epoch0=epoch0, t_s=t_s, x_eci=X, P_eci=P, meta=meta,
-                   a_eci=A if np.isfinite(A).any() else None, cov_t_s=cov_t, cov_P=cov_P,
-                   cov_frame=cov_frames)
+                   a_eci=A if np.isfinite(A).any() else None, cov_t_s=cov_t, cov_frame=cov_frames,
+                   cov_row=cov_row, cov_other=cov_other)
 
 
 _CHUNK = 20000

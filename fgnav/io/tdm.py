@@ -1,4 +1,5 @@
-"""Read CCSDS Tracking Data Messages (TDM, CCSDS 503.0-B-2), KVN form: RA/Dec angle data.
+"""Read and write CCSDS Tracking Data Messages (TDM, CCSDS 503.0-B-2), KVN form: RA/Dec
+angle data of the Earth seen from the spacecraft.
 
 Each pair of ``ANGLE_1`` (right ascension a, deg) and ``ANGLE_2`` (declination d, deg)
 records at the same epoch becomes one ``earth_direction`` measurement (see
@@ -14,10 +15,15 @@ Accepted layout (one or more segments)::
     ORIGINATOR = ...                (required)
     META_START
     TIME_SYSTEM = UTC               (required; only UTC)
-    PARTICIPANT_1 = ...             (required)
+    PARTICIPANT_1 = EARTH           (required; numbering free)
+    PARTICIPANT_2 = <the spacecraft>
+    MODE = SEQUENTIAL               (optional; SEQUENTIAL only)
+    PATH = 1,2                      (required with angles: the Earth, then the spacecraft)
     ANGLE_TYPE = RADEC              (required when the segment has angles; only RADEC)
     REFERENCE_FRAME = EME2000       (required with RADEC; only EME2000)
-    ... other TDM metadata keywords are kept in ``meta`` but not used
+    CORRECTION_ANGLE_1 = <deg>      (optional, with CORRECTIONS_APPLIED = YES or NO)
+    CORRECTIONS_APPLIED = NO        (NO: the corrections are added to the angles here)
+    ... other metadata keywords of table 3-3 are kept in ``meta`` but not used
     META_STOP
     DATA_START
     ANGLE_1 = <epoch> <RA, deg in [-180, 360)>
@@ -25,11 +31,27 @@ Accepted layout (one or more segments)::
     ... other data keywords (RANGE, DOPPLER_*, ...) are skipped with a warning
     DATA_STOP
 
+Who observes whom (3.3.2, 3.5.4): the signal runs along PATH from its first participant to
+its last, so the angles are those of the first participant seen from the last. fgnav reads
+them only when the first is a body it models in EME2000 (``EARTH``: the Earth's centre) and
+the last is the spacecraft (not a body): a ground telescope's RA/Dec of a satellite (the
+annex's ``tdm_e16``, ``tdm_e22``), a geocentric RA/Dec of the spacecraft (``PATH`` the other
+way), or no PATH are refused naming ``PATH`` and the participants. Corrections (3.4.15,
+table 3-3 item 37: the value "to be added to each data point"): with
+``CORRECTIONS_APPLIED = NO``, ``CORRECTION_ANGLE_1/2`` are added to the angles; with YES
+the data already has them; a ``CORRECTION_*`` without ``CORRECTIONS_APPLIED`` and an
+unapplied ``CORRECTION_ABERRATION_*`` on angles are refused. Unknown metadata keywords are
+refused, naming them.
+
+:func:`write_tdm` writes this layout (the sample ``fgnav/data/tdm/gto-transfer.tdm`` was
+written so from a simulated pass).
+
 Epochs are CCSDS ASCII time (``YYYY-MM-DDThh:mm:ss[.f]`` or ``YYYY-DDDThh:mm:ss[.f]``,
 optional ``Z``).
 
 The 1σ angular noise (rad, per tangent axis) is, in order of precedence: the ``sigma_rad``
-argument; a ``COMMENT sigma_deg=<value>`` line inside the segment (metadata or data
+argument (``--sigma-deg`` of ``fgnav check`` and ``fgnav smooth``); a ``COMMENT
+sigma_deg=<value>`` line inside the segment (metadata or data
 section); such a comment in the file header (applies to every segment). With none, the
 read fails. Malformed lines, an ANGLE_1 without its ANGLE_2 (or the reverse), a repeated
 record at one epoch, other ANGLE_TYPEs or frames, and missing keywords raise
@@ -45,13 +67,35 @@ import re
 import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
+from fgnav.io.atomic import atomic_writer
+from fgnav.io.kvn import (KVN_RE, ccsds_epochs, check_meta_value, epoch_value, header_line,
+                          kvn_header, number_value, read_kvn_lines, version_line)
 from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE, _sort_rows
-from fgnav.io.kvn import KVN_RE, epoch_value, header_line, number_value, read_kvn_lines
 from fgnav.models.registry import EARTH_DIRECTION
-from fgnav.time import seconds_since
+from fgnav.time import add_seconds, parse_utc, seconds_since
 
-__all__ = ["read_tdm"]
+__all__ = ["read_tdm", "write_tdm"]
 
+_META_KEYS = (
+    ("TRACK_ID", "DATA_TYPES", "TIME_SYSTEM", "START_TIME", "STOP_TIME")
+    + tuple(f"PARTICIPANT_{n}" for n in range(1, 6))
+    + ("MODE", "PATH", "PATH_1", "PATH_2")
+    + tuple(f"EPHEMERIS_NAME_{n}" for n in range(1, 6))
+    + ("TRANSMIT_BAND", "RECEIVE_BAND", "TURNAROUND_NUMERATOR", "TURNAROUND_DENOMINATOR",
+       "TIMETAG_REF", "INTEGRATION_INTERVAL", "INTEGRATION_REF", "FREQ_OFFSET", "RANGE_MODE",
+       "RANGE_MODULUS", "RANGE_UNITS", "ANGLE_TYPE", "REFERENCE_FRAME", "INTERPOLATION",
+       "INTERPOLATION_DEGREE", "DOPPLER_COUNT_BIAS", "DOPPLER_COUNT_SCALE",
+       "DOPPLER_COUNT_ROLLOVER")
+    + tuple(f"{d}_DELAY_{n}" for d in ("TRANSMIT", "RECEIVE") for n in range(1, 6))
+    + ("DATA_QUALITY", "CORRECTION_ANGLE_1", "CORRECTION_ANGLE_2", "CORRECTION_DOPPLER",
+       "CORRECTION_MAG", "CORRECTION_RANGE", "CORRECTION_RCS", "CORRECTION_RECEIVE",
+       "CORRECTION_TRANSMIT", "CORRECTION_ABERRATION_YEARLY", "CORRECTION_ABERRATION_DIURNAL",
+       "CORRECTIONS_APPLIED"))
+"""The metadata keywords of TDM 503.0-B-2 (table 3-3); any other is refused, naming it."""
+_MODELLED_TARGETS = ("EARTH",)
+"""Participants whose direction fgnav models in EME2000 (``earth_direction``: the Earth's
+centre)."""
+_BODIES = ("EARTH", "SUN", "MOON")
 _SIGMA_RE = re.compile(r"\bsigma_deg\s*=\s*(\S+)")
 _DATA_RE = re.compile(r"^([A-Z][A-Z0-9_]*)\s*=\s*(\S+)\s+(\S+)\s*$")
 
@@ -74,6 +118,63 @@ def _sigma_from_comment(path, lineno, comment):
     return math.radians(s)
 
 
+def _new_segment(lineno) -> dict:
+    return {"line": lineno, "comments": [], "sigma": None, "pending": {}, "rows": [],
+            "n_angles": 0, "keys": {}, "lines": {}, "paired": {}}
+
+
+def _check_path(path, seg):
+    """TDM 503.0-B-2 3.3.2 and 3.5.4: the signal of an angle measurement travels along PATH
+    from its first participant (the object seen) to its last (the observer), so the angles
+    are those of the first participant seen from the last. fgnav reads them as onboard
+    directions only when the observed participant is a body it models in EME2000 (the
+    Earth: ``earth_direction``) and the observer is the spacecraft (not a body); anything
+    else -- a ground telescope's RA/Dec of a satellite, a geocentric RA/Dec of the
+    spacecraft, no PATH -- is refused naming PATH and the participants."""
+    keys, lines = seg["keys"], seg["lines"]
+    if keys.get("MODE", "SEQUENTIAL") != "SEQUENTIAL" or "PATH" not in keys:
+        k = "MODE" if "MODE" in keys and keys["MODE"] != "SEQUENTIAL" else "PATH"
+        raise InputFormatError(path, lines.get(k, seg["line"]), k, "MODE = SEQUENTIAL and "
+                               "PATH = <observed>,<observer> for angle data (503.0-B-2 3.3.2: "
+                               "the angles are those of the path's first participant seen "
+                               "from its last)", f"{k} = {keys[k]}" if k in keys else "no PATH")
+    text = keys["PATH"]
+    try:
+        idx = [int(v) for v in text.split(",")]
+    except ValueError:
+        idx = []
+    names = [keys.get(f"PARTICIPANT_{i}") for i in idx]
+    if len(idx) < 2 or None in names:
+        raise InputFormatError(path, lines["PATH"], "PATH", "PATH = i,j,... of PARTICIPANT_n "
+                               "defined in the segment (503.0-B-2 table 3-3)", text)
+    seen, observer = names[0].strip().upper(), names[-1].strip().upper()
+    if seen not in _MODELLED_TARGETS or observer in _BODIES or idx[0] == idx[-1]:
+        raise InputFormatError(
+            path, lines["PATH"], "PATH", "angles of a body fgnav models (PARTICIPANT_n = "
+            f"{', '.join(_MODELLED_TARGETS)}) seen from the spacecraft: PATH = <the "
+            "body's n>,<the spacecraft's n> (fgnav reads onboard directions; ground-based "
+            "angles of a spacecraft are not its measurements)",
+            f"PATH = {text}: PARTICIPANT_{idx[0]} = {names[0]} seen from "
+            f"PARTICIPANT_{idx[-1]} = {names[-1]}")
+
+
+def _angle_corrections(path, seg) -> dict:
+    """The degrees to add to ANGLE_1 and ANGLE_2 (503.0-B-2 table 3-3 and 3.4.15: the
+    CORRECTION_* values "have been added to the data or should be added"): with
+    CORRECTIONS_APPLIED = NO, CORRECTION_ANGLE_1/2; with YES or none, zero. An aberration
+    correction not applied (CORRECTION_ABERRATION_YEARLY/DIURNAL with NO: one number for
+    two angles, not defined further) is refused."""
+    keys, lines = seg["keys"], seg["lines"]
+    if keys.get("CORRECTIONS_APPLIED") != "NO":
+        return {"ANGLE_1": 0.0, "ANGLE_2": 0.0}
+    for k in ("CORRECTION_ABERRATION_YEARLY", "CORRECTION_ABERRATION_DIURNAL"):
+        if k in keys:
+            raise InputFormatError(path, lines[k], k, "no aberration correction left to apply "
+                                   "to angle data (CORRECTIONS_APPLIED = NO: fgnav applies "
+                                   "CORRECTION_ANGLE_1/2 only)", keys[k])
+    return {k: float(keys.get(f"CORRECTION_{k}", 0.0)) for k in ("ANGLE_1", "ANGLE_2")}
+
+
 def read_tdm(path, sigma_rad: float | None = None):
     """Read RA/Dec angles from a TDM (KVN) as ``earth_direction`` rows of a MeasurementLog.
 
@@ -85,18 +186,9 @@ def read_tdm(path, sigma_rad: float | None = None):
             raise UserError(f"read_tdm: sigma_rad must be a finite number > 0, found {sigma_rad}")
 
     lines = [(n, t.strip()) for n, t in read_kvn_lines(path) if t.strip()]
-    if not lines:
-        raise InputFormatError(path, 1, "CCSDS_TDM_VERS", "a TDM starting with "
-                               "'CCSDS_TDM_VERS = 2.0'", "empty file")
-    n0, t0 = lines[0]
-    m = KVN_RE.match(t0)
-    if m is None or m.group(1) != "CCSDS_TDM_VERS":
-        raise InputFormatError(path, n0, "CCSDS_TDM_VERS", "'CCSDS_TDM_VERS = 2.0' as the first "
-                               "line", t0[:60])
-    if m.group(2) not in ("1.0", "2.0"):
-        raise InputFormatError(path, n0, "CCSDS_TDM_VERS", "version 1.0 or 2.0", m.group(2))
-
-    meta: dict = {"CCSDS_TDM_VERS": m.group(2), "segments": []}
+    n0, version = version_line(path, lines, "TDM", ("1.0", "2.0"), name_found=False)
+    lines = [(n, t) for n, t in lines if n >= n0]
+    meta: dict = {"CCSDS_TDM_VERS": version, "segments": []}
     header_sigma = None
     state = "header"
     seg: dict | None = None
@@ -120,7 +212,8 @@ def read_tdm(path, sigma_rad: float | None = None):
         if seg["n_angles"] and sig is None:
             raise InputFormatError(path, seg["line"], "sigma_deg",
                                    "the angle noise: a 'COMMENT sigma_deg=<1-sigma, deg>' line "
-                                   "(header or segment) or the sigma_rad option", "none")
+                                   "(header or segment), the --sigma-deg option (fgnav check, "
+                                   "fgnav smooth) or read_tdm's sigma_rad", "none")
         for j in seg["rows"]:
             rows_sigma[j] = sig
 
@@ -143,8 +236,7 @@ def read_tdm(path, sigma_rad: float | None = None):
         if state == "header":
             if header_line(path, lineno, s, meta):
                 state = "meta"
-                seg = {"line": lineno, "comments": [], "sigma": None, "pending": {},
-                       "rows": [], "n_angles": 0, "keys": {}, "paired": {}}
+                seg = _new_segment(lineno)
             continue
         if state == "meta":
             if s == "META_STOP":
@@ -152,6 +244,12 @@ def read_tdm(path, sigma_rad: float | None = None):
                     if k not in seg["keys"]:
                         raise InputFormatError(path, lineno, k, f"metadata keyword {k} before "
                                                "META_STOP", "META_STOP")
+                corrections = [k for k in seg["keys"] if k.startswith("CORRECTION_")]
+                if corrections and "CORRECTIONS_APPLIED" not in seg["keys"]:
+                    raise InputFormatError(path, lineno, "CORRECTIONS_APPLIED", "CORRECTIONS_"
+                                           f"APPLIED = YES or NO with {corrections[0]} (line "
+                                           f"{seg['lines'][corrections[0]]}; 503.0-B-2 "
+                                           "3.4.15.3)", "META_STOP")
                 state = "between"
                 meta["segments"].append(seg["keys"])
                 continue
@@ -160,6 +258,9 @@ def read_tdm(path, sigma_rad: float | None = None):
                 raise InputFormatError(path, lineno, None, "a 'KEYWORD = value' metadata line or "
                                        "META_STOP", s[:60])
             key, val = m.group(1), m.group(2)
+            if key not in _META_KEYS:
+                raise InputFormatError(path, lineno, key, "a TDM metadata keyword (503.0-B-2 "
+                                       "table 3-3)", s[:60])
             if key in seg["keys"]:
                 raise InputFormatError(path, lineno, key, "each metadata keyword once",
                                        f"{key} repeated")
@@ -172,7 +273,14 @@ def read_tdm(path, sigma_rad: float | None = None):
                                        val)
             if key == "REFERENCE_FRAME" and val != "EME2000":
                 raise InputFormatError(path, lineno, key, "REFERENCE_FRAME = EME2000", val)
+            if key == "CORRECTIONS_APPLIED" and val not in ("YES", "NO"):
+                raise InputFormatError(path, lineno, key, "CORRECTIONS_APPLIED = YES or NO "
+                                       "(503.0-B-2 3.4.15.3)", val)
+            if key.startswith("CORRECTION_") and key not in ("CORRECTION_ABERRATION_YEARLY",
+                                                             "CORRECTION_ABERRATION_DIURNAL"):
+                number_value(path, lineno, key, val)
             seg["keys"][key] = val
+            seg["lines"][key] = lineno
             continue
         if state == "between":
             if s == "DATA_START":
@@ -199,6 +307,9 @@ def read_tdm(path, sigma_rad: float | None = None):
                     raise InputFormatError(path, lineno, k, f"metadata keyword {k} = {want} in "
                                            f"this segment (line {seg['line']}) for {key} data",
                                            "missing")
+            if "correction" not in seg:
+                _check_path(path, seg)
+                seg["correction"] = _angle_corrections(path, seg)
             t = int(epoch_value(path, lineno, key, ep).astype(np.int64))
             deg = number_value(path, lineno, key, val)
             lo, hi = (-180.0, 360.0) if key == "ANGLE_1" else (-90.0, 90.0)
@@ -210,7 +321,7 @@ def read_tdm(path, sigma_rad: float | None = None):
             if key in rec:
                 raise InputFormatError(path, lineno, key, f"one {key} record per epoch",
                                        f"a second one at {ep} (first at line {rec[key][1]})")
-            rec[key] = (math.radians(deg), lineno)
+            rec[key] = (math.radians(deg + seg["correction"][key]), lineno)
             seg["n_angles"] += 1
             if len(rec) == 2:
                 a, d = rec["ANGLE_1"][0], rec["ANGLE_2"][0]
@@ -226,8 +337,7 @@ def read_tdm(path, sigma_rad: float | None = None):
         if state == "done":
             if s == "META_START":
                 state = "meta"
-                seg = {"line": lineno, "comments": [], "sigma": None, "pending": {},
-                       "rows": [], "n_angles": 0, "keys": {}, "paired": {}}
+                seg = _new_segment(lineno)
                 continue
             raise InputFormatError(path, lineno, None, "META_START (a new segment) or end of "
                                    "file after DATA_STOP", s[:60])
@@ -258,3 +368,53 @@ def read_tdm(path, sigma_rad: float | None = None):
         kind=kind.astype(str), xyz=V[:, :3].copy(), sigma=V[:, 3].copy(),
         extra={c: np.full(len(ns), np.nan) for c in EXTRA_COLUMNS}, line=line,
         warnings=warnings, dropped={})
+
+
+def write_tdm(path, epoch0, t_s, u_eci, sigma_rad=None, *, spacecraft="FGNAV",
+              originator="FGNAV", comments=(), creation_date=None) -> None:
+    """Write Earth directions as a CCSDS TDM 2.0 KVN file (503.0-B-2), atomically: RA/Dec of
+    the Earth's centre seen from the spacecraft, the layout :func:`read_tdm` reads.
+
+    ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (N,) s from it, non-decreasing;
+    ``u_eci`` (N, 3) unit vectors spacecraft -> Earth centre in EME2000; ``sigma_rad`` (N,)
+    or a number, the 1-sigma per axis written as ``COMMENT sigma_deg=`` (one segment per run
+    of equal sigmas), or None (no such comment: the reader then needs ``--sigma-deg``).
+    ``PARTICIPANT_1 = EARTH``, ``PARTICIPANT_2 = spacecraft``, ``PATH = 1,2`` (the signal
+    from the Earth to the spacecraft: the Earth seen from the spacecraft, 3.3.2);
+    a = atan2(u_y, u_x) in [0, 360) deg, d = atan2(u_z, hypot(u_x, u_y)) (the inverse of the
+    module docstring's u), written as the shortest text that reads back to the same double.
+    """
+    if isinstance(epoch0, str):
+        epoch0 = parse_utc(epoch0)
+    t_s = np.asarray(t_s, dtype=float).reshape(-1)
+    u = np.asarray(u_eci, dtype=float)
+    n = len(t_s)
+    if n == 0 or u.shape != (n, 3) or not (np.all(np.isfinite(t_s)) and np.all(np.isfinite(u))):
+        raise UserError(f"write_tdm: need finite t_s (N,) and u_eci (N, 3), N >= 1; found "
+                        f"{t_s.shape}, {u.shape}")
+    norm = np.linalg.norm(u, axis=1)
+    if np.any(np.abs(norm - 1.0) > 1e-6) or np.any(np.diff(t_s) < 0):
+        raise UserError("write_tdm: u_eci must be unit vectors and t_s non-decreasing")
+    sig = (np.full(n, np.nan) if sigma_rad is None else
+           np.broadcast_to(np.asarray(sigma_rad, dtype=float), (n,)))
+    names = {k: check_meta_value(k, v, "write_tdm") for k, v in (("PARTICIPANT_2", spacecraft),
+                                                    ("ORIGINATOR", originator))}
+    ep = ccsds_epochs(add_seconds(epoch0, t_s))
+    ra = np.degrees(np.arctan2(u[:, 1], u[:, 0])) % 360.0
+    dec = np.degrees(np.arctan2(u[:, 2], np.hypot(u[:, 0], u[:, 1])))
+    out = kvn_header("CCSDS_TDM_VERS = 2.0", comments, creation_date, names["ORIGINATOR"])
+    starts = [0] + [i for i in range(1, n) if not (sig[i] == sig[i - 1] or
+                                                  (np.isnan(sig[i]) and np.isnan(sig[i - 1])))]
+    for a, b in zip(starts, starts[1:] + [n]):
+        out.append("META_START\n")
+        if np.isfinite(sig[a]):
+            out.append(f"COMMENT sigma_deg={math.degrees(float(sig[a]))!r}\n")
+        out += [f"TIME_SYSTEM = UTC\nSTART_TIME = {ep[a]}\nSTOP_TIME = {ep[b - 1]}\n",
+                f"PARTICIPANT_1 = EARTH\nPARTICIPANT_2 = {names['PARTICIPANT_2']}\n",
+                "MODE = SEQUENTIAL\nPATH = 1,2\nANGLE_TYPE = RADEC\nREFERENCE_FRAME = EME2000\n",
+                "META_STOP\n\nDATA_START\n"]
+        for i in range(a, b):
+            out.append(f"ANGLE_1 = {ep[i]} {float(ra[i])!r}\nANGLE_2 = {ep[i]} {float(dec[i])!r}\n")
+        out.append("DATA_STOP\n\n")
+    with atomic_writer(path, "wb") as f:
+        f.write("".join(out).encode("utf-8"))
