@@ -323,17 +323,24 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     size_mb = Path(log_path).stat().st_size / 1e6 if Path(log_path).is_file() else 0.0
     with stage(f"reading {log_path} ({size_mb:.0f} MB)", int(size_mb * 1e6 / 130)):
         log = read_measurements(log_path, options.estimate)
-    prior = None
-    if prior_path is not None:
-        if ignore_prior:
-            raise UserError(f"--prior {prior_path} contradicts --ignore-prior; give one of them")
-        log, prior = prior_for_log(log, prior_path, *prior_sigma)
+    log, prior = add_prior_file(log, prior_path, prior_sigma, ignore_prior)
     res, p = smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
                         progress=progress, ignore_prior=ignore_prior, aberration=aberration,
                         stage=stage, t0=t0, **solve_kw)
     if prior is not None:
         res.summary["prior_file"] = prior.summary()
     return res, p
+
+
+def add_prior_file(log, prior_path=None, prior_sigma=(None, None), ignore_prior=False):
+    """``(log, prior)``: the log with the prior rows of the file ``prior_path`` and its
+    :class:`~fgnav.prior_sources.PriorState` (summary.json ``prior_file``), or ``(log, None)``
+    without a file; ``ignore_prior`` with a file is an error naming both options."""
+    if prior_path is None:
+        return log, None
+    if ignore_prior:
+        raise UserError(f"--prior {prior_path} contradicts --ignore-prior; give one of them")
+    return prior_for_log(log, prior_path, *prior_sigma)
 
 
 @_short_passes_interpreted

@@ -365,3 +365,26 @@ def test_a_teme_opm_is_rotated_like_sgp4_states(tmp_path):
     np.testing.assert_allclose(prior.x_eci[3:] / 1e3, [-4.7432196, 0.7905366, 5.53375619],
                                atol=1e-7)
     assert (prior.sigma_position_m, prior.sigma_from) == (DEFAULT_SIGMAS["opm"][0], "default")
+
+
+def test_a_ccsds_tdm_starts_from_an_oem_prior(tmp_path, capsys):
+    # The shipped spacecraft TDM (gto-transfer, Earth directions only, no prior rows) with the
+    # OEM of the pass it was simulated from as --prior: the solvers start from the OEM's
+    # state (1 km, 1 m/s by default) instead of the initial orbit determination.
+    from importlib.resources import files
+
+    sample = files("fgnav") / "data" / "tdm" / "gto-transfer.tdm"
+    if not sample.is_file():
+        pytest.skip("no sample TDM in fgnav/data/tdm")
+    sim = tmp_path / "pass"
+    assert main(["simulate", "gto-transfer", "--step-s", "60", "--seed", "0", "--out", str(sim),
+                 "--quiet"]) == 0
+    out = tmp_path / "r"
+    rc = main(["smooth", str(sample), "--sigma-deg", "0.01", "--prior", str(sim / "truth.oem"),
+               "--truth", str(sim / "truth.oem"), "--out", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    s = json.loads((out / "summary.json").read_text())
+    assert s["initial_orbit"]["prior"] == "log" and s["prior_file"]["source"] == "oem"
+    assert s["prior_file"]["sigma_from"] == "default" and s["prior_file"]["age_s"] == 0.0
+    assert s["integrity"]["status"] == "ok"
+    assert s["position_rms_m"] < 2 * s["crb_position_rms_m"]

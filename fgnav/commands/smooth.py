@@ -286,7 +286,7 @@ def _tdm_with_sigma(args):
 
     from fgnav.errors import UserError
     from fgnav.io.tdm import read_tdm
-    from fgnav.pipeline import smooth_log
+    from fgnav.pipeline import add_prior_file, smooth_log
 
     if Path(args.log).suffix.lower() not in (".tdm", ".kvn"):
         raise UserError(f"--sigma-deg applies to a CCSDS TDM (.tdm, .kvn) only; {args.log} is "
@@ -300,7 +300,13 @@ def _tdm_with_sigma(args):
         stage = kw.get("stage") or (lambda what, size: nullcontext())
         with stage(f"reading {log_path}", 0):
             log = read_tdm(log_path, sigma_rad=math.radians(args.sigma_deg))
-        return smooth_log(log, method, options, t0=t0, **kw)
+        log, prior = add_prior_file(log, kw.pop("prior_path", None),
+                                    kw.pop("prior_sigma", (None, None)),
+                                    kw.get("ignore_prior", False))
+        res, p = smooth_log(log, method, options, t0=t0, **kw)
+        if prior is not None:
+            res.summary["prior_file"] = prior.summary()
+        return res, p
     return smooth
 
 
