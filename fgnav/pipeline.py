@@ -34,6 +34,7 @@ from fgnav.measurements import (Pass, build_pass, check_observable, covering_sig
 from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
+from fgnav.prior_sources import prior_for_log
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
@@ -300,7 +301,8 @@ class SmoothResult:
 def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOptions = SmootherOptions(),
                 *, truth_path: str | Path | None = None, lag_s: float = 300.0,
                 progress=None, ignore_prior: bool = False, aberration: bool = True,
-                stage=None,
+                stage=None, prior_path: str | Path | None = None,
+                prior_sigma: tuple[float | None, float | None] = (None, None),
                 **solve_kw) -> tuple[SmoothResult, Pass]:
     """Read a log (CSV v1 or CCSDS TDM), solve, and compute the summary (with truth if given).
 
@@ -310,6 +312,9 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     correction (:func:`fgnav.apparent.without_aberration`; for comparison only). ``stage``:
     optional ``stage(what, size)`` returning a context manager around each long step
     (reading the log, solving and summarizing), e.g. to print it (``fgnav smooth``).
+    ``prior_path``: an OMM, TLE, OPM or OEM whose state at the log's first epoch becomes its
+    prior rows, ``prior_sigma`` = (position m, velocity m/s) replacing the file's or the
+    default 1-sigma (:mod:`fgnav.prior_sources`; summary.json ``prior_file``).
     """
     from contextlib import nullcontext
 
@@ -318,9 +323,24 @@ def smooth_file(log_path: str | Path, method: str = "batch", options: SmootherOp
     size_mb = Path(log_path).stat().st_size / 1e6 if Path(log_path).is_file() else 0.0
     with stage(f"reading {log_path} ({size_mb:.0f} MB)", int(size_mb * 1e6 / 130)):
         log = read_measurements(log_path, options.estimate)
-    return smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
-                      progress=progress, ignore_prior=ignore_prior, aberration=aberration,
-                      stage=stage, t0=t0, **solve_kw)
+    log, prior = add_prior_file(log, prior_path, prior_sigma, ignore_prior)
+    res, p = smooth_log(log, method, options, truth_path=truth_path, lag_s=lag_s,
+                        progress=progress, ignore_prior=ignore_prior, aberration=aberration,
+                        stage=stage, t0=t0, **solve_kw)
+    if prior is not None:
+        res.summary["prior_file"] = prior.summary()
+    return res, p
+
+
+def add_prior_file(log, prior_path=None, prior_sigma=(None, None), ignore_prior=False):
+    """``(log, prior)``: the log with the prior rows of the file ``prior_path`` and its
+    :class:`~fgnav.prior_sources.PriorState` (summary.json ``prior_file``), or ``(log, None)``
+    without a file; ``ignore_prior`` with a file is an error naming both options."""
+    if prior_path is None:
+        return log, None
+    if ignore_prior:
+        raise UserError(f"--prior {prior_path} contradicts --ignore-prior; give one of them")
+    return prior_for_log(log, prior_path, *prior_sigma)
 
 
 @_short_passes_interpreted

@@ -182,6 +182,22 @@ def register(sub):
                    help="leave the log's prior_position/prior_velocity rows out and start from the "
                         "orbit the measurements give (angles-only initial orbit determination; "
                         "logs without prior rows, e.g. a CCSDS TDM, always do)")
+    p.add_argument("--prior", metavar="FILE",
+                   help="start from the orbit of FILE at the log's first epoch, as the log's "
+                        "prior_position/prior_velocity rows would: an OMM (CCSDS KVN or XML, as "
+                        "CelesTrak writes them) or a TLE (SGP4, TEME rotated to EME2000), an "
+                        "OPM (CCSDS KVN; propagated to the log) or an OEM (CCSDS KVN; "
+                        "interpolated). The file's covariance where it has one, else 10 km and "
+                        "10 m/s for OMM/TLE (SGP4 element sets carry no accuracy and err by "
+                        "km per day of age), 1 km and 1 m/s for OPM/OEM (an orbit "
+                        "determination's state of unknown age). A log with prior rows of its "
+                        "own is refused (one prior)")
+    p.add_argument("--prior-sigma-km", type=T.number(1e-6, 1e6, unit="km"),
+                   metavar="SIGMA", help="with --prior: its 1-sigma position per axis (km), "
+                                         "replacing the file's or the default")
+    p.add_argument("--prior-sigma-mps", type=T.number(1e-6, 1e5, unit="m/s"),
+                   metavar="SIGMA", help="with --prior: its 1-sigma velocity per axis (m/s), "
+                                         "replacing the file's or the default")
     p.add_argument("--attitude", choices=["known", "estimate"], default=None,
                    help="known (default): rotate body-frame directions into ECI with the log's "
                         "attitude rows before solving; estimate: the attitude is a graph "
@@ -270,7 +286,7 @@ def _tdm_with_sigma(args):
 
     from fgnav.errors import UserError
     from fgnav.io.tdm import read_tdm
-    from fgnav.pipeline import smooth_log
+    from fgnav.pipeline import add_prior_file, smooth_log
 
     if Path(args.log).suffix.lower() not in (".tdm", ".kvn"):
         raise UserError(f"--sigma-deg applies to a CCSDS TDM (.tdm, .kvn) only; {args.log} is "
@@ -284,7 +300,13 @@ def _tdm_with_sigma(args):
         stage = kw.get("stage") or (lambda what, size: nullcontext())
         with stage(f"reading {log_path}", 0):
             log = read_tdm(log_path, sigma_rad=math.radians(args.sigma_deg))
-        return smooth_log(log, method, options, t0=t0, **kw)
+        log, prior = add_prior_file(log, kw.pop("prior_path", None),
+                                    kw.pop("prior_sigma", (None, None)),
+                                    kw.get("ignore_prior", False))
+        res, p = smooth_log(log, method, options, t0=t0, **kw)
+        if prior is not None:
+            res.summary["prior_file"] = prior.summary()
+        return res, p
     return smooth
 
 
@@ -297,6 +319,15 @@ def run(args) -> int:
     # Every option and output path before any solving (the truth in smooth_file).
     resolve_attitude_option(args)
     check_solver_args(args, [args.method])
+    prior_sigma = (None if args.prior_sigma_km is None else args.prior_sigma_km * 1e3,
+                   args.prior_sigma_mps)
+    if args.prior is None and prior_sigma != (None, None):
+        from fgnav.errors import UserError
+        raise UserError("--prior-sigma-km/--prior-sigma-mps: the 1-sigma of --prior FILE, "
+                        "which is not given")
+    if args.prior is not None:
+        from fgnav.io.outputs import check_readable_file
+        check_readable_file(args.prior, "--prior")
     check_output_paths(args.out, rerun=args.rerun, checkpoint=args.checkpoint, resume=args.resume)
     bar = ProgressCallback(args.method, args.quiet)
     smooth = smooth_file if args.sigma_deg is None else _tdm_with_sigma(args)
@@ -305,6 +336,7 @@ def run(args) -> int:
                              lag_s=args.lag_s, checkpoint=args.checkpoint,
                              checkpoint_every=args.checkpoint_every, resume=args.resume,
                              ignore_prior=args.ignore_prior, progress=bar,
+                             prior_path=args.prior, prior_sigma=prior_sigma,
                              aberration=not args.no_aberration,
                              stage=StageLines(args.quiet),
                              **({"relative": args.relative} if args.relative else {}))
