@@ -16,8 +16,9 @@ from fgnav.analysis.crb import check_observability, cramer_rao_bound, mapping_sh
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
+from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.initial_orbit import (
-    START_INFLATION, Start, has_prior, initial_orbit, propagate_orbit, start_point, strip_prior,
+    START_INFLATION, Start, has_prior, start_point, strip_prior,
 )
 from fgnav.integrity import assess, needs_prior_test
 from fgnav.io.atomic import atomic_write_text, atomic_writer
@@ -41,7 +42,7 @@ from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
-from fgnav.solvers.first_guess import initial_guess
+from fgnav.iod.prior import initial_guess
 from fgnav.solvers.incremental import smooth_incremental
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.solvers.state_elements import check_state

@@ -93,7 +93,7 @@ def test_schemes_position_surfaces_prints_the_table_and_its_json(capsys):
 def test_without_prior_rows_the_sextant_starts_from_its_geometric_fixes(tmp_path, drop):
     """No prior: the Moon-star cones and the Earth-Moon torus give closed-form fixes, or
     (limb angles alone) the roots are searched from a grid of starts; the track of roots
-    over a short arc (fgnav.geometric_orbit.MAX_TRACK_ARC of the period: a LEO's fixes hours
+    over a short arc (fgnav.iod.geometric.MAX_TRACK_ARC of the period: a LEO's fixes hours
     apart are revolutions apart) gives the orbit, and the smoother reaches the solution it
     reaches with the prior."""
     from fgnav.io.log_csv import read_log, write_log

@@ -3,7 +3,7 @@ over many seeds (``scripts/study_mars_cruise.py`` prints it; a slow test checks 
 
 Per seed: the built-in heliocentric scenario ``mars-cruise`` is simulated (truth from the
 independent DOP853 integrator, the Sun and the planets) and smoothed by batch from no prior
-(its first guess the orbit of the geometric fixes, :mod:`fgnav.geometric_orbit`). Measured
+(its first guess the orbit of the geometric fixes, :mod:`fgnav.iod.geometric`). Measured
 against the truth:
 
 * the geometric fix of every epoch (two Sun-star cones and a Sun-Earth torus intersected,
@@ -37,7 +37,7 @@ def run_cruise_study(seeds=range(20), duration_h: float | None = None,
     the scenario's. Returns a dict of per-seed rows, the pooled figures and seed 0's
     per-epoch fixes."""
     from fgnav.analysis.crb import cramer_rao_bound
-    from fgnav.geometric_orbit import fixes_along
+    from fgnav.iod.geometric import fixes_along
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, smooth_log
     from fgnav.scenarios import load_scenario

@@ -198,7 +198,7 @@ def first_guess(p: Pass, model, t0_j2000_s: float, options=None):
     (the links are linear in them: one Gauss-Newton step places them)."""
     from fgnav.initial_orbit import has_prior, start_point
     from fgnav.solvers.batch import _ekf_first_guess
-    from fgnav.solvers.first_guess import initial_guess
+    from fgnav.iod.prior import initial_guess
 
     lay = p.layout
     X = lay.initial(np.zeros((p.n_epochs, 6)))
