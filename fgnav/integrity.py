@@ -13,7 +13,7 @@ under the hypothesis that the log and the models are right (Bar-Shalom, Li & Kir
   is missing from the model (the smoother bends the orbit through the process noise);
 * **prior**: the Mahalanobis distance of the solution from the log's prior, chi-square with
   6 degrees of freedom per prior epoch, and the initial orbit's verdict on the prior
-  (:mod:`fgnav.initial_orbit`);
+  (:mod:`fgnav.start`);
 * **residual runs**: the largest windowed mean of whitened residuals in time order, over
   windows of 4 to 4,096 measurements, against a Bonferroni threshold for all the windows
   tested (a bias or an unmodelled force shows as a run of same-signed residuals that a
@@ -40,7 +40,7 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.analysis.crb import CHUNK, rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values, enters, linearize_family
 from fgnav.models.registry import model as model_of
-from fgnav.initial_orbit import has_prior
+from fgnav.iod.prior import has_prior
 from fgnav.measurements import prior_covariance
 from fgnav.time import j2000_seconds
 

@@ -100,7 +100,7 @@ def test_equals_numpy_ekf_with_several_rows_of_a_family_at_an_epoch(name, hours)
     counts = np.bincount(p.families["body_star_angle"].k)
     assert counts.max() >= 2
     if name == "mars-cruise":
-        from fgnav.initial_orbit import start_point
+        from fgnav.start import start_point
         from fgnav.time import j2000_seconds
 
         opt = SmootherOptions(centre="sun")

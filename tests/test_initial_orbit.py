@@ -1,4 +1,4 @@
-"""Orbit determination without a prior (fgnav.iod) and the no-prior route (fgnav.initial_orbit).
+"""Orbit determination without a prior (fgnav.iod) and the no-prior route (fgnav.start).
 
 Truth comes from the independent DOP853 integrator (``fgnav simulate`` / simulate_pass).
 The initial orbit must land well inside the basin where Gauss-Newton converges: the
@@ -20,14 +20,15 @@ from scipy.stats import chi2
 from fgnav.analysis.crb import cramer_rao_bound
 from fgnav.cli import main
 from fgnav.errors import UserError
-from fgnav.initial_orbit import prior_consistency, start_point, strip_prior
 from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit
+from fgnav.iod.prior import strip_prior
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.start import prior_consistency, start_point
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import format_utc, j2000_seconds
 

@@ -85,8 +85,8 @@ def _no_prior(log) -> dict:
     rows, or --ignore-prior): the structural test of :func:`fgnav.iod.initial.iod_support`
     (the fit itself runs only in smooth)."""
     from fgnav.errors import UserError
-    from fgnav.initial_orbit import has_prior
     from fgnav.iod.initial import iod_support
+    from fgnav.iod.prior import has_prior
     from fgnav.measurements import build_pass
 
     try:

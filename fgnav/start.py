@@ -15,12 +15,13 @@ from factors.dynamics import MotionModel
 from fgnav.errors import UserError
 from fgnav.iod.fit import InitialOrbit
 from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit, trajectory
-from fgnav.iod.prior import initial_guess
-from fgnav.measurements import Family, Pass, covering_sigmas, prior_covariance, prior_state
-from fgnav.models.registry import PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds
+from fgnav.chi2 import chi2_ppf
+from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
+from fgnav.measurements import Pass, prior_covariance, prior_state
+from fgnav.models.registry import prior_kinds
 
-__all__ = ["prior_consistency", "start_point", "Start", "strip_prior", "has_prior",
-           "with_start_prior", "PRIOR_GATE_PROBABILITY", "START_INFLATION"]
+__all__ = ["prior_consistency", "start_point", "Start", "batch_first_guess",
+           "PRIOR_GATE_PROBABILITY", "START_INFLATION", "MAX_TEST_RMS"]
 
 PRIOR_GATE_PROBABILITY = 1.0 - 1e-6
 
@@ -38,8 +39,6 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
     epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
     prior farther from that data than the data's own span).
     """
-    from fgnav.chi2 import chi2_ppf
-
     k0, x_prior = prior_state(p)
     P_prior = prior_covariance(p, k0)
     x_iod, P_iod = propagate_orbit(iod, p, model, t0_j2000_s, k0)
@@ -59,33 +58,6 @@ def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s
 
 START_INFLATION = 100.0  # covariance factor of the initial orbit when it starts a filter
 MAX_TEST_RMS = 1.5       # the prior is tested only against a fit at the noise level
-
-
-def has_prior(p: Pass) -> bool:
-    """Whether the pass has both ``prior_position`` and ``prior_velocity`` rows."""
-    return p.count(PRIOR_POSITION.kind) > 0 and p.count(PRIOR_VELOCITY.kind) > 0
-
-
-def strip_prior(p: Pass) -> Pass:
-    """The pass without its ``prior_position`` / ``prior_velocity`` rows."""
-    fams = {k: f for k, f in p.families.items() if k not in prior_kinds()}
-    return Pass(epoch0=p.epoch0, t_s=p.t_s, families=fams, source=p.source,
-                warnings=list(p.warnings), layout=p.layout)
-
-
-def with_start_prior(p: Pass, x0: np.ndarray, P0: np.ndarray) -> Pass:
-    """The pass (priors stripped) with prior rows at epoch 0 of mean ``x0`` and isotropic
-    1-sigma the square root of the largest eigenvalue of each 3x3 block of ``P0`` (the
-    rows' format has one sigma per row, so the ellipsoid is covered by its sphere)."""
-    q = strip_prior(p)
-    sig_r, sig_v = covering_sigmas(P0)
-    one = np.zeros(1, dtype=int)
-    q.families = {PRIOR_POSITION.kind: Family(k=one, values={"xyz": x0[None, :3].copy()},
-                                           sigma=np.array([sig_r]), line=np.zeros(1, dtype=int)),
-                  PRIOR_VELOCITY.kind: Family(k=one, values={"xyz": x0[None, 3:].copy()},
-                                           sigma=np.array([sig_v]), line=np.zeros(1, dtype=int)),
-                  **q.families}
-    return q
 
 
 @dataclass
@@ -181,3 +153,30 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
     info["start"] = f"initial orbit at epoch 0, covariance inflated x{START_INFLATION:g}"
     return Start(with_start_prior(q, x0, START_INFLATION * P0), x_iod, None, info,
                  synthetic_prior=True)
+
+
+def batch_first_guess(start: Start, init: str, robust, short_pass: bool):
+    """How batch Gauss-Newton starts from ``start``, chosen here and named, not inside the
+    dispatch from the kernels' speed mode: ``(how, x_init)``.
+
+    * ``"initial orbit"``: ``start.x_init`` (the initial orbit, already fitted to the data
+      through the full dynamics): Gauss-Newton at the requested process noise at once, the
+      continuation if that does not converge.
+    * ``"prior, direct"``: a short pass (``short_pass``: the batch passes run as Python,
+      :data:`fgnav.pipeline.SHORT_PASS_ROWS`) with no bridged gap, ``init == "auto"`` and
+      no robust kernel: the prior propagated (``start.x_guess``), Gauss-Newton at the
+      requested process noise first (:func:`fgnav.pipeline._batch_direct`), the
+      continuation from the same guess if that gives up.
+    * ``"prior"``: the same guess, the continuation only (``init`` other than ``"auto"``,
+      or a robust kernel).
+    * ``"filter"``: ``None``: the batch smoother's own first guess (the compiled EKF and
+      its RTS smoothing, iterated, :func:`fgnav.solvers.batch.smooth_batch`; the prior
+      propagated where the filter does not apply).
+    """
+    if start.x_init is not None:
+        return "initial orbit", start.x_init
+    p = start.p
+    if short_pass and not (p.inserted is not None and p.inserted.any()):
+        direct = init == "auto" and robust is None
+        return ("prior, direct" if direct else "prior"), start.x_guess
+    return "filter", None
