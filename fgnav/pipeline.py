@@ -12,13 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fgnav.analysis.crb import check_observability, cramer_rao_bound, mapping_shared
+from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping_shared
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
-from fgnav.integrity import assess, needs_prior_test
+from fgnav.diagnostics.integrity import assess, needs_prior_test
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
 from fgnav.io.oem import oem_frame, read_oem, write_oem

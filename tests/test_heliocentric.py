@@ -157,7 +157,7 @@ def test_the_lecture_example_two_cones_and_a_torus_in_closed_form():
 
 
 def test_a_short_cruise_from_no_prior_reaches_the_truth_within_its_bound(tmp_path):
-    from fgnav.analysis.crb import cramer_rao_bound
+    from fgnav.diagnostics.crb import cramer_rao_bound
     from fgnav.iod.geometric import fixes_along
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, smooth_log

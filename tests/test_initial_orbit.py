@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgnav.analysis.crb import cramer_rao_bound
+from fgnav.diagnostics.crb import cramer_rao_bound
 from fgnav.cli import main
 from fgnav.errors import UserError
 from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit

@@ -1,6 +1,6 @@
 """The sextant in low Earth orbit (built-in scenario ``sextant-leo``: star - Earth-limb,
 Moon - star and Earth - Moon angles, no attitude): the smoother against the truth of the
-independent DOP853 integrator and against the Cramér–Rao bound (``fgnav.analysis.crb``,
+independent DOP853 integrator and against the Cramér–Rao bound (``fgnav.diagnostics.crb``,
 the information of every row mapped to the first state, evaluated along the truth), and
 its NEES over many seeds."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgnav.analysis.crb import cramer_rao_bound
+from fgnav.diagnostics.crb import cramer_rao_bound
 from fgnav.cli import main
 from fgnav.measurements import build_pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE

@@ -10,7 +10,7 @@ against the truth:
   the root nearest the true orbit kept), its position error and the sigma predicted from
   the surfaces' gradients, and the fixes' NEES (3 dof);
 * the smoother's position and velocity RMS over the pass, its own 1-sigma and its NEES
-  (6 dof), and the Cramér–Rao bound of the pass (:func:`fgnav.analysis.crb.cramer_rao_bound`:
+  (6 dof), and the Cramér–Rao bound of the pass (:func:`fgnav.diagnostics.crb.cramer_rao_bound`:
   the information of every row mapped through the motion model's state-transition matrices
   to the first state, along the truth; the star choice and the truth do not depend on the
   seed, so the bound is computed once);
@@ -36,7 +36,7 @@ def run_cruise_study(seeds=range(20), duration_h: float | None = None,
     """Run the study (module docstring) over ``seeds``; ``duration_h``/``step_s`` override
     the scenario's. Returns a dict of per-seed rows, the pooled figures and seed 0's
     per-epoch fixes."""
-    from fgnav.analysis.crb import cramer_rao_bound
+    from fgnav.diagnostics.crb import cramer_rao_bound
     from fgnav.iod.geometric import fixes_along
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, smooth_log

@@ -351,7 +351,7 @@ def report_nees(study, rows, out):
     Applications to Tracking and Navigation", 2001, ch. 5.4)."""
     import numpy as np
 
-    from fgnav.analysis.consistency import anees, nees_curve
+    from fgnav.diagnostics.consistency import anees, nees_curve
 
     ref: NeesReference = study.reference
     table, curves, curve_t_s = [], {}, {}

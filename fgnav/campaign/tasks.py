@@ -140,9 +140,9 @@ def navigate(p: NavigateParams):
     the Cramer-Rao information of the pass; arrays: per-epoch NEES and NIS."""
     import numpy as np
 
-    from fgnav.analysis.consistency import nees, nis_ekf, nis_smoother, nis_summary
-    from fgnav.analysis.crb import cramer_rao_bound
-    from fgnav.analysis.observability import weakest_directions
+    from fgnav.diagnostics.consistency import nees, nis_ekf, nis_smoother, nis_summary
+    from fgnav.diagnostics.crb import cramer_rao_bound
+    from fgnav.diagnostics.observability import weakest_directions
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, solve
     from fgnav.simulate.pass_sim import simulate_pass
@@ -185,7 +185,7 @@ def observability(p: ObservabilityParams):
     """Rank and condition number of the observability matrix and of the window information."""
     import numpy as np
 
-    from fgnav.analysis.observability import (analyze_observability, observability_matrix,
+    from fgnav.diagnostics.observability import (analyze_observability, observability_matrix,
                                               weakest_directions, window_information)
     from fgnav.constants import DEG
 

@@ -3,7 +3,7 @@ whether a pass has one, the pass without it, and a pass with a start prior in it
 
 ``has_prior`` and ``strip_prior`` sit here, below the solvers and the diagnostics, rather than
 in the start policy (:mod:`fgnav.start`, above the solvers) because the verdict
-(``integrity``) needs them too.
+(:mod:`fgnav.diagnostics.integrity`) needs them too.
 """
 
 from __future__ import annotations
