@@ -1,9 +1,10 @@
 """The log's a-priori state: first guesses from it (no GTSAM: the numba EKF uses them too),
 whether a pass has one, the pass without it, and a pass with a start prior in its place.
 
-``has_prior`` and ``strip_prior`` sit here, below the solvers and the diagnostics, rather than
-in the start policy (:mod:`fgnav.start`, above the solvers) because the verdict
-(:mod:`fgnav.diagnostics.integrity`) needs them too.
+``has_prior``, ``strip_prior`` and ``with_start_prior`` sit here, below the diagnostics and
+the solvers, rather than in the start policy (:mod:`fgnav.start`, which imports the whole IOD
+and serves the pipeline) because the verdict (:mod:`fgnav.diagnostics.integrity`) needs
+``has_prior`` too.
 """
 
 from __future__ import annotations
