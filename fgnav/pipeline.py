@@ -12,14 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fgnav.analysis.crb import check_observability, cramer_rao_bound, mapping_shared
+from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping_shared
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
-from fgnav.initial_orbit import (
-    START_INFLATION, Start, has_prior, initial_orbit, propagate_orbit, start_point, strip_prior,
-)
-from fgnav.integrity import assess, needs_prior_test
+from fgnav.iod.initial import initial_orbit, propagate_orbit
+from fgnav.iod.prior import has_prior, initial_guess, strip_prior
+from fgnav.diagnostics.integrity import assess, needs_prior_test
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
 from fgnav.io.oem import oem_frame, read_oem, write_oem
@@ -37,12 +36,12 @@ from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
+from fgnav.start import START_INFLATION, Start, batch_first_guess, start_point
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
-from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.incremental import smooth_incremental
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.solvers.state_elements import check_state
@@ -76,7 +75,7 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     into arcs solved one by one (:mod:`fgnav.solvers.arcs`); ``gap_factor=None`` keeps the
     pass as given (already planned, or no gap handling). Without prior rows, or with
     ``ignore_prior``, the solvers start from the orbit the measurements give
-    (:func:`fgnav.initial_orbit.start_point`). With a prior they start from it, and when the
+    (:func:`fgnav.start.start_point`). With a prior they start from it, and when the
     solution does not fit the data the prior is tested against that orbit and, if the data
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
@@ -152,26 +151,24 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
               checkpoint_every, resume) -> Solution:
-    """The chosen estimator from a start point (:class:`fgnav.initial_orbit.Start`)."""
+    """The chosen estimator from a start point (:class:`fgnav.start.Start`)."""
     p = start.p
     if method == "batch":
-        if start.x_init is not None:
-            # The initial orbit is already fitted to the data through the full dynamics:
+        how, x_init = batch_first_guess(start, options.init, options.robust,
+                                        short_pass=interpret_active())
+        if how == "initial orbit":
             # Gauss-Newton at the requested process noise at once (continuation if that fails:
             # with a contradicted prior in the graph, a loose process noise would let the
             # first states bend to the prior).
             sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3),
-                               x_init=start.x_init, progress=progress)
+                               x_init=x_init, progress=progress)
             if sol.extras.get("converged"):
                 return sol
-        x_init = start.x_init
         spent = 0
-        if x_init is None and interpret_active() and not (p.inserted is not None and p.inserted.any()):
-            x_init = start.x_guess  # short pass, no bridged gap: the prior propagated, once
-            if options.init == "auto" and options.robust is None:
-                sol, spent = _batch_direct(p, options, x_init, progress)
-                if sol is not None:
-                    return sol
+        if how == "prior, direct":   # short pass, no bridged gap: the prior propagated, once
+            sol, spent = _batch_direct(p, options, x_init, progress)
+            if sol is not None:
+                return sol
         sol = smooth_batch(p, options, x_init=x_init, progress=progress)
         sol.iterations += spent
         return sol
@@ -224,7 +221,7 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
 
     The gap planning filters the pass; without a prior (or with ``ignore_prior``) that
     filter starts from the initial orbit of the measurements, covariance inflated as for the
-    online methods (:func:`fgnav.initial_orbit.start_point`). A pass already planned is
+    online methods (:func:`fgnav.start.start_point`). A pass already planned is
     returned as is.
     """
     from_data = ignore_prior or not has_prior(p)

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from factors.geometry import so3_exp, so3_log
-from fgnav.analysis.consistency import anees, chi2_band
+from fgnav.diagnostics.consistency import anees, chi2_band
 from fgnav.measurements import build_pass
 from fgnav.models.registry import ATTITUDE_VARIABLE
 from fgnav.pipeline import solve

@@ -48,7 +48,7 @@ def run_seed(seed: int, duration_h: float, step_s: float, work: Path) -> dict:
     from fgnav.io.log_csv import write_log
     from fgnav.pipeline import smooth_file
     from fgnav.solvers.options import SmootherOptions
-    from fgnav.analysis.consistency import nees
+    from fgnav.diagnostics.consistency import nees
 
     d = work / f"seed{seed}"
     rc = main(["simulate", "geo-limb", "--out", str(d), "--duration-h", str(duration_h),
@@ -77,7 +77,7 @@ def run_seed(seed: int, duration_h: float, step_s: float, work: Path) -> dict:
 
 def summarize(runs: list[dict]) -> dict:
     """ANEES table of the routes over the runs (module doc)."""
-    from fgnav.analysis.consistency import anees, chi2_band
+    from fgnav.diagnostics.consistency import anees, chi2_band
 
     R = len(runs)
     lo, hi = chi2_band(6, R)

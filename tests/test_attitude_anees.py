@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgnav.analysis.consistency import anees
+from fgnav.diagnostics.consistency import anees
 
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "study_attitude_anees.py"
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgnav.analysis.crb import cramer_rao_bound
+from fgnav.diagnostics.crb import cramer_rao_bound
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario

@@ -39,7 +39,7 @@ def test_smooth_imports_no_scipy_stats():
     import subprocess
     import sys
 
-    code = ("import sys, fgnav.integrity, fgnav.robust, fgnav.initial_orbit, fgnav.chi2 as c;"
+    code = ("import sys, fgnav.diagnostics.integrity, fgnav.robust, fgnav.start, fgnav.chi2 as c;"
             "c.chi2_logsf(3.0, 2); c.norm_isf(0.01); c.chi2_isf(0.01, 3); c.chi2_ppf(0.9, 6);"
             "print('scipy.stats' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

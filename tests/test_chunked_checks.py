@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-import fgnav.analysis.crb as crb
-import fgnav.integrity as integrity
+import fgnav.diagnostics.crb as crb
+import fgnav.diagnostics.integrity as integrity
 from fgnav.measurements import build_pass
 from fgnav.pipeline import crb_metrics, prepare_pass, solve, summarize, write_residuals_csv
 from fgnav.simulate import faults as F

@@ -94,7 +94,7 @@ def test_too_few_epochs_to_observe_the_orbit_is_a_clear_error(tmp_path, capsys):
 
 def test_direction_rows_without_priors_start_from_the_initial_orbit(tmp_path, capsys):
     # No prior rows: the orbit comes from the directions and limb ranges alone
-    # (fgnav.initial_orbit); the answer is checked against the DOP853 truth.
+    # (fgnav.iod, fgnav.start); the answer is checked against the DOP853 truth.
     log, truth = hand_written_log(tmp_path, np.arange(0, 600, 60.0), with_priors=False)
     out = tmp_path / "r"
     rc = main(["smooth", str(log), "--out", str(out), "--truth", str(truth), "--quiet"])

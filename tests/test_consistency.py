@@ -1,11 +1,11 @@
-"""NEES / NIS / ANEES and their chi-square bands (fgnav.analysis.consistency)."""
+"""NEES / NIS / ANEES and their chi-square bands (fgnav.diagnostics.consistency)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from fgnav.analysis.consistency import (anees, chi2_band, nees, nees_curve, nis_ekf, nis_smoother,
+from fgnav.diagnostics.consistency import (anees, chi2_band, nees, nees_curve, nis_ekf, nis_smoother,
                                         nis_summary)
 
 

@@ -106,7 +106,7 @@ def test_equals_numpy_ekf_with_several_rows_of_a_family_at_an_epoch(name, hours)
     counts = np.bincount(p.families["body_star_angle"].k)
     assert counts.max() >= 2
     if name == "mars-cruise":
-        from fgnav.initial_orbit import start_point
+        from fgnav.start import start_point
         from fgnav.time import j2000_seconds
 
         opt = SmootherOptions(centre="sun")
@@ -118,7 +118,7 @@ def test_equals_numpy_ekf_with_several_rows_of_a_family_at_an_epoch(name, hours)
 
 def test_prior_at_later_epoch_is_propagated_back():
     p, sim = _mixed_pass(seed=5, duration_h=0.5)
-    from fgnav.solvers.first_guess import initial_guess
+    from fgnav.iod.prior import initial_guess
     from fgnav.time import j2000_seconds
 
     # move the priors to epoch 7: the first state is the prior propagated back

@@ -83,7 +83,7 @@ def test_data_cannot_refute_the_wrong_field(keplerian_pass):
     # function of these residuals, so none can call it without false alarms on clean passes.
     from scipy.stats import chi2 as chi2_dist
 
-    from fgnav.integrity import assess
+    from fgnav.diagnostics.integrity import assess
 
     sim, p = keplerian_pass
     total = {}

@@ -132,7 +132,7 @@ def test_the_lecture_example_two_cones_and_a_torus_in_closed_form():
     r . i_j = -r cos A_j and r . r_p = r^2 - r |r - r_p| cos A_3, r from the Sun): the closed
     form gives two roots, one of them the spacecraft, the other its mirror about the stars'
     plane; both satisfy the three equations."""
-    from fgnav.geometric_orbit import cone_torus_candidates
+    from fgnav.iod.geometric import cone_torus_candidates
     from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE
     from fgnav.measurements import Family
 
@@ -156,8 +156,8 @@ def test_the_lecture_example_two_cones_and_a_torus_in_closed_form():
 
 
 def test_a_short_cruise_from_no_prior_reaches_the_truth_within_its_bound(tmp_path):
-    from fgnav.analysis.crb import cramer_rao_bound
-    from fgnav.geometric_orbit import fixes_along
+    from fgnav.diagnostics.crb import cramer_rao_bound
+    from fgnav.iod.geometric import fixes_along
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, smooth_log
     from fgnav.scenarios import load_scenario

@@ -1,4 +1,4 @@
-"""Orbit determination without a prior (fgnav.initial_orbit) and the no-prior route.
+"""Orbit determination without a prior (fgnav.iod) and the no-prior route (fgnav.start).
 
 Truth comes from the independent DOP853 integrator (``fgnav simulate`` / simulate_pass).
 The initial orbit must land well inside the basin where Gauss-Newton converges: the
@@ -17,17 +17,18 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgnav.analysis.crb import cramer_rao_bound
+from fgnav.diagnostics.crb import cramer_rao_bound
 from fgnav.cli import main
 from fgnav.errors import UserError
-from fgnav.initial_orbit import (initial_orbit, iod_support, prior_consistency, propagate_orbit,
-                                 start_point, strip_prior)
+from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit
+from fgnav.iod.prior import strip_prior
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.start import prior_consistency, start_point
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import format_utc, j2000_seconds
 
@@ -319,7 +320,7 @@ def test_fit_trajectory_is_one_propagation_per_epoch(interpret):
     two of its epochs, before or after it."""
     from factors.dynamics import MotionModel, propagate
     from factors.interpret import interpreted
-    from fgnav.initial_orbit import _trajectory
+    from fgnav.iod.fit import trajectory_stm
 
     x_ref = np.array([6510501.67, -1321.0, 3719649.06, -3737.18, -1.07, 8791.3])
     t = np.cumsum(np.random.default_rng(2).uniform(30.0, 400.0, 40))
@@ -334,7 +335,7 @@ def test_fit_trajectory_is_one_propagation_per_epoch(interpret):
                 F, tp = S @ F, t[i]
                 X_ref[i], Phi_ref[i] = x, F
         with interpreted(interpret):
-            X, Phi = _trajectory(x_ref, t_ref, t, model, 7.0e8)
+            X, Phi = trajectory_stm(x_ref, t_ref, t, model, 7.0e8)
         assert np.array_equal(X, X_ref)
         assert np.allclose(Phi, Phi_ref, rtol=1e-12, atol=1e-12 * np.abs(Phi_ref).max())
     assert np.abs(Phi_ref[0] - np.eye(6)).max() > 1.0   # hours of motion: not the identity

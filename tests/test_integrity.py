@@ -14,7 +14,7 @@ import pytest
 
 from fgnav.simulate import faults as F
 from fgnav.cli import main
-from fgnav.integrity import assess, largest_run, stderr_line
+from fgnav.diagnostics.integrity import assess, largest_run, stderr_line
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import write_oem
 from fgnav.measurements import build_pass
@@ -242,7 +242,7 @@ def test_prior_test_decisions_without_the_tail_function_are_the_same():
 
     from scipy.stats import chi2 as chi2_dist
 
-    from fgnav.integrity import (CHI2_TAIL_AT_MEAN_MIN, FALSE_ALARM_PROBABILITY,
+    from fgnav.diagnostics.integrity import (CHI2_TAIL_AT_MEAN_MIN, FALSE_ALARM_PROBABILITY,
                                  _beyond_quantile, _chi2_test)
 
     ks = np.unique(np.concatenate([np.arange(1, 2001), np.geomspace(2000, 1e7, 300).astype(int)]))
@@ -263,7 +263,7 @@ def test_prior_test_of_a_fitting_solution_loads_no_scipy_special():
     import sys
 
     code = ("import sys, types, numpy as np\n"
-            "from fgnav.integrity import needs_prior_test\n"
+            "from fgnav.diagnostics.integrity import needs_prior_test\n"
             "rng = np.random.default_rng(1)\n"
             "sol = types.SimpleNamespace(extras={'converged': True}, x_eci=np.zeros((5, 6)),\n"
             "    P_eci=np.tile(np.eye(6), (5, 1, 1)), residuals={'earth_direction': 0.9 * rng.standard_normal((500, 2)),\n"
@@ -283,7 +283,7 @@ def test_manoeuvre_test_keeps_its_digits_over_a_long_pass():
     moved by 20 um, and no alarm on this clean pass."""
     import types
 
-    from fgnav.integrity import _Mapped, manoeuvre_glr_windowed
+    from fgnav.diagnostics.integrity import _Mapped, manoeuvre_glr_windowed
 
     made = F.clean(duration_h=12.0, step_s=10.0)
     options = SmootherOptions()
@@ -318,7 +318,7 @@ def test_a_pass_whose_first_step_passes_the_mapping_limit_gets_its_verdict():
     (1e-9 s: ~2e15 windows, the verdict never came; the same log took 4.8 s before the
     windows). The span is at least four steps, so each window holds ~8 epochs, and the clean
     pass asks for no manoeuvre."""
-    from fgnav.integrity import MAPPING_GROWTH_MAX, WINDOW_STEPS_MIN, window_span
+    from fgnav.diagnostics.integrity import MAPPING_GROWTH_MAX, WINDOW_STEPS_MIN, window_span
 
     t = np.arange(22) * 86400.0
     growth = 6.0 + 3.0 * t ** 2

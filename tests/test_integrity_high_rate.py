@@ -10,7 +10,7 @@ small perturbation of the orbit and its linear response is meaningless).
 
 from __future__ import annotations
 
-from fgnav.integrity import assess
+from fgnav.diagnostics.integrity import assess
 from fgnav.measurements import build_pass
 from fgnav.pipeline import solve
 from fgnav.scenarios import load_scenario

@@ -15,7 +15,7 @@ from factors import dynamics
 from factors.direction import sphere_log
 from factors.interpret import active, interpreted, python_body
 from factors.limb import limb_radius_residual
-from fgnav.analysis.crb import cumulative_stm
+from fgnav.diagnostics.crb import cumulative_stm
 from fgnav.solvers.chain import back_substitute, chain_marginals
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -8,7 +8,7 @@ import pytest
 from factors.constants import DEG
 from factors.dynamics import MotionModel, propagate
 from factors.geometry import tangent_basis
-from fgnav.analysis.observability import (analyze_observability, describe_direction,
+from fgnav.diagnostics.observability import (analyze_observability, describe_direction,
                                           observability_matrix, weakest_directions,
                                           window_information)
 from fgnav.scenarios import load_scenario
@@ -70,7 +70,7 @@ def test_condition_vs_period_and_fixed_window_information():
 
 
 def test_window_information_matches_cramer_rao_information():
-    from fgnav.analysis.crb import cramer_rao_bound
+    from fgnav.diagnostics.crb import cramer_rao_bound
     from fgnav.measurements import build_pass
     from fgnav.simulate.pass_sim import simulate_pass
     from fgnav.time import j2000_seconds

@@ -1,4 +1,4 @@
-"""Geometric fixes (fgnav.analysis.position_surfaces): the INS/CNS lecture's worked example -- a
+"""Geometric fixes (fgnav.iod.surfaces): the INS/CNS lecture's worked example -- a
 Mars-transfer cruise fixed from two Sun-star angles (cones ``r . i = -r cos A``) and one
 Sun-Earth angle (the torus ``r . r_p = r^2 - r |r - r_p| cos A``), "the redundant points
 removed with the previous orbit" -- and the fixes of a simulated sextant pass against truth."""
@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 
 from factors.celestial_angles import body_body_angle_residual, body_star_angle_residual
-from fgnav.analysis.position_surfaces import (fibonacci_directions, intersect_surfaces,
-                                              position_surface_fixes)
+from fgnav.iod.surfaces import fibonacci_directions, intersect_surfaces, position_surface_fixes
 from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.first_guess import initial_guess
+from fgnav.iod.prior import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 

@@ -16,8 +16,8 @@ from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
 from factors.constants import ARCSEC, R_EARTH_M
 from factors.refraction import (REFRACTION_VALID_BAND_M, apparent_tangent_height_m,
                                 refraction_angle_rad, refraction_residual, refraction_sigma_m)
-from fgnav.analysis.direct_fix import (cone_axis, cone_fix_candidates, refraction_direct_fix,
-                                       refraction_direct_fixes)
+from fgnav.iod.direct_fix import (cone_axis, cone_fix_candidates, refraction_direct_fix,
+                                  refraction_direct_fixes)
 from fgnav.analysis.scheme_studies import MADAN_POSITION_M, refraction_study
 from fgnav.graph import linearize_family
 from fgnav.models.registry import model
@@ -25,7 +25,7 @@ from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.simulate.refraction_sim import true_tangent_height_m
-from fgnav.solvers.first_guess import initial_guess
+from fgnav.iod.prior import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 

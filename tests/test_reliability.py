@@ -139,7 +139,7 @@ def test_observability_head_shortcut_gives_the_whole_pass_verdict(monkeypatch):
     """A long pass is tested on its first epochs first: a head that observes the orbit
     answers for the whole pass (information only grows with rows); a head that does not
     falls back to the whole pass, whose verdict then stands, in both directions."""
-    import fgnav.analysis.crb as crb
+    import fgnav.diagnostics.crb as crb
     from factors.dynamics import MotionModel
     from fgnav.measurements import slice_pass
 

@@ -1,6 +1,6 @@
 """The sextant in low Earth orbit (built-in scenario ``sextant-leo``: star - Earth-limb,
 Moon - star and Earth - Moon angles, no attitude): the smoother against the truth of the
-independent DOP853 integrator and against the Cramér–Rao bound (``fgnav.analysis.crb``,
+independent DOP853 integrator and against the Cramér–Rao bound (``fgnav.diagnostics.crb``,
 the information of every row mapped to the first state, evaluated along the truth), and
 its NEES over many seeds."""
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fgnav.analysis.crb import cramer_rao_bound
+from fgnav.diagnostics.crb import cramer_rao_bound
 from fgnav.cli import main
 from fgnav.measurements import build_pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
@@ -93,7 +93,7 @@ def test_schemes_position_surfaces_prints_the_table_and_its_json(capsys):
 def test_without_prior_rows_the_sextant_starts_from_its_geometric_fixes(tmp_path, drop):
     """No prior: the Moon-star cones and the Earth-Moon torus give closed-form fixes, or
     (limb angles alone) the roots are searched from a grid of starts; the track of roots
-    over a short arc (fgnav.geometric_orbit.MAX_TRACK_ARC of the period: a LEO's fixes hours
+    over a short arc (fgnav.iod.geometric.MAX_TRACK_ARC of the period: a LEO's fixes hours
     apart are revolutions apart) gives the orbit, and the smoother reaches the solution it
     reaches with the prior."""
     from fgnav.io.log_csv import read_log, write_log

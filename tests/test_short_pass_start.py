@@ -14,7 +14,7 @@ from fgnav.measurements import build_pass
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
 from fgnav.solvers.batch import smooth_batch
-from fgnav.solvers.first_guess import initial_guess
+from fgnav.iod.prior import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 

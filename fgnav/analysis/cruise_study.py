@@ -3,14 +3,14 @@ over many seeds (``scripts/study_mars_cruise.py`` prints it; a slow test checks 
 
 Per seed: the built-in heliocentric scenario ``mars-cruise`` is simulated (truth from the
 independent DOP853 integrator, the Sun and the planets) and smoothed by batch from no prior
-(its first guess the orbit of the geometric fixes, :mod:`fgnav.geometric_orbit`). Measured
+(its first guess the orbit of the geometric fixes, :mod:`fgnav.iod.geometric`). Measured
 against the truth:
 
 * the geometric fix of every epoch (two Sun-star cones and a Sun-Earth torus intersected,
   the root nearest the true orbit kept), its position error and the sigma predicted from
   the surfaces' gradients, and the fixes' NEES (3 dof);
 * the smoother's position and velocity RMS over the pass, its own 1-sigma and its NEES
-  (6 dof), and the Cramér–Rao bound of the pass (:func:`fgnav.analysis.crb.cramer_rao_bound`:
+  (6 dof), and the Cramér–Rao bound of the pass (:func:`fgnav.diagnostics.crb.cramer_rao_bound`:
   the information of every row mapped through the motion model's state-transition matrices
   to the first state, along the truth; the star choice and the truth do not depend on the
   seed, so the bound is computed once);
@@ -36,8 +36,8 @@ def run_cruise_study(seeds=range(20), duration_h: float | None = None,
     """Run the study (module docstring) over ``seeds``; ``duration_h``/``step_s`` override
     the scenario's. Returns a dict of per-seed rows, the pooled figures and seed 0's
     per-epoch fixes."""
-    from fgnav.analysis.crb import cramer_rao_bound
-    from fgnav.geometric_orbit import fixes_along
+    from fgnav.diagnostics.crb import cramer_rao_bound
+    from fgnav.iod.geometric import fixes_along
     from fgnav.measurements import build_pass
     from fgnav.pipeline import accuracy_metrics, smooth_log
     from fgnav.scenarios import load_scenario

@@ -48,9 +48,9 @@ from factors.dynamics import propagate_many
 from factors.constants import ARCSEC
 from factors.geometry import so3_exp, so3_log
 from factors.random_walk import rot3_random_walk_residual
-from fgnav.analysis.crb import cumulative_stm
+from fgnav.diagnostics.crb import cumulative_stm
 from fgnav.graph import linearize_all
-from fgnav.integrity import assess
+from fgnav.diagnostics.integrity import assess
 from fgnav.io.log_csv import log_from_arrays
 from fgnav.loose_attitude import attitude_rows_from_stars
 from fgnav.measurements import build_pass, with_estimates
@@ -128,7 +128,7 @@ def joint_crb(p, X_true: np.ndarray, options: SmootherOptions) -> dict:
 
     Parameters: the first orbit state ``x_0`` (the others ``x_k = f(x_0)``, each
     measurement row's orbit Jacobian mapped by the motion model's state transition matrix,
-    ``a^T Phi(t_k, t_0)``: deterministic dynamics, as :mod:`fgnav.analysis.crb`; the
+    ``a^T Phi(t_k, t_0)``: deterministic dynamics, as :mod:`fgnav.diagnostics.crb`; the
     ``q_m2_s3`` = 1e-12 m^2/s^3 of the study moves a GEO position by ~2 m in 6 h, three
     orders below the bound, and a dense matrix over every epoch's orbit state would have a
     condition number beyond double precision), the attitude ``A_k`` of every epoch (3 each,
@@ -186,7 +186,7 @@ def joint_crb(p, X_true: np.ndarray, options: SmootherOptions) -> dict:
 def _metrics(sol, p, sim, model) -> dict:
     """Position RMS (m), attitude RMS angle (rad), orbit NEES (6-dim) and attitude NEES
     (3-dim) of a solution against the truth, over the pass's epochs, and whether its
-    integrity verdict (:func:`fgnav.integrity.assess`, motion model ``model``) is ``ok``."""
+    integrity verdict (:func:`fgnav.diagnostics.integrity.assess`, motion model ``model``) is ``ok``."""
     k = np.searchsorted(sol.t_s, p.t_s)
     x_true = sim.x_true[np.searchsorted(sim.t_s, p.t_s)]
     sol_p = dataclasses.replace(sol, t_s=sol.t_s[k], x_eci=sol.x_eci[k], P_eci=sol.P_eci[k])

@@ -4,7 +4,7 @@ one table each.
 Starlight refraction (Li et al. 2017, built-in scenario ``refraction-leo``): the error budget of
 the patent, split by source -- the refraction-angle error alone, the atmosphere-model error
 alone, both -- for the classical direct fix (three refracted stars, Li et al. 2017 step 5,
-:func:`fgnav.analysis.direct_fix.refraction_direct_fix`), the EKF (Li et al. 2017 step 6) and the
+:func:`fgnav.iod.direct_fix.refraction_direct_fix`), the EKF (Li et al. 2017 step 6) and the
 batch smoother. Reference: MADAN (Multimission Attitude Determination and Autonomous
 Navigation, the US starlight-refraction system flown in 1989: Wang, Xie & Ma 2010), 100 m (1σ)
 (the INS/CNS lecture's heritage list), the table's heritage column.
@@ -35,15 +35,15 @@ import dataclasses
 
 import numpy as np
 
-from fgnav.analysis.direct_fix import refraction_direct_fixes, sem_direct_fixes
-from fgnav.analysis.position_surfaces import position_surface_fixes
+from fgnav.iod.direct_fix import refraction_direct_fixes, sem_direct_fixes
+from fgnav.iod.prior import initial_guess
+from fgnav.iod.surfaces import position_surface_fixes
 from fgnav.measurements import build_pass
 from fgnav.models.registry import REFRACTION
 from fgnav.pipeline import accuracy_metrics, crb_metrics, solve
 from fgnav.scenarios import load_scenario
 from fgnav.sun_earth_moon import preprocess_log
 from fgnav.simulate.pass_sim import simulate_pass
-from fgnav.solvers.first_guess import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
@@ -200,7 +200,7 @@ def format_sem_table(r) -> str:
 def surfaces_study(seed=0, *, scenario="sextant-leo", duration_h=None, q_m2_s3=None,
                    n_starts=24):
     """Geometric fixes (the INS/CNS lecture's position surfaces intersected at each epoch,
-    :func:`fgnav.analysis.position_surfaces.position_surface_fixes`, spurious roots removed
+    :func:`fgnav.iod.surfaces.position_surface_fixes`, spurious roots removed
     with the a-priori orbit) against the batch smoother on the same simulated pass; returns a
     dict with one entry per fix epoch (``epochs``: fix error and predicted 1σ, the smoother's
     error and 1σ, the roots found) and the pass's RMS, NEES and Cramér-Rao bound."""

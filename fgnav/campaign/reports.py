@@ -14,9 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
 
+from fgnav.analysis.visibility import SEED_RING_DEG, limb_half_angle_rad, visibility_band_m
 from fgnav.campaign.storage import RunsTable, csv_line, format_cell, safe_name
 from fgnav.campaign.tasks import positive
 from fgnav.constants import DEG
+from fgnav.diagnostics.consistency import anees, nees_curve
 from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 
@@ -266,8 +268,6 @@ def report_visibility(study, rows, out):
     :class:`VisibilityReference` beside its ``band_km``, then the passes' rows."""
     import numpy as np
 
-    from fgnav.analysis.visibility import SEED_RING_DEG, limb_half_angle_rad, visibility_band_m
-
     ref: VisibilityReference = study.reference
     ring = tuple(study.fixed.get("ring_deg") or SEED_RING_DEG)
     bands = [(r_km, *visibility_band_m(ring, r_earth_m=r_km * 1e3)) for r_km in ref.earth_radii_km]
@@ -347,8 +347,6 @@ def report_nees(study, rows, out):
     chi-square band of :class:`NeesReference` (Bar-Shalom, Li, Kirubarajan, "Estimation with
     Applications to Tracking and Navigation", 2001, ch. 5.4)."""
     import numpy as np
-
-    from fgnav.analysis.consistency import anees, nees_curve
 
     ref: NeesReference = study.reference
     table, curves, curve_t_s = [], {}, {}

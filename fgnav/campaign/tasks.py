@@ -17,6 +17,10 @@ from factors.constants import R_LIMB_UV_M
 from fgnav.analysis.limb_method_study import direct_position_error_mc, table5 as closed_forms
 from fgnav.analysis.visibility import SEED_RING_DEG, ring_sees_limb, visibility_scenario
 from fgnav.constants import DEG, R_EARTH_M
+from fgnav.diagnostics.consistency import nees, nis_ekf, nis_smoother, nis_summary
+from fgnav.diagnostics.crb import cramer_rao_bound
+from fgnav.diagnostics.observability import (analyze_observability, observability_matrix,
+                                             weakest_directions, window_information)
 from fgnav.errors import UserError
 from fgnav.io.log_csv import log_from_arrays
 from fgnav.measurements import build_pass
@@ -148,10 +152,6 @@ def navigate(p: NavigateParams):
     the Cramer-Rao information of the pass; arrays: per-epoch NEES and NIS."""
     import numpy as np
 
-    from fgnav.analysis.consistency import nees, nis_ekf, nis_smoother, nis_summary
-    from fgnav.analysis.crb import cramer_rao_bound
-    from fgnav.analysis.observability import weakest_directions
-
     scn = _scenario(p.scenario, step_s=p.step_s, duration_h=p.duration_h, sigma_deg=p.sigma_deg,
                     prior_position_sigma_m=p.prior_position_sigma_m,
                     prior_velocity_sigma_mps=p.prior_velocity_sigma_mps, prior_mode=p.prior_mode)
@@ -189,9 +189,6 @@ OBSERVABILITY_COLUMNS = (
 def observability(p: ObservabilityParams):
     """Rank and condition number of the observability matrix and of the window information."""
     import numpy as np
-
-    from fgnav.analysis.observability import (analyze_observability, observability_matrix,
-                                              weakest_directions, window_information)
 
     scn = _scenario(p.scenario, step_s=p.step_s, sigma_deg=p.sigma_deg)
     x0 = np.array(scn.x0_eci)

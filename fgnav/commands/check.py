@@ -82,10 +82,11 @@ def _per_spacecraft(log) -> dict:
 
 def _no_prior(log) -> dict:
     """Whether ``fgnav smooth`` can start this log from its measurements alone (no prior
-    rows, or --ignore-prior): the structural test of :func:`fgnav.initial_orbit.iod_support`
+    rows, or --ignore-prior): the structural test of :func:`fgnav.iod.initial.iod_support`
     (the fit itself runs only in smooth)."""
     from fgnav.errors import UserError
-    from fgnav.initial_orbit import has_prior, iod_support
+    from fgnav.iod.initial import iod_support
+    from fgnav.iod.prior import has_prior
     from fgnav.measurements import build_pass
 
     try:

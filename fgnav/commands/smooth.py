@@ -368,7 +368,7 @@ def run(args) -> int:
         brief = {k: res.summary[k] for k in keys if k in res.summary}
         brief["integrity"] = integrity["status"]
         print(json.dumps(brief, indent=1))
-    from fgnav.integrity import stderr_line
+    from fgnav.diagnostics.integrity import stderr_line
     line = stderr_line(integrity)
     if line:
         import sys

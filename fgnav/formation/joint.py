@@ -194,11 +194,12 @@ def first_guess(p: Pass, model, t0_j2000_s: float, options=None):
     ``options``, the filtered trajectory of the compiled EKF where it applies, as the
     one-spacecraft batch starts: returns ``(X, every orbit filtered)``; else its prior
     propagated, or without a prior the orbit its measurements give,
-    :func:`fgnav.initial_orbit.start_point`), clocks and ambiguities at their prior mean
+    :func:`fgnav.start.start_point`), clocks and ambiguities at their prior mean
     (the links are linear in them: one Gauss-Newton step places them)."""
-    from fgnav.initial_orbit import has_prior, start_point
+    from fgnav.iod.prior import has_prior
+    from fgnav.start import start_point
     from fgnav.solvers.batch import _ekf_first_guess
-    from fgnav.solvers.first_guess import initial_guess
+    from fgnav.iod.prior import initial_guess
 
     lay = p.layout
     X = lay.initial(np.zeros((p.n_epochs, 6)))
@@ -263,7 +264,7 @@ def solve_formation(p: Pass, method: str, options, *, progress=None):
 def start_covariance(p: Pass) -> np.ndarray:
     """The first epoch's block covariance (n, n) for the filter: each spacecraft's prior rows
     (:func:`fgnav.measurements.prior_covariance`), each further variable's prior."""
-    from fgnav.initial_orbit import has_prior
+    from fgnav.iod.prior import has_prior
     from fgnav.measurements import prior_covariance
 
     lay = p.layout

@@ -24,7 +24,8 @@ from fgnav.errors import UserError
 from fgnav.formation.joint import solve_formation, spacecraft_states
 from fgnav.formation.relative_state import (relative_covariance, relative_state_body,
                                             relative_state_lvlh)
-from fgnav.integrity import ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test, _family_test, _severity
+from fgnav.diagnostics.integrity import (ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test,
+                                         _family_test, _severity)
 from fgnav.io.atomic import atomic_write_text
 from fgnav.io.oem import write_oem
 from fgnav.io.outputs import commit_outputs, staged

@@ -50,7 +50,7 @@ import dataclasses
 import numpy as np
 
 from factors.dynamics import process_noise, propagate, propagate_many
-from fgnav.analysis.crb import CrbResult, cramer_rao_bound
+from fgnav.diagnostics.crb import CrbResult, cramer_rao_bound
 from fgnav.errors import UserError
 from fgnav.measurements import (Pass, covering_sigmas, fill_gaps, format_duration, long_gaps,
                                 slice_pass)
@@ -234,7 +234,7 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
 
 def arcs_bound(p: Pass, x_ref: np.ndarray, model):
     """The Cramér–Rao bound of a pass split into arcs: each arc's own (its a-priori state
-    included), pooled over all epochs (a :class:`fgnav.analysis.crb.CrbResult`)."""
+    included), pooled over all epochs (a :class:`fgnav.diagnostics.crb.CrbResult`)."""
     bounds = [0, *p.breaks, p.n_epochs]
     cs = [cramer_rao_bound(slice_pass(p, a, b, p.arc_priors[j - 1] if j else None)[0],
                            x_ref[a:b], model)

@@ -35,7 +35,7 @@ from factors import interpret
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.rts import rts_smooth
-from fgnav.solvers.first_guess import initial_guess
+from fgnav.iod.prior import initial_guess
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.process import variable_step_rows
 from fgnav.solvers.state_elements import chart_of

@@ -28,7 +28,7 @@ from fgnav.measurements import Pass, prior_covariance, rows_by_epoch
 from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
 from fgnav.solution import Solution
-from fgnav.solvers.first_guess import first_state
+from fgnav.iod.prior import first_state
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.process import variable_step_rows
 from fgnav.solvers.state_elements import chart_of

@@ -43,7 +43,7 @@ from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.measurements import prior_covariance
 from fgnav.models.registry import MODELS
 from fgnav.solution import Solution
-from fgnav.solvers.first_guess import first_state
+from fgnav.iod.prior import first_state
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 

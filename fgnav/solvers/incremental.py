@@ -70,7 +70,7 @@ from fgnav.measurements import prior_covariance
 from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
 from fgnav.solvers.batch import outlier_mask
 from fgnav.solvers.chain import back_substitute, chain_marginals
-from fgnav.solvers.first_guess import first_state
+from fgnav.iod.prior import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.solvers.process import constant_rate
 from fgnav.solvers.variables import block_variables

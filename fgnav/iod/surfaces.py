@@ -12,9 +12,9 @@ angular radius and the altimeter (spheres), starlight refraction (a surface of t
 height). Here all of them at one epoch are intersected at once:
 
 * **Least squares**: ``r* = argmin sum_j (e_j(r)/sigma_j)^2`` by Gauss-Newton with step
-  halving, on the models' own residuals and Jacobians (``fgnav.models.registry``). With
-  three surfaces the solutions are the intersection points; with more, the least-squares
-  point.
+  halving (:func:`fgnav.iod.fit.gauss_newton_halving`), on the models' own residuals and
+  Jacobians (``fgnav.models.registry``). With three surfaces the solutions are the
+  intersection points; with more, the least-squares point.
 * **Spurious roots**: the surfaces cut in several points (two cones and a torus in up to
   eight). Gauss-Newton is started from the prior position (the previous orbit propagated)
   and from ``n_starts`` points spread over the sphere of the prior's radius (a Fibonacci
@@ -34,10 +34,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
 
-from factors.errors import ModelDomainError
-from fgnav.analysis.direct_fix import DirectFixes
+from fgnav.chi2 import chi2_ppf
+from fgnav.iod.direct_fix import DirectFixes
+from fgnav.iod.fit import gauss_newton_halving
 from fgnav.models.registry import MODELS
 from fgnav.models.variables import Layout
 
@@ -67,36 +67,6 @@ class SurfaceFix:
     roots: np.ndarray
 
 
-def _gauss_newton(residual, r0, max_iter, tol_m):
-    """Gauss-Newton with step halving from ``r0`` (3,): ``(r, cost, A)`` or None."""
-    r = np.array(r0, dtype=float)
-    try:
-        b, A = residual(r)
-    except ModelDomainError:
-        return None
-    cost = float(b @ b)
-    for _ in range(max_iter):
-        dx, *_ = np.linalg.lstsq(A, -b, rcond=None)
-        step = 1.0
-        while step > 1e-6:
-            try:
-                b_new, A_new = residual(r + step * dx)
-            except ModelDomainError:
-                step *= 0.5
-                continue
-            if float(b_new @ b_new) <= cost * (1 + 1e-12):
-                break
-            step *= 0.5
-        else:
-            break
-        r = r + step * dx
-        b, A = b_new, A_new
-        cost = float(b @ b)
-        if np.linalg.norm(step * dx) < tol_m:
-            break
-    return r, cost, A
-
-
 def intersect_surfaces(residual, r_prior, *, starts=None, n_starts=24, alpha=1e-3,
                        max_iter=50, tol_m=1e-3, merge_m=1.0):
     """Intersect position surfaces by least squares; the root nearest ``r_prior`` is kept.
@@ -115,12 +85,12 @@ def intersect_surfaces(residual, r_prior, *, starts=None, n_starts=24, alpha=1e-
     roots = []
     m = None
     for r0 in cand:
-        out = _gauss_newton(residual, r0, max_iter, tol_m)
+        out = gauss_newton_halving(residual, r0, max_iter, tol_m)
         if out is None:
             continue
         r, cost, A = out
         m = A.shape[0]
-        gate = chi2.ppf(1.0 - alpha, max(m - 3, 1))
+        gate = chi2_ppf(1.0 - alpha, max(m - 3, 1))
         if not (np.all(np.isfinite(r)) and cost <= gate):
             continue
         if any(np.linalg.norm(r - q[0]) < merge_m for q in roots):
@@ -171,7 +141,7 @@ def epoch_residual(parts, v_guess=None):
 def position_surface_fixes(p, x_ref, *, n_starts=24, min_rows=3, alpha=1e-3):
     """Geometric fixes at every epoch of ``p`` with at least ``min_rows`` surface rows
     (:func:`surface_models`); ``x_ref`` (N, 6) the prior orbit (e.g. the a-priori state
-    propagated, ``fgnav.solvers.first_guess.initial_guess``): the start and the choice among
+    propagated, ``fgnav.iod.prior.initial_guess``): the start and the choice among
     roots. Returns ``(DirectFixes, roots (M,))``: the fixes and the number of distinct roots
     found at each."""
     fams = surface_models(p)

@@ -13,7 +13,7 @@ under the hypothesis that the log and the models are right (Bar-Shalom, Li & Kir
   is missing from the model (the smoother bends the orbit through the process noise);
 * **prior**: the Mahalanobis distance of the solution from the log's prior, chi-square with
   6 degrees of freedom per prior epoch, and the initial orbit's verdict on the prior
-  (:mod:`fgnav.initial_orbit`);
+  (:mod:`fgnav.start`);
 * **residual runs**: the largest windowed mean of whitened residuals in time order, over
   windows of 4 to 4,096 measurements, against a Bonferroni threshold for all the windows
   tested (a bias or an unmodelled force shows as a run of same-signed residuals that a
@@ -37,8 +37,10 @@ import numpy as np
 
 from factors.dynamics import accel_third_body
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
-from fgnav.analysis.crb import CHUNK, rows_at_first_state
+from fgnav.chi2 import chi2_isf, chi2_logsf, norm_isf
+from fgnav.diagnostics.crb import CHUNK, rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values
+from fgnav.measurements import slice_pass
 from fgnav.time import j2000_seconds
 
 
@@ -80,8 +82,6 @@ ADVICE = {
 def _chi2_test(chi2: float, dof: int) -> dict:
     """chi2 of ``dof`` whitened components: normalized value and the log10 of its tail
     probability under the chi-square distribution (``-inf`` for an impossible value)."""
-    from fgnav.chi2 import chi2_logsf
-
     dof = max(int(dof), 1)
     logsf = chi2_logsf(chi2, dof) if math.isfinite(chi2) else -math.inf
     return {"chi2": float(chi2), "dof": dof, "normalized": float(chi2) / dof,
@@ -110,8 +110,6 @@ def largest_run(t_s: np.ndarray, r: np.ndarray, windows=RUN_WINDOWS) -> dict | N
     Bonferroni threshold for the number of windows tested (family-wise false-alarm
     probability :data:`RUN_FALSE_ALARM`).
     """
-    from fgnav.chi2 import norm_isf
-
     r = np.asarray(r, dtype=float)
     ok = np.all(np.isfinite(r), axis=1)
     r, t = r[ok], np.asarray(t_s, dtype=float)[ok]
@@ -276,8 +274,6 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                 f"m/s^2 here), which moves this solution by ~{third['position_rms_m']:.3g} m RMS "
                 f"({math.sqrt(third['mean_nees'] / 6):.2g} sigma)")
         if third["mean_nees"] > THIRD_BODY_NEES:
-            from fgnav.chi2 import norm_isf
-
             if third["expected_z"] < norm_isf(FALSE_ALARM_PROBABILITY):
                 # a consider warning, not a residual test: the fit absorbs the pull's
                 # signature, so the data cannot say whether the spacecraft feels it
@@ -437,8 +433,6 @@ def manoeuvre_glr(m: _Mapped, n_tests: int | None = None, tested=None) -> dict |
     (over ``n_tests`` epochs: default the pass's; a window's tests count the whole pass's).
     ``tested``: (N,) bool, the epochs whose ratio counts (default all).
     """
-    from fgnav.chi2 import chi2_isf
-
     N = m.N
     if N < 8 or len(m.b) < 12:
         return None
@@ -538,8 +532,6 @@ def manoeuvre_glr_windowed(p, sol, model, row_weights, whole: _Mapped) -> dict |
     epochs; ``"windows"`` in the result says how many there were.
     """
     from types import SimpleNamespace
-
-    from fgnav.measurements import slice_pass
 
     growth = np.sum(whole.Phik * whole.Phik, axis=(1, 2))
     if growth.max() <= MAPPING_GROWTH_MAX:

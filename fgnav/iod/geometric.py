@@ -16,7 +16,7 @@ redundant points with the previous orbit". Here:
    ``d = p_C - p_B``) then gives the distance by the sine rule in the triangle B,
    spacecraft, C: ``rho = |d| sin(A + beta) / sin A`` with ``beta`` the angle at B between
    ``w`` and ``d`` (valid when ``A + beta < pi``). Each candidate is refined on all the
-   epoch's rows by Gauss-Newton (:func:`fgnav.analysis.position_surfaces.intersect_surfaces`),
+   epoch's rows by Gauss-Newton (:func:`fgnav.iod.surfaces.intersect_surfaces`),
    which keeps it only if its chi-square is consistent with the noise; its covariance is
    ``(J^T W J)^-1`` from the surfaces' gradients.
    **Searched** where no closed form applies (e.g. star-limb angles alone) and an epoch has
@@ -33,7 +33,7 @@ redundant points with the previous orbit". Here:
    chi-square test (``1 - 1e-6``) and beat the second best by a factor
    :data:`MIN_TRACK_MARGIN`, else the pass is refused with the two figures.
 3. **Refinement.** Levenberg-Marquardt on the 6-state at a middle epoch over the rows
-   themselves (:func:`fgnav.initial_orbit._levenberg_marquardt`, the smoothers' own
+   themselves (:func:`fgnav.iod.fit.fit_orbit`, the smoothers' own
    linearizers and propagator); its covariance ``(A^T A)^-1``.
 """
 
@@ -46,10 +46,12 @@ import numpy as np
 
 from factors.constants import AU_M
 from factors.dynamics import MotionModel, propagate, propagate_many
-from fgnav.analysis.direct_fix import DirectFixes
-from fgnav.analysis.position_surfaces import (epoch_residual, fibonacci_directions,
-                                              intersect_surfaces, surface_models)
+from fgnav.chi2 import chi2_ppf
 from fgnav.errors import UserError
+from fgnav.iod.direct_fix import DirectFixes
+from fgnav.iod.fit import InitialOrbit, fit_covariance, fit_orbit
+from fgnav.iod.surfaces import (epoch_residual, fibonacci_directions, intersect_surfaces,
+                                surface_models)
 from fgnav.measurements import Family, Pass
 from fgnav.models.registry import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
 
@@ -283,8 +285,6 @@ def _track_epochs(p, roots_by_k, model) -> np.ndarray:
 
 def _track_orbit(p, roots_by_k, model, t0_j2000_s):
     """The orbit (x at t_ref, t_ref) of the track of least chi-square (module docstring)."""
-    from fgnav.chi2 import chi2_ppf
-
     pick = _track_epochs(p, roots_by_k, model)
     t = p.t_s[pick]
     i_ref = len(pick) // 2
@@ -312,7 +312,7 @@ def _track_orbit(p, roots_by_k, model, t0_j2000_s):
 def fixes_along(p: Pass, X_ref: np.ndarray, parts_by_k=None):
     """Geometric fixes at every epoch with a closed-form candidate, the root nearest the
     orbit ``X_ref`` (N, 6) kept: ``(DirectFixes, roots (M,))`` as
-    :func:`fgnav.analysis.position_surfaces.position_surface_fixes` gives them."""
+    :func:`fgnav.iod.surfaces.position_surface_fixes` gives them."""
     parts_by_k = epoch_parts(p) if parts_by_k is None else parts_by_k
     ks, rs, Ps, nroots = [], [], [], []
     for k in sorted(parts_by_k):
@@ -345,10 +345,8 @@ def _surface_subpass(p: Pass, k_sub: np.ndarray) -> Pass:
 def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
                             near_k: int | None = None, max_epochs: int = 400):
     """The orbit from geometric fixes (module docstring) as an
-    :class:`fgnav.initial_orbit.InitialOrbit` (method ``"geometric-fixes+lm"``). Raises
+    :class:`fgnav.iod.fit.InitialOrbit` (method ``"geometric-fixes+lm"``). Raises
     :class:`UserError` when the pass has too few fixes or no track fits one orbit."""
-    from fgnav.initial_orbit import InitialOrbit, _levenberg_marquardt
-
     ok, why = geometric_support(p)
     if not ok:
         raise UserError(f"{p.source}: {why}")
@@ -370,16 +368,13 @@ def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
     k_ref = int(k_sub[np.argmin(np.abs(p.t_s[k_sub] - (t_ref if near_k is None else p.t_s[near_k])))])
     x0 = propagate(x_ref, float(p.t_s[k_ref]) - t_ref, model, t0_j2000_s + t_ref, with_stm=False)[0]
     sp = _surface_subpass(p, k_sub)
-    fit = _levenberg_marquardt(sp, x0, float(p.t_s[k_ref]), model, t0_j2000_s)
+    fit = fit_orbit(sp, x0, float(p.t_s[k_ref]), model, t0_j2000_s)
     if fit is None:
         raise UserError(f"{p.source}: the orbit of the geometric fixes could not be refined on "
                         f"the rows")
     x, r, A, cost = fit
     rms = math.sqrt(cost / len(r))
-    N = A.T @ A
-    d = np.sqrt(np.maximum(np.diag(N), 1e-300))
-    P = np.linalg.inv(N / np.outer(d, d)) / np.outer(d, d)
-    P = 0.5 * (P + P.T) * max(1.0, rms ** 2)
+    P = fit_covariance(A, rms)
     return InitialOrbit(k_ref=k_ref, x_eci=x, P_eci=P, method="geometric-fixes+lm",
                         n_used=len(k_sub), rms_whitened=rms,
                         t_span_s=(float(p.t_s[k_sub[0]]), float(p.t_s[k_sub[-1]])))

@@ -1,0 +1,182 @@
+"""Where the smoothers start: the log's prior, or the initial orbit of the measurements alone
+(:mod:`fgnav.iod`), and the test of the one against the other.
+
+See :func:`start_point` and the README, "No prior".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from factors.dynamics import MotionModel
+from fgnav.errors import UserError
+from fgnav.iod.fit import InitialOrbit
+from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit, trajectory
+from fgnav.chi2 import chi2_ppf
+from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
+from fgnav.measurements import Pass, prior_covariance, prior_state
+from fgnav.models.registry import prior_kinds
+
+__all__ = ["prior_consistency", "start_point", "Start", "batch_first_guess",
+           "PRIOR_GATE_PROBABILITY", "START_INFLATION", "MAX_TEST_RMS"]
+
+PRIOR_GATE_PROBABILITY = 1.0 - 1e-6
+
+
+def prior_consistency(p: Pass, iod: InitialOrbit, model: MotionModel, t0_j2000_s: float,
+                      probability: float = PRIOR_GATE_PROBABILITY) -> dict:
+    """Does the log's prior agree with the orbit its measurements give?
+
+    The initial orbit is propagated to the prior's epoch ``k0``; with ``d = x_prior - x_iod``
+    and ``S = P_prior + P_iod`` the squared Mahalanobis distance ``d^T S^-1 d`` is
+    chi-square with 6 degrees of freedom when both are right (the IOD uses no prior row, so
+    the two are independent). The prior contradicts the data when it exceeds the quantile
+    ``probability`` (default 1 - 1e-6: one false alarm in a million clean logs). The
+    covariance is propagated linearly: use an initial orbit from data beside the prior's
+    epoch (``initial_orbit(..., near_k=k0)``; :func:`start_point` does, and does not test a
+    prior farther from that data than the data's own span).
+    """
+    k0, x_prior = prior_state(p)
+    P_prior = prior_covariance(p, k0)
+    x_iod, P_iod = propagate_orbit(iod, p, model, t0_j2000_s, k0)
+    d = x_prior - x_iod
+    S = P_prior + P_iod
+    s = 1.0 / np.sqrt(np.diag(S))
+    m2 = float((d * s) @ np.linalg.solve(S * np.outer(s, s), d * s))
+    gate = chi2_ppf(probability, 6)
+    return {"prior_mahalanobis": math.sqrt(max(m2, 0.0)), "prior_mahalanobis2": m2,
+            "prior_dof": 6, "prior_gate_chi2": gate, "prior_gate_probability": probability,
+            "prior_consistent": bool(m2 <= gate),
+            "prior_position_offset_m": float(np.linalg.norm(d[:3])),
+            "prior_velocity_offset_mps": float(np.linalg.norm(d[3:]))}
+
+
+# ------------------------------------------------------------------------- the smoothers' start
+
+START_INFLATION = 100.0  # covariance factor of the initial orbit when it starts a filter
+MAX_TEST_RMS = 1.5       # the prior is tested only against a fit at the noise level
+
+
+@dataclass
+class Start:
+    """Where the smoothers start: the pass they see, the first guess of every state, the
+    batch first guess (None: the solver's own from the log's prior) and the summary entry."""
+
+    p: Pass
+    x_guess: np.ndarray
+    x_init: np.ndarray | None
+    info: dict
+    synthetic_prior: bool = False
+
+    def finish(self, sol):
+        """Record the start in ``sol.extras["initial_orbit"]``; drop the residuals of a
+        synthetic start prior (not a measurement of the log)."""
+        if self.synthetic_prior:
+            for kind in prior_kinds():
+                sol.residuals.pop(kind, None)
+        sol.extras["initial_orbit"] = self.info
+        return sol
+
+
+def _summary(iod: InitialOrbit, p: Pass) -> dict:
+    return {"method": iod.method, "epoch_index": int(iod.k_ref), "t_s": float(p.t_s[iod.k_ref]),
+            "position_sigma_m": float(math.sqrt(np.trace(iod.P_eci[:3, :3]))),
+            "velocity_sigma_mps": float(math.sqrt(np.trace(iod.P_eci[3:, 3:]))),
+            "rms_whitened": float(iod.rms_whitened), "n_used": int(iod.n_used)}
+
+
+def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
+                ignore_prior: bool = False) -> Start:
+    """Choose the smoothers' start (see the README, "No prior").
+
+    * The log has a prior (and ``ignore_prior`` is False): the prior starts the solvers;
+      when the measurements support an initial orbit, :func:`prior_consistency` tests the
+      prior against it, and a prior that contradicts the data no longer starts the solvers:
+      batch keeps the prior in its graph but starts Gauss-Newton (and any robust kernel)
+      from the initial orbit; the online methods (whose start *is* their prior) start from
+      the initial orbit, covariance inflated by ``START_INFLATION``, in place of the prior.
+    * No prior rows, or ``ignore_prior``: the initial orbit. Batch uses it as the first
+      guess only (no prior factor: the solution is the measurements'); isam2 / fixed-lag /
+      ekf start at epoch 0 from it with its covariance inflated by ``START_INFLATION``.
+    """
+    prior = has_prior(p) and not ignore_prior
+    if prior:
+        x_guess = initial_guess(p, model, t0_j2000_s)
+        info = {"prior": "log"}
+        ok, why = iod_support(p)
+        if not ok:
+            info["consistency"] = f"not tested: {why.split(':')[0]}"
+            return Start(p, x_guess, None, info)
+        try:
+            iod = initial_orbit(strip_prior(p), model, t0_j2000_s, near_k=prior_state(p)[0])
+        except UserError as exc:  # every failure of the fit is one (initial_orbit)
+            info["consistency"] = f"not tested: {exc}"
+            return Start(p, x_guess, None, info)
+        info.update(_summary(iod, p))
+        t_prior = float(p.t_s[prior_state(p)[0]])
+        t_a, t_b = iod.t_span_s
+        away = max(t_a - t_prior, t_prior - t_b, 0.0)
+        if away > t_b - t_a:
+            info["consistency"] = (f"not tested: the prior's epoch is {away:.0f} s from the "
+                                   f"session of data the initial orbit uses ({t_b - t_a:.0f} s "
+                                   f"long), too far for a linear propagation of its covariance")
+            return Start(p, x_guess, None, info)
+        if iod.rms_whitened > MAX_TEST_RMS:
+            info["consistency"] = (f"not tested: the initial orbit fits the data to whitened rms "
+                                   f"{iod.rms_whitened:.2f} (> {MAX_TEST_RMS:g}): forces missing "
+                                   f"from the motion model, or outliers")
+            return Start(p, x_guess, None, info)
+        info.update(prior_consistency(p, iod, model, t0_j2000_s))
+        if info["prior_consistent"]:
+            return Start(p, x_guess, None, info)
+        x_iod = trajectory(iod, p, model, t0_j2000_s)
+        if method == "batch":
+            info["start"] = "initial orbit (the log's prior contradicts the data; it stays in the graph)"
+            return Start(p, x_iod, x_iod, info)
+        x0, P0 = propagate_orbit(iod, p, model, t0_j2000_s, 0)
+        info["prior"] = "initial_orbit"
+        info["start"] = (f"initial orbit at epoch 0, covariance inflated x{START_INFLATION:g}, in place "
+                         f"of the log's prior, which contradicts the data")
+        return Start(with_start_prior(p, x0, START_INFLATION * P0), x_iod, None, info,
+                     synthetic_prior=True)
+    q = strip_prior(p)
+    iod = initial_orbit(q, model, t0_j2000_s)
+    info = {"prior": "ignored" if has_prior(p) else "initial_orbit", **_summary(iod, p)}
+    x_iod = trajectory(iod, p, model, t0_j2000_s)
+    if method == "batch":
+        info["start"] = "initial orbit as the first guess; no prior factor"
+        return Start(q, x_iod, x_iod, info)
+    x0, P0 = propagate_orbit(iod, p, model, t0_j2000_s, 0)
+    info["start"] = f"initial orbit at epoch 0, covariance inflated x{START_INFLATION:g}"
+    return Start(with_start_prior(q, x0, START_INFLATION * P0), x_iod, None, info,
+                 synthetic_prior=True)
+
+
+def batch_first_guess(start: Start, init: str, robust, short_pass: bool):
+    """How batch Gauss-Newton starts from ``start``, chosen here and named, not inside the
+    dispatch from the kernels' speed mode: ``(how, x_init)``.
+
+    * ``"initial orbit"``: ``start.x_init`` (the initial orbit, already fitted to the data
+      through the full dynamics): Gauss-Newton at the requested process noise at once, the
+      continuation if that does not converge.
+    * ``"prior, direct"``: a short pass (``short_pass``: the batch passes run as Python,
+      :data:`fgnav.pipeline.SHORT_PASS_ROWS`) with no bridged gap, ``init == "auto"`` and
+      no robust kernel: the prior propagated (``start.x_guess``), Gauss-Newton at the
+      requested process noise first (:func:`fgnav.pipeline._batch_direct`), the
+      continuation from the same guess if that gives up.
+    * ``"prior"``: the same guess, the continuation only (``init`` other than ``"auto"``,
+      or a robust kernel).
+    * ``"filter"``: ``None``: the batch smoother's own first guess (the compiled EKF and
+      its RTS smoothing, iterated, :func:`fgnav.solvers.batch.smooth_batch`; the prior
+      propagated where the filter does not apply).
+    """
+    if start.x_init is not None:
+        return "initial orbit", start.x_init
+    p = start.p
+    if short_pass and not (p.inserted is not None and p.inserted.any()):
+        direct = init == "auto" and robust is None
+        return ("prior, direct" if direct else "prior"), start.x_guess
+    return "filter", None
