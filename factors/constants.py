@@ -6,7 +6,7 @@ The single source of constants: ``factors`` needs them and never imports ``fgnav
 
 __all__ = [
     "MU_EARTH_M3_S2", "R_EARTH_M", "J2_EARTH", "R_LIMB_UV_M", "MU_SUN_M3_S2",
-    "MU_MOON_M3_S2", "AU_M", "C_LIGHT_M_S", "DEG", "ARCSEC", "OMEGA_EARTH_RAD_S",
+    "MU_MOON_M3_S2", "AU_M", "C_LIGHT_M_S", "DEG", "ARCSEC", "OMEGA_EARTH_RAD_S", "R_SUN_M",
 ]
 
 MU_EARTH_M3_S2 = 3.986004418e14
@@ -20,6 +20,8 @@ R_LIMB_UV_M = 6375.0e3
 MU_SUN_M3_S2 = 1.32712440018e20
 MU_MOON_M3_S2 = 4.9028e12
 AU_M = 1.495978707e11
+R_SUN_M = 6.957e8
+"""Nominal solar radius (IAU 2015 Resolution B3), m: the photosphere."""
 C_LIGHT_M_S = 299792458.0
 DEG = 0.017453292519943295
 """Radians per degree."""

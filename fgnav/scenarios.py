@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M
+from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M, R_SUN_M
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, CENTRES, HELIOCENTRIC_KINDS
 from fgnav.io.log_spacecraft import ID_EXPECTED, ID_RE
@@ -418,8 +418,8 @@ def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
                             k, label=f"{label_prefix}{k}")
 
 
-R_SUN_PHOTOSPHERE_M = 6.957e8
-"""Nominal solar radius, m (IAU 2015 Resolution B3): a heliocentric orbit stays outside it."""
+R_SUN_PHOTOSPHERE_M = R_SUN_M
+"""A heliocentric orbit stays outside the Sun's photosphere (``factors.constants.R_SUN_M``)."""
 
 
 def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0,

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factors.constants import AU_M, R_SUN_M
 from factors.dynamics import MotionModel
 from fgnav.errors import UserError
 from fgnav.iod.fit import InitialOrbit
@@ -88,6 +89,34 @@ def _summary(iod: InitialOrbit, p: Pass) -> dict:
             "rms_whitened": float(iod.rms_whitened), "n_used": int(iod.n_used)}
 
 
+GEOCENTRIC_MAX_PRIOR_RANGE_M = 5.0e9
+"""A geocentric log's prior further than this from the Earth (0.033 AU, three Hill-sphere
+radii of 1.5e6 km) is refused: no orbit about the Earth is there."""
+
+
+def check_prior_centre(p: Pass, centre: str) -> None:
+    """``UserError`` naming the prior's log line when its position contradicts the log's
+    centre: a geocentric prior beyond :data:`GEOCENTRIC_MAX_PRIOR_RANGE_M` (a heliocentric log
+    whose ``# centre: sun`` line is missing, misplaced or says earth: solved about the Earth
+    at 1 AU, it ran for hours), or a heliocentric one inside the Sun (its iterates reached
+    the speed of light)."""
+    if not has_prior(p):
+        return
+    k0, x0 = prior_state(p)
+    r = float(np.linalg.norm(x0[:3]))
+    fam = p.families[prior_kinds()[0]]
+    line = int(fam.line[np.flatnonzero(fam.k == k0)[0]])
+    if centre == "earth" and r > GEOCENTRIC_MAX_PRIOR_RANGE_M:
+        raise UserError(f"{p.source}, line {line}: the prior position lies {r / AU_M:.3g} AU "
+                        f"from the Earth, beyond {GEOCENTRIC_MAX_PRIOR_RANGE_M:.3g} m where no "
+                        f"orbit about the Earth is: if the log is heliocentric, its second line "
+                        f"must be '# centre: sun' (fgnav.io.log_csv)")
+    if centre == "sun" and r < R_SUN_M:
+        raise UserError(f"{p.source}, line {line}: the prior position lies {r:.4g} m from the "
+                        f"Sun's centre, inside the Sun (radius {R_SUN_M:.4g} m): a heliocentric "
+                        f"log's positions are about the Sun (is the '# centre: sun' line meant?)")
+
+
 def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
                 ignore_prior: bool = False) -> Start:
     """Choose the smoothers' start (see the README, "No prior").
@@ -104,6 +133,7 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
     """
     prior = has_prior(p) and not ignore_prior
     if prior:
+        check_prior_centre(p, model.centre)
         x_guess = initial_guess(p, model, t0_j2000_s)
         info = {"prior": "log"}
         ok, why = iod_support(p)

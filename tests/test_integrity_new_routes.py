@@ -103,3 +103,43 @@ def test_ekf_constant_rate_with_every_star_epoch_stays_ok(raw_star_pass, tmp_pat
     assert s["integrity"]["status"] == "ok" and s["nees_mean"] < 12.6
     star = s["integrity"]["families"]["star_direction_body"]
     assert 0.7 < star["normalized"] < 1.4
+
+
+def _centre_variants(lines: list[str]) -> dict[str, list[str]]:
+    assert lines[1] == "# centre: sun"
+    return {"deleted": [lines[0]] + lines[2:],
+            "earth": [lines[0], "# centre: earth"] + lines[2:],
+            "below the header": [lines[0], lines[2], lines[1]] + lines[3:]}
+
+
+@pytest.mark.parametrize("variant", ["deleted", "earth", "below the header"])
+def test_a_heliocentric_log_without_its_centre_line_is_refused_at_once(cruise_log, tmp_path,
+                                                                        capsys, variant):
+    """Read as geocentric, the cruise's angles put the first fixes 0.065 AU from the Earth,
+    and the track fit then ran for hours about the Earth (the integrity issue, item 3) while
+    `fgnav check` said the log could be smoothed. Now both say what is wrong, before any long
+    work."""
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join(_centre_variants(cruise_log)[variant]) + "\n")
+    rc = main(["smooth", str(log), "--out", str(tmp_path / "r"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "'# centre: sun'" in err and "AU from the earth" in err, err
+    assert main(["check", str(log)]) == 0
+    out = capsys.readouterr().out
+    assert "without a prior: cannot be smoothed" in out and "'# centre: sun'" in out
+
+
+def test_a_heliocentric_prior_in_a_log_read_as_geocentric_is_refused(cruise_log, tmp_path,
+                                                                      capsys):
+    """With prior rows (the true state, 1.03 AU from the Earth) and no centre line, the solve
+    about the Earth ran for minutes; the start policy now names the prior's line."""
+    t0 = cruise_log[3].split(",")[0]
+    # the cruise's true state at its first epoch (its truth.oem, km -> m)
+    x = "-71411267196.027,125952896819.755,54598746250.093"
+    v = "-29785.150028,-10095.289159,-4375.961482"
+    rows = [f"{t0},prior_position,{x},10000.0,,,,,", f"{t0},prior_velocity,{v},1.0,,,,,"]
+    log = tmp_path / "log.csv"
+    log.write_text("\n".join([cruise_log[0], cruise_log[2]] + rows + cruise_log[3:]) + "\n")
+    rc = main(["smooth", str(log), "--out", str(tmp_path / "r"), "--quiet"])
+    err = capsys.readouterr().err
+    assert rc == 2 and f"{log}, line 3" in err and "'# centre: sun'" in err, err

@@ -85,6 +85,7 @@ def _no_prior(log) -> dict:
     rows, or --ignore-prior): the structural test of :func:`fgnav.iod.initial.iod_support`
     (the fit itself runs only in smooth)."""
     from fgnav.errors import UserError
+    from fgnav.iod.geometric import check_centre_scale, first_fixes, geometric_support
     from fgnav.iod.initial import iod_support
     from fgnav.iod.prior import has_prior
     from fgnav.measurements import build_pass
@@ -106,6 +107,11 @@ def _no_prior(log) -> dict:
                 "has_prior": all(pr for _, _, pr in each),
                 "reason": "; ".join(f"{name}: {why}" for name, (_, why), _ in each)}
     ok, why = iod_support(p)
+    if ok and geometric_support(p)[0]:
+        try:   # the fixes of the first epochs against the log's centre (a missing '# centre')
+            check_centre_scale(p, first_fixes(p), p.centre)
+        except UserError as exc:
+            ok, why = False, str(exc)
     return {"possible": bool(ok), "has_prior": has_prior(p), "reason": why}
 
 

@@ -192,6 +192,42 @@ def geometric_support(p: Pass) -> tuple[bool, str]:
                    f"epochs ({n3} found)")
 
 
+SCALE_CHECK_EPOCHS = 3
+"""Epochs whose fixes :func:`check_centre_scale` looks at before any long work."""
+
+
+def check_centre_scale(p: Pass, roots_by_k: dict, centre: str) -> None:
+    """``UserError`` when the fixes of :data:`SCALE_CHECK_EPOCHS` epochs all lie beyond the
+    range an orbit about ``centre`` is searched in (:data:`SEARCH_RANGE_M`: 2e6 km about the
+    Earth, beyond its Hill sphere of 1.5e6 km; 6 AU about the Sun). A heliocentric log read as
+    geocentric (its ``# centre: sun`` line missing) puts its fixes ~0.07 AU from the Earth,
+    and the track fit then propagated them about the Earth in 5 s steps for hours."""
+    if len(roots_by_k) < SCALE_CHECK_EPOCHS:
+        return
+    hi = SEARCH_RANGE_M[centre][1]
+    first = sorted(roots_by_k)[:SCALE_CHECK_EPOCHS]
+    near = [min(float(np.linalg.norm(f.r_eci_m)) for f in roots_by_k[k]) for k in first]
+    if min(near) > hi:
+        hint = ("if the log is heliocentric, its second line must be '# centre: sun' "
+                "(fgnav.io.log_csv)" if centre == "earth" else
+                "check the log's '# centre:' line and the angles' bodies")
+        raise UserError(f"{p.source}: the geometric fixes of the first {len(first)} epochs lie "
+                        f"{np.median(near) / AU_M:.3g} AU from the {centre}'s centre, beyond {hi / AU_M:.3g} AU, where no "
+                        f"orbit about the {centre} is sought: {hint}")
+
+
+def first_fixes(p: Pass, n: int = SCALE_CHECK_EPOCHS) -> dict:
+    """The closed-form roots at the first ``n`` epochs that have them (``fgnav check``)."""
+    out = {}
+    for k, parts in sorted(epoch_parts(p).items()):
+        roots = epoch_roots(parts)
+        if roots:
+            out[k] = roots
+            if len(out) == n:
+                break
+    return out
+
+
 def _track_arc_s(r_m: float, model: MotionModel) -> float:
     """The longest arc the tracks are fitted over, s: :data:`MAX_TRACK_ARC` of the period of
     an orbit of radius ``r_m`` about the central body (Kepler's third law)."""
@@ -356,8 +392,11 @@ def geometric_initial_orbit(p: Pass, model: MotionModel, t0_j2000_s: float,
         roots = epoch_roots(parts)
         if roots:
             roots_by_k[k] = roots
+            if len(roots_by_k) == SCALE_CHECK_EPOCHS:   # before the long work
+                check_centre_scale(p, roots_by_k, model.centre)
     if len(roots_by_k) < MIN_FIX_EPOCHS:
         roots_by_k = _searched_roots(p, parts_by_k, model)
+        check_centre_scale(p, roots_by_k, model.centre)
     if len(roots_by_k) < MIN_FIX_EPOCHS:
         raise UserError(f"{p.source}: geometric fixes at {len(roots_by_k)} epochs only (the "
                         f"angles' surfaces do not cut consistently at the others)")

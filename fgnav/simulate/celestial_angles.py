@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.aberration import SPEED_OF_LIGHT_MPS, earth_velocity_bcrs_mps
-from factors.constants import AU_M, DEG, R_EARTH_M
+from factors.constants import AU_M, DEG, R_EARTH_M, R_SUN_M
 from factors.planets import (earth_position_helio_m, moon_position_geo_m,
                              moon_position_helio_m, origin_state_bcrs, sun_position_geo_m)
 from fgnav.errors import UserError
@@ -48,8 +48,6 @@ __all__ = ["R_MOON_M", "R_SUN_M", "body_position_eci_m", "body_velocity_mps",
 
 R_MOON_M = 1737.4e3
 """Mean radius of the Moon, m (IAU WG on Cartographic Coordinates, Archinal et al. 2011)."""
-R_SUN_M = 6.957e8
-"""Nominal solar radius, m (IAU 2015 Resolution B3)."""
 MIN_ANGLE_RAD = 5.0 * DEG
 """Smallest angle (and pi minus the largest) a simulated reading makes."""
 LIMB_MARGIN_RAD = 2.0 * DEG
