@@ -25,33 +25,11 @@ from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.measurements import Family, Pass
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import ATTITUDE, MODELS
-from fgnav.models.variables import Layout, Variable, orbit_variable
+from fgnav.models.variables import (Layout, ambiguity_variable, clock_variable,  # noqa: F401
+                                    orbit_variable)
 
 __all__ = ["build_formation_pass", "spacecraft_pass", "orbit_columns", "spacecraft_states",
            "clock_variable", "ambiguity_variable"]
-
-CLOCK_PSD_M2_S = 1e-4
-"""Spectral density (m^2/s) of the pair's relative clock bias c (dt_A - dt_B), a random walk:
-1 cm per 1 s step, 0.6 m in an hour (two free-running oscillators of ~1e-11 Allan deviation)."""
-CLOCK_PRIOR_SIGMA_M = 1e5
-"""Prior 1-sigma of the relative clock bias at the first epoch (m): unknown (0.3 ms)."""
-
-
-def clock_variable(a: str, b: str, index: int) -> Variable:
-    """The relative clock bias ``c (dt_a - dt_b)`` (m) of the spacecraft pair (a, b), a random
-    walk of :data:`CLOCK_PSD_M2_S` (Xing et al. 2008's relative clock, per pair)."""
-    return Variable(f"clock_{a}_{b}", "c", 1, "m", components=(f"clock_{a}_{b}_m",),
-                    psd=CLOCK_PSD_M2_S, prior_sigma=CLOCK_PRIOR_SIGMA_M, index=index,
-                    description=f"relative clock bias c (dt_{a} - dt_{b}), m (random walk)")
-
-
-def ambiguity_variable(name: str, index: int) -> Variable:
-    """The float carrier-phase ambiguity (m) of one link, constant while the link stays
-    locked (as :mod:`fgnav.formation.smoother` treats it)."""
-    return Variable(f"ambiguity_{name}", "n", 1, "m", components=(f"ambiguity_{name}_m",),
-                    psd=0.0, prior_sigma=1e3, index=index,
-                    description=f"carrier-phase ambiguity of link {name}, m (constant)")
-
 
 _PLAIN_REFUSED = "is not yet supported with several spacecraft"
 
