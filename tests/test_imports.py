@@ -150,3 +150,24 @@ def test_help_imports_no_heavy_library():
     r = _run(code)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "[]"
+
+
+def _every_import(path: Path) -> set[str]:
+    """Modules imported anywhere in a file (inside functions too), by absolute name."""
+    out = set()
+    for n in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(n, ast.Import):
+            out.update(a.name for a in n.names)
+        elif isinstance(n, ast.ImportFrom) and n.level == 0 and n.module:
+            out.add(n.module)
+    return out
+
+
+def test_models_and_the_pass_builder_never_import_the_formation_package():
+    """A formation is a property of the pass: the models (the links' among them) and the pass
+    builder sit below ``fgnav.formation`` and import nothing of it, not even in a function."""
+    files = sorted((ROOT / "fgnav" / "models").glob("*.py")) + [ROOT / "fgnav" / "measurements.py"]
+    assert len(files) >= 5
+    up = {p.name: sorted(m for m in _every_import(p) if m.startswith("fgnav.formation"))
+          for p in files}
+    assert not any(up.values()), up

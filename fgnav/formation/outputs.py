@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from fgnav.errors import UserError
-from fgnav.formation.joint import solve_formation, spacecraft_states
+from fgnav.formation.joint import build_formation_pass, solve_formation
 from fgnav.formation.relative_state import (relative_covariance, relative_state_body,
                                             relative_state_lvlh)
 from fgnav.integrity import ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test, _family_test, _severity
@@ -29,7 +29,7 @@ from fgnav.io.atomic import atomic_write_text
 from fgnav.io.oem import write_oem
 from fgnav.io.outputs import commit_outputs, staged
 from fgnav.io.summary import write_summary
-from fgnav.measurements import format_duration, long_gaps
+from fgnav.measurements import format_duration, long_gaps, spacecraft_states
 from fgnav.time import add_seconds, format_utc
 
 __all__ = ["smooth_formation", "formation_summary", "write_formation_outputs",
@@ -223,7 +223,6 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
     (``aberration=False``: :func:`fgnav.apparent.without_aberration`, for comparison)."""
     from contextlib import nullcontext
 
-    from fgnav.measurements import build_pass
     from fgnav.pipeline import SmoothResult
 
     stage = stage or (lambda what, size: nullcontext())
@@ -237,7 +236,7 @@ def smooth_formation(log, method: str, options, *, truth_path=None, progress=Non
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
                         "Cartesian states")
-    p = build_pass(log)
+    p = build_formation_pass(log)
     if not aberration:
         from fgnav.apparent import without_aberration
 
