@@ -171,3 +171,16 @@ def test_models_and_the_pass_builder_never_import_the_formation_package():
     up = {p.name: sorted(m for m in _every_import(p) if m.startswith("fgnav.formation"))
           for p in files}
     assert not any(up.values()), up
+
+
+def test_the_formation_package_never_imports_the_pipeline():
+    """The pipeline runs a formation's pass through its own stages and calls the formation
+    package's pieces (links' start, relative states, verdict): they import nothing of it, so
+    the circle pipeline <-> formation/outputs is gone (imports inside functions counted)."""
+    files = sorted((ROOT / "fgnav" / "formation").glob("*.py"))
+    assert any(p.name == "outputs.py" for p in files)
+    up = {p.name: sorted(m for m in _every_import(p)
+                         if m.split(".")[:2] in (["fgnav", "pipeline"], ["fgnav", "viz"],
+                                                 ["fgnav", "commands"], ["fgnav", "api"]))
+          for p in files}
+    assert not any(up.values()), up

@@ -126,7 +126,7 @@ def _tested_residuals(sol) -> dict:
 def log_formation_result(rrd_path, res, p, *, truth=None, sigma_scale=3.0) -> dict:
     """:func:`log_formation` of ``fgnav smooth``'s formation result (``res``, ``p``); with
     ``truth`` (the ``--truth`` directory) each spacecraft's ``truth-<id>.oem``."""
-    from fgnav.formation.outputs import read_formation_truth
+    from fgnav.pipeline import read_formation_truth
     from fgnav.orbit import truth_at
 
     truths = None
