@@ -84,6 +84,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     solution does not fit the data the prior is tested against that orbit and, if the data
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
+
+    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) is solved
+    as one joint graph from each spacecraft's own rows and the links
+    (:func:`fgnav.formation.joint.solve_formation`; what it cannot do yet is refused by
+    :func:`refuse_for_formation`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
@@ -382,7 +387,10 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     :class:`~fgnav.io.log_csv.MeasurementLog`). The truth comes from the OEM ``truth_path``
     or as ``truth = (t_s, x_eci)``: seconds from ``log.epoch0`` (covering the log's epochs)
     and (N, 6) states, SI. ``t0`` is the ``time.perf_counter()`` the wall time counts from
-    (default: now)."""
+    (default: now). A log of several spacecraft takes the same route (its truth:
+    ``truth-<id>.oem`` per spacecraft beside ``truth_path``, :func:`read_formation_truth`;
+    ``relative="spherical"`` adds the relative position's spherical form), with its start
+    from the links (:func:`fgnav.formation.joint.link_fixes`)."""
     from contextlib import nullcontext
 
     stage = stage or (lambda what, size: nullcontext())
