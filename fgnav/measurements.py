@@ -5,6 +5,20 @@ epochs ``t_s`` (one state per epoch) and, per measurement family, arrays indexed
 epoch index ``k``. Body-frame directions are rotated into ECI with the attitude measured at
 the same epoch (``u_eci = R_eci_from_body u_body``), their variance increased by the
 attitude's (a body-frame direction with a known attitude).
+
+A log of S >= 2 spacecraft (its ``spacecraft`` column, :mod:`fgnav.io.log_spacecraft`)
+becomes one pass whose per-epoch block holds one orbit state per spacecraft
+(:func:`fgnav.models.variables.orbit_variable`; the first spacecraft's is the usual orbit
+state, so every solver's orbit columns are its), then a relative clock bias per linked pair
+and a carrier ambiguity per carrier-phase link (:func:`~fgnav.models.variables.clock_variable`,
+:func:`~fgnav.models.variables.ambiguity_variable`). Each row is bound to the variables of
+its own spacecraft (its ``col:`` values, :meth:`fgnav.models.model.MeasurementModel.evaluate`):
+celestial rows to their spacecraft's orbit, a link (:mod:`fgnav.models.isl`) to the orbits of
+both ends and to the pair's clock. Between epochs every orbit follows the motion model and
+every clock its random walk, so the batch solver's chain (one block per epoch) carries the
+whole formation; the links make the blocks' orbits dependent, and the marginal covariance of
+a block gives the relative state's covariance with the cross terms (Bar-Shalom, Li &
+Kirubarajan 2001, sec. 1.4: the covariance of a linear function of jointly Gaussian states).
 """
 
 from __future__ import annotations
@@ -16,11 +30,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fgnav.errors import UserError
+from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
+from fgnav.models.isl import isl_values, pair_ids
+from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
                                    EARTH_DIRECTION_BODY, MODELS, MOON_DIRECTION_BODY,
                                    PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, VARIABLES, variable)
-from fgnav.models.variables import ORBIT, Layout
+from fgnav.models.variables import (ORBIT, Layout, ambiguity_variable, clock_variable,
+                                    orbit_variable)
 
 
 @dataclass
@@ -68,10 +86,11 @@ class Pass:
     # enter only with the attitude estimated)
     unconverted: dict[str, np.ndarray] = field(default_factory=dict)
     # a formation's spacecraft ids, in the log's order (empty: one spacecraft); their orbit
-    # states are the layout's orbit variables (fgnav.formation.joint)
+    # states are the layout's orbit variables (build_pass)
     spacecraft: tuple[str, ...] = ()
     # a formation's relative positions fixed from one epoch's links alone (t_s (F,), the
-    # second spacecraft's position minus the first's, ECI (F, 3), m): its first guess
+    # second spacecraft's position minus the first's, ECI (F, 3), m): its first guess, set by
+    # the formation's start (fgnav.formation.joint.build_formation_pass), not by build_pass
     link_fixes: tuple | None = None
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
 
@@ -109,11 +128,12 @@ def build_pass(log) -> Pass:
     without an attitude row waits (``Pass.unconverted``) for the attitude to be estimated
     (star or attitude rows fix it, gyro rows carry it between them; :func:`check_observable`
     refuses the pass otherwise, naming the rows).
-    """
-    if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one orbit per spacecraft
-        from fgnav.formation.joint import build_formation_pass
 
-        return build_formation_pass(log)
+    A log of several spacecraft: one orbit per spacecraft in the block, the links' clocks
+    and ambiguities after them (module docstring, :func:`_formation_pass`).
+    """
+    if getattr(log, "n_spacecraft", 1) > 1:
+        return _formation_pass(log)
     t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
     kinds = np.asarray(log.kind)
     xyz = np.asarray(log.xyz, dtype=float)
@@ -149,6 +169,121 @@ def build_pass(log) -> Pass:
         if len(new):
             p.families[mdl.body_frame_of] = _merged(p.families.get(mdl.body_frame_of), new)
     return p
+
+
+_PLAIN_REFUSED = "is not yet supported with several spacecraft"
+
+
+def _check_formation_kinds(log):
+    """Refuse the kinds a formation's pass does not yet take (those that need a further
+    variable, body-frame directions, between-epoch rows), naming them."""
+    kinds = set(np.unique(np.asarray(log.kind).astype(str)).tolist())
+    for kind in sorted(kinds):
+        if kind in ISL_KINDS or kind == ATTITUDE.kind:
+            continue
+        mdl = MODELS.get(kind)
+        if mdl is None or mdl.requires is not None or mdl.body_frame_of is not None or mdl.between:
+            raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
+                            "may hold priors, ECI directions, limb, altitude, refraction and angle "
+                            "rows per spacecraft, attitude rows, and inter-satellite rows)")
+
+
+def orbit_columns(lay: Layout) -> np.ndarray:
+    """First block column of each spacecraft's orbit state (S,)."""
+    return np.array([lay.slices[v.name].start for v in lay.orbits], dtype=int)
+
+
+def _formation_pass(log) -> Pass:
+    """The pass of a log with several spacecraft (module docstring): celestial and prior rows
+    bound to their spacecraft's orbit columns, attitude rows deferred (the links' lever arms,
+    the body frame's outputs), the links' per-row variable names turned into block columns."""
+    _check_formation_kinds(log)
+    ids = tuple(log.spacecraft)
+    sc = spacecraft_index(log)
+    t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
+    kinds = np.asarray(log.kind)
+    sigma = np.asarray(log.sigma, dtype=float)
+    lines = np.asarray(log.line)
+    orbits = tuple(orbit_variable(i, s) for i, s in enumerate(ids))
+    isl, extra_vars = isl_families(log, k_of_row)
+    lay = Layout(orbits + tuple(extra_vars))
+    start = orbit_columns(lay)
+    p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
+             layout=lay, spacecraft=ids)
+    for kind, mdl in MODELS.items():
+        i = np.flatnonzero(kinds == kind)
+        if (not len(i) or not mdl.solved or kind in isl
+                or (mdl.requires is not None and mdl is not ATTITUDE)):
+            continue   # (the links' families: isl_families above)
+        values = dict(mdl.values(log, i))
+        values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
+        fam = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])
+        if mdl is ATTITUDE:   # known attitudes: the links' lever arms, the body frame's outputs
+            p.deferred[kind] = fam
+        else:
+            p.families[kind] = fam
+    for kind, fam in isl.items():   # per-row variable names ("var:<role>") -> block columns
+        for key in [k for k in fam.values if k.startswith("var:")]:
+            names = np.asarray(fam.values.pop(key)).astype(str)
+            fam.values[COLUMN_PREFIX + key[4:]] = np.array([lay.slices[n].start for n in names],
+                                                           dtype=int)
+        p.families[kind] = fam
+    return p
+
+
+def isl_families(log, k_of_row):
+    """The inter-satellite families of a formation's log and the variables they add (the
+    pairs' clocks, the carrier links' ambiguities), in a fixed order: ``({kind: Family},
+    [Variable, ...])``."""
+    kinds = np.asarray(log.kind)
+    fams, clocks, ambiguities = {}, {}, {}
+    for kind in ISL_KINDS:
+        i = np.flatnonzero(kinds == kind)
+        if not len(i):
+            continue
+        values = isl_values(log, i, k_of_row)
+        for name in values["var:clock"]:
+            clocks.setdefault(str(name), None)
+        for name in values.get("var:ambiguity", ()):
+            ambiguities.setdefault(str(name), None)
+        fams[kind] = Family(k=k_of_row[i], values=values,
+                            sigma=np.asarray(log.sigma, dtype=float)[i],
+                            line=np.asarray(log.line)[i])
+    out = []
+    for j, name in enumerate(sorted(clocks)):
+        a, b = pair_ids(name, log.spacecraft)
+        out.append(clock_variable(a, b, j))
+    for j, name in enumerate(sorted(ambiguities)):
+        out.append(ambiguity_variable(name[len("ambiguity_"):], j))
+    return fams, out
+
+
+def spacecraft_pass(p: Pass, s: int) -> Pass:
+    """The one-spacecraft pass of spacecraft ``s`` (0-based): its own celestial and prior rows,
+    without the links, on the formation's epochs (epochs without its rows are free states)."""
+    start = orbit_columns(p.layout)[s]
+    fams = {}
+    for kind, fam in p.families.items():
+        if kind in ISL_KINDS:
+            continue
+        rows = np.flatnonzero(np.asarray(fam.values[COLUMN_PREFIX + "orbit"]) == start)
+        if not len(rows):
+            continue
+        sub = fam.subset(rows)
+        sub.values = {n: v for n, v in sub.values.items() if not n.startswith(COLUMN_PREFIX)}
+        fams[kind] = sub
+    return dataclasses.replace(p, families=fams, layout=Layout(), spacecraft=(), warnings=[],
+                               deferred={}, unconverted={},
+                               source=f"{p.source} (spacecraft {p.spacecraft[s]})")
+
+
+def spacecraft_states(sol, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each spacecraft's states (N, 6) and marginal covariances (N, 6, 6) from a solution of
+    a formation pass (the first spacecraft's are ``sol.x_eci``/``P_eci``)."""
+    out = [(sol.x_eci, sol.P_eci)]
+    for v in lay.orbits[1:]:
+        out.append(sol.variables[v.name])
+    return out
 
 
 def _rotated_to_eci(body: Family, att: Family | None) -> tuple[Family, np.ndarray]:
@@ -311,7 +446,7 @@ def check_observable(p: Pass, require_prior: bool = True) -> None:
     """Refuse passes that cannot determine an orbit, with a message that says why.
 
     ``require_prior=False``: the orbit will start from the measurements
-    (:mod:`fgnav.initial_orbit`), so only the measurements are checked here. The attitude
+    (:mod:`fgnav.start`), so only the measurements are checked here. The attitude
     rows are checked first (:func:`check_attitude`).
     """
     check_attitude(p)

@@ -16,6 +16,11 @@ from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
+from fgnav.formation.joint import link_fixes, solve_formation
+from fgnav.formation.outputs import (formation_integrity, relative_csv_text, relative_rows,
+                                     sigma_rms, spherical_position_nees, spherical_summary,
+                                     truth_path_of)
+from fgnav.formation.relative_state import relative_state_lvlh
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
@@ -29,7 +34,7 @@ from fgnav.io.summary import write_summary
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
-                                with_estimates)
+                                format_duration, spacecraft_states, with_estimates)
 from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
@@ -79,12 +84,21 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     solution does not fit the data the prior is tested against that orbit and, if the data
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
+
+    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) is solved
+    as one joint graph from each spacecraft's own rows and the links
+    (:func:`fgnav.formation.joint.solve_formation`; what it cannot do yet is refused by
+    :func:`refuse_for_formation`).
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
-    check_state(options.state, method)
+    check_state(options.state, method)   # (the options alone: checked before the pass)
+    if p.spacecraft:   # several spacecraft: one joint graph, started by its links
+        refuse_for_formation(options, ignore_prior=ignore_prior, checkpoint=checkpoint,
+                             resume=resume)
+        return solve_formation(p, method, options, progress=progress)
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
@@ -147,6 +161,40 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if failure is not None:
         raise failure
     return start.finish(sol)
+
+
+def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False,
+                         checkpoint=None, resume: bool = False) -> None:
+    """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
+    is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
+    wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
+    the Earth in Cartesian states."""
+    given = [name for name, on in (("--ignore-prior", ignore_prior), ("--checkpoint", checkpoint),
+                                   ("--resume", resume)) if on]
+    if given:
+        raise UserError(f"{', '.join(given)}: not yet available for a log of several "
+                        "spacecraft")
+    if options.estimate:
+        raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
+                        "and carrier ambiguities; further variables are not yet supported there")
+    if getattr(options, "centre", "earth") != "earth":
+        raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
+                        "the Earth in this version")
+    if getattr(options, "state", "cartesian") != "cartesian":
+        raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
+                        "Cartesian states")
+
+
+def refuse_formation_gaps(p: Pass, gap_factor: float | None) -> None:
+    """Refuse a formation's pass with a gap longer than ``gap_factor`` median steps (not yet
+    bridged for several spacecraft), naming the gap."""
+    if gap_factor is not None and len(long_gaps(p, gap_factor)):
+        k = int(long_gaps(p, gap_factor)[0])
+        raise UserError(
+            f"{p.source}: a gap of {format_duration(p.t_s[k + 1] - p.t_s[k])} after "
+            f"{format_utc(add_seconds(p.epoch0, p.t_s[k]))} (more than {gap_factor:g} median "
+            "steps): gaps are not yet bridged for a log of several spacecraft; split the log "
+            "at the gap and solve the parts")
 
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
@@ -223,7 +271,13 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     filter starts from the initial orbit of the measurements, covariance inflated as for the
     online methods (:func:`fgnav.start.start_point`). A pass already planned is
     returned as is.
+
+    A formation's pass (several spacecraft) is solved as it is, its long gaps refused
+    (:func:`refuse_formation_gaps`).
     """
+    if p.spacecraft:
+        refuse_formation_gaps(p, gap_factor)
+        return p
     from_data = ignore_prior or not has_prior(p)
     if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
         p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
@@ -350,7 +404,10 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     :class:`~fgnav.io.log_csv.MeasurementLog`). The truth comes from the OEM ``truth_path``
     or as ``truth = (t_s, x_eci)``: seconds from ``log.epoch0`` (covering the log's epochs)
     and (N, 6) states, SI. ``t0`` is the ``time.perf_counter()`` the wall time counts from
-    (default: now)."""
+    (default: now). A log of several spacecraft takes the same route (its truth:
+    ``truth-<id>.oem`` per spacecraft beside ``truth_path``, :func:`read_formation_truth`;
+    ``relative="spherical"`` adds the relative position's spherical form), with its start
+    from the links (:func:`fgnav.formation.joint.link_fixes`)."""
     from contextlib import nullcontext
 
     stage = stage or (lambda what, size: nullcontext())
@@ -359,35 +416,41 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     if centre != options.centre:
         options = replace(options, centre=centre)
     relative = solve_kw.pop("relative", None)
-    if getattr(log, "n_spacecraft", 1) > 1:   # a formation: one graph, every spacecraft
-        from fgnav.formation.outputs import smooth_formation
-
+    formation = getattr(log, "n_spacecraft", 1) > 1   # one graph, every spacecraft
+    if formation:   # refused before any work
         if truth is not None:
             raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
-        given = [name for name, on in (("--ignore-prior", ignore_prior),
-                                       ("--checkpoint", solve_kw.get("checkpoint")),
-                                       ("--resume", solve_kw.get("resume"))) if on]
-        if given:
-            raise UserError(f"{', '.join(given)}: not yet available for a log of several "
-                            "spacecraft")
-        return smooth_formation(log, method, options, truth_path=truth_path, progress=progress,
-                                stage=stage, t0=t0, gap_factor=solve_kw.get("gap_factor", 10.0),
-                                relative=relative or "cartesian", aberration=aberration)
-    if relative is not None:
+        refuse_for_formation(options, ignore_prior=ignore_prior,
+                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"))
+    elif relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")
     p = build_pass(log)
+    if formation:   # its start: the second spacecraft placed from the first by the links
+        p.link_fixes = link_fixes(log)
     if not aberration:
         p = without_aberration(p)
-    if truth is None and truth_path is not None:
+    gap_factor = solve_kw.pop("gap_factor", 10.0)
+    if formation:
+        refuse_formation_gaps(p, gap_factor)
+        truths = None if truth_path is None else read_formation_truth(truth_path, p)
+    elif truth is None and truth_path is not None:
         truth = read_truth(truth_path, p, centre)  # checked before solving
-    truth_vars = None if truth_path is None else read_truth_variables(truth_path, p,
-                                                                      options.estimate)
+    truth_vars = None if truth_path is None or formation else read_truth_variables(
+        truth_path, p, options.estimate)
     # the pass the solvers see (gaps planned): the summary uses it
-    with stage(f"solving {p.n_epochs:,} epochs ({method})", p.n_epochs):
-        p = prepare_pass(p, options, solve_kw.pop("gap_factor", 10.0), ignore_prior)
+    what = f"{p.n_epochs:,} epochs" + (f" of {len(p.spacecraft)} spacecraft" if formation else "")
+    with stage(f"solving {what} ({method})", p.n_epochs):
+        p = prepare_pass(p, options, gap_factor, ignore_prior)
         sol = solve(p, method, options, lag_s=lag_s, progress=progress,
                     ignore_prior=ignore_prior, **solve_kw)
+    if formation:
+        sol.wall_s = time.perf_counter() - t0
+        summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian")
+        sol.extras["relative_parameterization"] = relative or "cartesian"
+        if truth_path is not None:
+            summary["truth_path"] = str(truth_path)
+        return SmoothResult(sol, summary, None), p
     if ignore_prior:
         p = strip_prior(p)
     if centre != "earth":   # the outputs' frame (write_outputs)
@@ -459,6 +522,20 @@ def read_truth(path: str | Path, p: Pass, centre: str = "earth") -> tuple[np.nda
     return t_truth, x
 
 
+def read_formation_truth(truth: str | Path, p: Pass) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
+    writes them; :func:`fgnav.formation.outputs.truth_path_of`), checked against the pass's
+    epochs before any solving."""
+    out = []
+    for sc in p.spacecraft:
+        path = truth_path_of(truth, sc)
+        if not path.exists():
+            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
+                            f"'{sc}') in {path.parent}")
+        out.append(read_truth(path, p))
+    return out
+
+
 def read_measurements(path: str | Path, estimate=()):
     """A measurement log from a CSV v1 file, or a CCSDS TDM (``.tdm`` / ``.kvn``).
 
@@ -479,9 +556,14 @@ def read_measurements(path: str | Path, estimate=()):
     return log
 
 
-def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
+def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
+              relative: str = "cartesian") -> dict:
     """The summary.json keys every method shares (``p`` is given the solution's further
-    variables if it lacks them, so the integrity tests evaluate the rows with them)."""
+    variables if it lacks them, so the integrity tests evaluate the rows with them); a
+    formation's (several spacecraft): :func:`formation_summary` with ``truths`` and
+    ``relative``."""
+    if p.spacecraft:
+        return formation_summary(sol, p, options, truths, relative)
     missing = [name for name in sol.variables if not p.layout.has(name)]
     if missing:
         p = with_estimates(p, tuple(v.name for v in p.layout.extra) + tuple(missing))
@@ -505,6 +587,45 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions) -> dict:
         if sol.variables:
             s["variables"] = variable_summary(sol)
         s["integrity"] = assess(sol, p, options.motion_model())
+    return s
+
+
+def formation_summary(sol: Solution, p: Pass, options: SmootherOptions, truths=None,
+                      relative: str = "cartesian") -> dict:
+    """summary.json of a formation's solution (:mod:`fgnav.formation.outputs`): per spacecraft
+    its sigmas (and errors against ``truths``: per spacecraft ``(t_s, x_eci)`` or None), the
+    relative state in the reference's LVLH frame, the joint verdict;
+    ``relative="spherical"`` adds the relative position's range, azimuth and elevation
+    sigmas (and errors)."""
+    s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
+         "wall_s": float(sol.wall_s), "chi2": float(sol.chi2), "measurements": p.counts(),
+         "process_noise_m2_s3": options.q_m2_s3, "third_body": options.third_body,
+         "gravity": options.gravity, "source": p.source, "converged": sol.extras.get("converged"),
+         "reference_spacecraft": p.spacecraft[0], "spacecraft": {}}
+    states = spacecraft_states(sol, p.layout)
+    x_true = [None] * len(states) if truths is None else [truth_at(*t, sol.t_s) for t in truths]
+    for sc, (x, P), xt in zip(p.spacecraft, states, x_true):
+        d = sigma_rms(P)
+        if xt is not None:
+            d.update(state_errors(x, P, xt))
+        s["spacecraft"][sc] = d
+    rel_all = {}
+    for j in range(1, len(states)):
+        rel, C, _ = relative_rows(sol, p, j)
+        d = sigma_rms(C)
+        rel_true = None if x_true[0] is None else relative_state_lvlh(x_true[0], x_true[j])[0]
+        if rel_true is not None:
+            d.update(state_errors(rel, C, rel_true))
+            d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
+                                                                        rel_true[:, :3])
+        if relative == "spherical":
+            d.update(spherical_summary(rel, C, rel_true))
+        rel_all[p.spacecraft[j]] = d
+    s["relative"] = rel_all[p.spacecraft[1]]
+    s["relative"]["frame"] = f"LVLH of spacecraft {p.spacecraft[0]}"
+    if len(rel_all) > 1:
+        s["relative_by_spacecraft"] = rel_all
+    s["integrity"] = formation_integrity(sol, p)
     return s
 
 
@@ -611,7 +732,9 @@ def write_residuals_csv(path: Path, residuals: dict, times: dict, chunk: int = 6
 
 def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
     """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv; with an
-    estimated attitude attitude.aem and attitude_covariance.csv).
+    estimated attitude attitude.aem and attitude_covariance.csv); for a formation's pass
+    trajectory-<id>.oem per spacecraft, relative.csv and the clocks' and ambiguities'
+    variables.csv instead (:mod:`fgnav.formation.outputs`).
 
     Nothing lost: every file is first written into a staging directory inside ``out_dir``
     and the set replaces the previous outputs only once all are complete (``os.replace``
@@ -622,33 +745,49 @@ def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]
     and latency.csv of an online method, a report's plots) are removed, and so are staging
     folders left by a killed run (:mod:`fgnav.io.outputs`); other files are left alone.
     """
-    if p.spacecraft:   # a formation: trajectory-<id>.oem per spacecraft, relative.csv
-        from fgnav.formation.outputs import write_formation_outputs
-
-        return write_formation_outputs(out_dir, res, p)
     with staged(out_dir) as (out, stage):
         sol = res.solution
-        names = ["trajectory.oem"]
-        frame = oem_frame(sol.extras.get("centre", "earth"))
-        write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci, **frame,
-                  comments=(f"fgnav {sol.method} solution",
-                            "states and marginal covariances at every epoch"))
-        if sol.online_x_eci is not None and sol.method != "ekf":
-            write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci, sol.online_P_eci,
-                      **frame,
-                      comments=(f"fgnav {sol.method}: each epoch's state as estimated when it arrived",))
-            names.append("online.oem")
+        if p.spacecraft:   # a formation: trajectory-<id>.oem per spacecraft, relative.csv
+            names = []
+            for sc, (x, P) in zip(p.spacecraft, spacecraft_states(sol, p.layout)):
+                name = f"trajectory-{sc}.oem"
+                write_oem(stage / name, sol.epoch0, sol.t_s, x, P,
+                          comments=(f"fgnav {sol.method} solution of a formation: "
+                                    f"spacecraft {sc}",
+                                    "states and marginal covariances at every epoch"),
+                          object_name=sc)
+                names.append(name)
+            atomic_write_text(stage / "relative.csv", relative_csv_text(sol, p))
+            names.append("relative.csv")
+        else:
+            names = ["trajectory.oem"]
+            frame = oem_frame(sol.extras.get("centre", "earth"))
+            write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
+                      **frame, comments=(f"fgnav {sol.method} solution",
+                                         "states and marginal covariances at every epoch"))
+            if sol.online_x_eci is not None and sol.method != "ekf":
+                write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci,
+                          sol.online_P_eci, **frame,
+                          comments=(f"fgnav {sol.method}: each epoch's state as estimated when "
+                                    "it arrived",))
+                names.append("online.oem")
         write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
         names.append("residuals.csv")
-        if sol.latency_s is not None:
-            atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(
-                f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
-            names.append("latency.csv")
-        if sol.variables:
-            write_variables_csv(stage / "variables.csv", sol)
-            names.append("variables.csv")
-        if ATTITUDE_VARIABLE.name in sol.variables:
-            names += write_attitude_outputs(stage, sol)
+        if p.spacecraft:
+            params = {v.name: v for v in p.layout.parameters}
+            if params:   # the clocks and ambiguities
+                write_variables_csv(stage / "variables.csv", sol, params)
+                names.append("variables.csv")
+        else:
+            if sol.latency_s is not None:
+                atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(
+                    f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
+                names.append("latency.csv")
+            if sol.variables:
+                write_variables_csv(stage / "variables.csv", sol)
+                names.append("variables.csv")
+            if ATTITUDE_VARIABLE.name in sol.variables:
+                names += write_attitude_outputs(stage, sol)
         write_summary(stage / "summary.json", res.summary)
         names.append("summary.json")
         return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))

@@ -514,13 +514,13 @@ FORMATION_TARGETS = {"formation_4h": {"formation_ratio_max": 4.0}}
 def make_formation_pass(duration_h: float, seed: int, tmp: Path) -> Path:
     """Simulate formation-gto at 1 Hz for ``duration_h`` and pickle (Pass, the first
     spacecraft's truth at its epochs, None) as :func:`make_pass` does."""
-    from fgnav.measurements import build_pass
+    from fgnav.formation.joint import build_formation_pass
     from fgnav.scenarios import load_scenario
     from fgnav.simulate.formation_sim import simulate_formation_pass
 
     scn = load_scenario("formation-gto").with_options(step_s=STEP_S, duration_h=duration_h)
     sim = simulate_formation_pass(scn, seed)
-    p = build_pass(sim.log)
+    p = build_formation_pass(sim.log)   # (with the links' fixes its start uses)
     x_true = sim.x_true[sim.ids[0]][sim.t_s.searchsorted(p.t_s)]
     f = tmp / f"formation_{duration_h:g}h_seed{seed}.pkl"
     with open(f, "wb") as fh:

@@ -61,11 +61,11 @@ from scipy.stats import chi2
 
 from factors.pseudorange import cartesian_to_spherical
 from fgnav.formation.dense_bound import dense_bound
-from fgnav.formation.outputs import formation_summary, relative_rows
+from fgnav.formation.outputs import relative_rows
 from fgnav.formation.relative_state import relative_covariance, relative_state_lvlh
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import build_pass
-from fgnav.pipeline import smooth_log
+from fgnav.pipeline import formation_summary, smooth_log
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.formation_sim import simulate_formation_pass
 from fgnav.solvers.options import SmootherOptions

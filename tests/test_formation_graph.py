@@ -1,4 +1,4 @@
-"""Several spacecraft in one graph (fgnav.formation.joint): the joint solution against the
+"""Several spacecraft in one graph (fgnav.measurements.build_pass, fgnav.formation.joint): the joint solution against the
 separate ones, the links against truth from the independent integrator, the outputs and
 what a user is told (tests/formation_data.py builds the pass)."""
 
@@ -14,12 +14,11 @@ import pytest
 from formation_data import formation_log
 from fgnav.cli import main
 from fgnav.errors import UserError
-from fgnav.formation.joint import spacecraft_pass, spacecraft_states
 from fgnav.formation.outputs import relative_rows, spherical_position_nees
 from fgnav.formation.relative_state import relative_state_lvlh
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import read_oem, write_oem
-from fgnav.measurements import build_pass
+from fgnav.measurements import build_pass, spacecraft_pass, spacecraft_states
 from fgnav.pipeline import smooth_log
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.options import SmootherOptions

@@ -288,6 +288,34 @@ def test_help_imports_no_heavy_library():
     assert r.stdout.strip() == "[]"
 
 
+def _imports_of(prefixes: tuple[str, ...]) -> dict[str, list[str]]:
+    """Every project module each module under ``prefixes`` imports (inside functions too)."""
+    files = _module_files()
+    return {m: sorted({t for t, _, _ in _imports(m, p, set(files))}) for m, p in files.items()
+            if any(m == pre or m.startswith(pre + ".") for pre in prefixes)}
+
+
+def test_models_and_the_pass_builder_never_import_the_formation_package():
+    """A formation is a property of the pass: the models (the links' among them) and the pass
+    builder sit below ``fgnav.formation`` and import nothing of it, not even in a function."""
+    imports = _imports_of(("fgnav.models", "fgnav.measurements"))
+    assert len(imports) >= 5
+    up = {m: [t for t in ts if t.startswith("fgnav.formation")] for m, ts in imports.items()}
+    assert not any(up.values()), up
+
+
+def test_the_formation_package_never_imports_the_pipeline():
+    """The pipeline runs a formation's pass through its own stages and calls the formation
+    package's pieces (links' start, relative states, verdict): they import nothing of it, so
+    the circle pipeline <-> formation/outputs is gone (imports inside functions counted)."""
+    imports = _imports_of(("fgnav.formation",))
+    assert "fgnav.formation.outputs" in imports
+    up = {m: [t for t in ts if t.split(".")[:2] in (["fgnav", "pipeline"], ["fgnav", "viz"],
+                                                    ["fgnav", "commands"], ["fgnav", "api"])]
+          for m, ts in imports.items()}
+    assert not any(up.values()), up
+
+
 if __name__ == "__main__":
     if sys.argv[1:] == ["--write-debt"]:
         head = [ln for ln in (DEBT_FILE.read_text(encoding="utf-8").splitlines()

@@ -20,12 +20,14 @@ import pytest
 
 from fgnav.io import log_csv
 from fgnav.graph import initial_block
+from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import Pass, build_pass, with_estimates
 from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
                                    BODY_STAR_ANGLE, EARTH_DIRECTION, GYRO_BIAS, LIMB_STAR_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, simulated_kinds, solved_models)
+from fgnav.models import isl, registry
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
@@ -47,6 +49,9 @@ NOT_A_CHOICE = {
     # the log format's module for several spacecraft names its inter-satellite kinds (the
     # format's definition, as log_csv.py; it cannot import the registry, which imports it)
     "fgnav/io/log_spacecraft.py": {"isl_pseudorange", "isl_carrier_phase"},
+    # the links' lever arms turn with their spacecraft's attitude rows; the links' models
+    # cannot import the registry (the registry imports them; checked below)
+    "fgnav/models/isl.py": {"attitude"},
 }
 
 
@@ -84,6 +89,12 @@ def test_the_registry_and_the_log_format_know_the_same_kinds():
     assert directions and directions <= set(log_csv.DIRECTION_KINDS)
     assert MODELS[LIMB_RADIUS.kind].range_m is not None
     assert LIMB_RADIUS.kind not in log_csv.DIRECTION_KINDS
+
+
+def test_isl_models_read_the_attitude_rows_of_the_registry_and_are_registered():
+    assert isl.ATTITUDE_KIND == registry.ATTITUDE.kind
+    assert tuple(m.kind for m in (isl.ISL_PSEUDORANGE, isl.ISL_CARRIER_PHASE)) == ISL_KINDS
+    assert all(MODELS[k] is getattr(registry, k.upper()) for k in ISL_KINDS)
 
 
 def test_every_scenario_key_of_a_model_is_validated_by_the_scenario_reader():

@@ -99,7 +99,7 @@ def _no_prior(log) -> dict:
     except UserError as exc:
         return {"possible": False, "has_prior": False, "reason": str(exc)}
     if p.spacecraft:   # a formation: each spacecraft's own rows must start its orbit
-        from fgnav.formation.joint import spacecraft_pass
+        from fgnav.measurements import spacecraft_pass
 
         subs = [spacecraft_pass(p, s) for s in range(len(p.spacecraft))]
         each = [(name, iod_support(q), has_prior(q)) for name, q in zip(p.spacecraft, subs)]

@@ -1,17 +1,10 @@
-"""Several spacecraft in one graph: each spacecraft's orbit state in every epoch's block.
+"""Several spacecraft in one graph: the formation's start and solve.
 
-A formation's log (``spacecraft`` column, :mod:`fgnav.io.log_spacecraft`) becomes one
-:class:`~fgnav.measurements.Pass` whose per-epoch block holds one orbit state per spacecraft
-(:func:`fgnav.models.variables.orbit_variable`; the first spacecraft's is the usual orbit
-state, so every solver's orbit columns are its), then a relative clock bias per linked pair
-and a carrier ambiguity per carrier-phase link. Each row is bound to the variables of its
-own spacecraft (its ``col:`` values, :meth:`fgnav.models.model.MeasurementModel.evaluate`):
-celestial rows to their spacecraft's orbit, a link to the orbits of both ends and to the
-pair's clock. Between epochs every orbit follows the motion model and every clock its random
-walk, so the batch solver's chain (one block per epoch) carries the whole formation; the
-links make the blocks' orbits dependent, and the marginal covariance of a block gives the
-relative state's covariance with the cross terms (Bar-Shalom, Li & Kirubarajan 2001,
-sec. 1.4: the covariance of a linear function of jointly Gaussian states).
+The pass of a log of several spacecraft is :func:`fgnav.measurements.build_pass`'s (one orbit
+state per spacecraft in every epoch's block, the pairs' clocks and the links' ambiguities
+after them); here its start (each spacecraft's orbit from its own rows, the second placed
+from the first by the links alone where they fix it: :func:`link_fixes`) and the joint
+solution (:func:`solve_formation`).
 """
 
 from __future__ import annotations
@@ -22,92 +15,22 @@ import numpy as np
 
 from fgnav.errors import UserError
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
-from fgnav.measurements import Family, Pass
-from fgnav.models.model import COLUMN_PREFIX
-from fgnav.models.registry import ATTITUDE, MODELS
-from fgnav.models.variables import Layout, Variable, orbit_variable
+from fgnav.measurements import (Pass, build_pass, orbit_columns, spacecraft_pass,  # noqa: F401
+                                spacecraft_states)
+from fgnav.models.registry import ATTITUDE
+from fgnav.models.variables import ambiguity_variable, clock_variable  # noqa: F401
 
-__all__ = ["build_formation_pass", "spacecraft_pass", "orbit_columns", "spacecraft_states",
-           "clock_variable", "ambiguity_variable"]
-
-CLOCK_PSD_M2_S = 1e-4
-"""Spectral density (m^2/s) of the pair's relative clock bias c (dt_A - dt_B), a random walk:
-1 cm per 1 s step, 0.6 m in an hour (two free-running oscillators of ~1e-11 Allan deviation)."""
-CLOCK_PRIOR_SIGMA_M = 1e5
-"""Prior 1-sigma of the relative clock bias at the first epoch (m): unknown (0.3 ms)."""
-
-
-def clock_variable(a: str, b: str, index: int) -> Variable:
-    """The relative clock bias ``c (dt_a - dt_b)`` (m) of the spacecraft pair (a, b), a random
-    walk of :data:`CLOCK_PSD_M2_S` (Xing et al. 2008's relative clock, per pair)."""
-    return Variable(f"clock_{a}_{b}", "c", 1, "m", components=(f"clock_{a}_{b}_m",),
-                    psd=CLOCK_PSD_M2_S, prior_sigma=CLOCK_PRIOR_SIGMA_M, index=index,
-                    description=f"relative clock bias c (dt_{a} - dt_{b}), m (random walk)")
-
-
-def ambiguity_variable(name: str, index: int) -> Variable:
-    """The float carrier-phase ambiguity (m) of one link, constant while the link stays
-    locked (as :mod:`fgnav.formation.smoother` treats it)."""
-    return Variable(f"ambiguity_{name}", "n", 1, "m", components=(f"ambiguity_{name}_m",),
-                    psd=0.0, prior_sigma=1e3, index=index,
-                    description=f"carrier-phase ambiguity of link {name}, m (constant)")
-
-
-_PLAIN_REFUSED = "is not yet supported with several spacecraft"
-
-
-def _check_kinds(log):
-    kinds = set(np.unique(np.asarray(log.kind).astype(str)).tolist())
-    for kind in sorted(kinds):
-        if kind in ISL_KINDS or kind == ATTITUDE.kind:
-            continue
-        mdl = MODELS.get(kind)
-        if mdl is None or mdl.requires is not None or mdl.body_frame_of is not None or mdl.between:
-            raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
-                            "may hold priors, ECI directions, limb, altitude, refraction and angle "
-                            "rows per spacecraft, attitude rows, and inter-satellite rows)")
-
-
-def orbit_columns(lay: Layout) -> np.ndarray:
-    """First block column of each spacecraft's orbit state (S,)."""
-    return np.array([lay.slices[v.name].start for v in lay.orbits], dtype=int)
+__all__ = ["build_formation_pass", "link_fixes", "first_guess", "solve_formation",
+           "start_covariance", "relinearizing_links", "converging_to_links",
+           # (where they were: fgnav.measurements, fgnav.models.variables)
+           "spacecraft_pass", "orbit_columns", "spacecraft_states", "clock_variable",
+           "ambiguity_variable"]
 
 
 def build_formation_pass(log) -> Pass:
-    """The pass of a log with several spacecraft (see the module docstring)."""
-    from fgnav.formation.isl_rows import isl_families
-
-    _check_kinds(log)
-    ids = tuple(log.spacecraft)
-    sc = spacecraft_index(log)
-    t_unique, k_of_row = np.unique(np.asarray(log.t_s, dtype=float), return_inverse=True)
-    kinds = np.asarray(log.kind)
-    sigma = np.asarray(log.sigma, dtype=float)
-    lines = np.asarray(log.line)
-    orbits = tuple(orbit_variable(i, s) for i, s in enumerate(ids))
-    isl, extra_vars = isl_families(log, k_of_row)
-    lay = Layout(orbits + tuple(extra_vars))
-    start = orbit_columns(lay)
-    p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
-             layout=lay, spacecraft=ids)
-    for kind, mdl in MODELS.items():
-        i = np.flatnonzero(kinds == kind)
-        if (not len(i) or not mdl.solved or kind in isl
-                or (mdl.requires is not None and mdl is not ATTITUDE)):
-            continue   # (the links' families: isl_families above)
-        values = dict(mdl.values(log, i))
-        values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
-        fam = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])
-        if mdl is ATTITUDE:   # known attitudes: the links' lever arms, the body frame's outputs
-            p.deferred[kind] = fam
-        else:
-            p.families[kind] = fam
-    for kind, fam in isl.items():   # per-row variable names ("var:<role>") -> block columns
-        for key in [k for k in fam.values if k.startswith("var:")]:
-            names = np.asarray(fam.values.pop(key)).astype(str)
-            fam.values[COLUMN_PREFIX + key[4:]] = np.array([lay.slices[n].start for n in names],
-                                                           dtype=int)
-        p.families[kind] = fam
+    """The pass of a log with several spacecraft (:func:`fgnav.measurements.build_pass`) with
+    the links' relative fixes for its start (``Pass.link_fixes``, :func:`link_fixes`)."""
+    p = build_pass(log)
     p.link_fixes = link_fixes(log)
     return p
 
@@ -160,33 +83,6 @@ def link_fixes(log, max_epochs: int = LINK_FIX_EPOCHS):
         ts.append(float(t))
         dr.append(so3_exp(np.asarray(log.xyz, dtype=float)[att[j[0]]]) @ sol.r_m)
     return (np.array(ts), np.array(dr)) if len(ts) >= 3 else None
-
-
-def spacecraft_pass(p: Pass, s: int) -> Pass:
-    """The one-spacecraft pass of spacecraft ``s`` (0-based): its own celestial and prior rows,
-    without the links, on the formation's epochs (epochs without its rows are free states)."""
-    start = orbit_columns(p.layout)[s]
-    fams = {}
-    for kind, fam in p.families.items():
-        if kind in ISL_KINDS:
-            continue
-        rows = np.flatnonzero(np.asarray(fam.values[COLUMN_PREFIX + "orbit"]) == start)
-        if not len(rows):
-            continue
-        sub = fam.subset(rows)
-        sub.values = {n: v for n, v in sub.values.items() if not n.startswith(COLUMN_PREFIX)}
-        fams[kind] = sub
-    return replace(p, families=fams, layout=Layout(), spacecraft=(), warnings=[], deferred={},
-                   unconverted={}, source=f"{p.source} (spacecraft {p.spacecraft[s]})")
-
-
-def spacecraft_states(sol, lay: Layout) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each spacecraft's states (N, 6) and marginal covariances (N, 6, 6) from a solution of
-    a formation pass (the first spacecraft's are ``sol.x_eci``/``P_eci``)."""
-    out = [(sol.x_eci, sol.P_eci)]
-    for v in lay.orbits[1:]:
-        out.append(sol.variables[v.name])
-    return out
 
 
 def first_guess(p: Pass, model, t0_j2000_s: float, options=None):

@@ -1,6 +1,9 @@
-"""A formation's smoothing job: solve the log of several spacecraft, check, summarize, write.
+"""What a formation's solution adds to the outputs: relative states, their spherical form, the
+joint solution's verdict.
 
-Outputs (``fgnav smooth`` on a log with a ``spacecraft`` column):
+``fgnav smooth`` on a log with a ``spacecraft`` column runs the one route of
+:mod:`fgnav.pipeline` (``smooth_log``, ``summarize``, ``write_outputs``), which writes, with
+the pieces below:
 
 * ``trajectory-<id>.oem`` per spacecraft (states and marginal covariances);
 * ``relative.csv``: every further spacecraft's state relative to the first (the reference),
@@ -15,26 +18,21 @@ Outputs (``fgnav smooth`` on a log with a ``spacecraft`` column):
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 
-from fgnav.errors import UserError
-from fgnav.formation.joint import solve_formation, spacecraft_states
 from fgnav.formation.relative_state import (relative_covariance, relative_state_body,
                                             relative_state_lvlh)
 from fgnav.diagnostics.integrity import (ADVICE, FALSE_ALARM_PROBABILITY, _chi2_test,
                                          _family_test, _severity)
-from fgnav.io.atomic import atomic_write_text
-from fgnav.io.oem import write_oem
-from fgnav.io.outputs import commit_outputs, staged
-from fgnav.io.summary import write_summary
-from fgnav.measurements import format_duration, long_gaps
+from fgnav.measurements import spacecraft_states
+from fgnav.models.model import COLUMN_PREFIX
+from fgnav.models.registry import ATTITUDE
 from fgnav.time import add_seconds, format_utc
 
-__all__ = ["smooth_formation", "formation_summary", "write_formation_outputs",
-           "relative_rows", "read_formation_truth", "truth_path_of"]
+__all__ = ["relative_rows", "truth_path_of", "relative_csv_text", "formation_integrity",
+           "spherical_position", "spherical_position_nees", "spherical_summary", "sigma_rms"]
 
 _LVLH = ("x", "y", "z", "vx", "vy", "vz")
 
@@ -43,21 +41,6 @@ def truth_path_of(truth: str | Path, spacecraft_id: str) -> Path:
     """``truth-<id>.oem`` in the directory ``truth`` (or beside the file ``truth``)."""
     d = Path(truth)
     return (d if d.is_dir() else d.parent) / f"truth-{spacecraft_id}.oem"
-
-
-def read_formation_truth(truth: str | Path, p) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
-    writes them), checked against the pass's epochs before any solving."""
-    from fgnav.pipeline import read_truth
-
-    out = []
-    for sc in p.spacecraft:
-        path = truth_path_of(truth, sc)
-        if not path.exists():
-            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
-                            f"'{sc}') in {path.parent}")
-        out.append(read_truth(path, p))
-    return out
 
 
 def relative_rows(sol, p, s: int):
@@ -76,9 +59,6 @@ def relative_rows(sol, p, s: int):
 def _reference_attitude(p, sol):
     """R_eci_from_body (N, 3, 3) of the reference spacecraft at the solution's epochs where
     the log has an attitude row for it (NaN elsewhere)."""
-    from fgnav.models.model import COLUMN_PREFIX
-    from fgnav.models.registry import ATTITUDE
-
     R = np.full((len(sol.t_s), 3, 3), np.nan)
     fam = p.deferred.get(ATTITUDE.kind)
     if fam is not None:
@@ -87,7 +67,8 @@ def _reference_attitude(p, sol):
     return R
 
 
-def _sigmas(P) -> dict:
+def sigma_rms(P) -> dict:
+    """RMS position and velocity 1-sigma (m, m/s) of covariances ``P`` (N, 6, 6)."""
     return {"sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(P[:, :3, :3], axis1=1, axis2=2)))),
             "sigma_velocity_rms_mps": float(np.sqrt(np.mean(np.trace(P[:, 3:, 3:], axis1=1, axis2=2))))}
 
@@ -113,7 +94,9 @@ def _spherical_error(s_est, r_true):
     return e
 
 
-def _spherical_summary(rel, C, rel_true) -> dict:
+def spherical_summary(rel, C, rel_true) -> dict:
+    """summary.json's spherical keys of a relative state ``rel`` (N, 6, LVLH) with covariances
+    ``C``: the range, azimuth and elevation sigmas, and with ``rel_true`` their errors."""
     s, Cs = spherical_position(rel[:, :3], C[:, :3, :3])
     sig = np.sqrt(np.diagonal(Cs, axis1=1, axis2=2))
     out = {"parameterization": "spherical (range, azimuth, elevation in LVLH)",
@@ -141,7 +124,7 @@ def spherical_position_nees(r_est, C, r_true) -> float:
 
 
 def formation_integrity(sol, p) -> dict:
-    """The verdict of a joint solution from its data alone (:mod:`fgnav.integrity`'s
+    """The verdict of a joint solution from its data alone (:mod:`fgnav.diagnostics.integrity`'s
     chi-square tests): each family's whitened residuals, the process rows (every orbit's
     motion and the clocks' random walks), convergence and finite numbers."""
     tests, reasons, advice, status = {}, [], [], "ok"
@@ -178,91 +161,8 @@ def formation_integrity(sol, p) -> dict:
             "false_alarm_probability": FALSE_ALARM_PROBABILITY}
 
 
-def formation_summary(sol, p, options, truths=None, relative: str = "cartesian") -> dict:
-    """summary.json of a formation's solution (module docstring); ``truths``: per spacecraft
-    ``(t_s, x_eci)`` or None; ``relative="spherical"`` adds the relative position's range,
-    azimuth and elevation sigmas (and errors)."""
-    from fgnav.orbit import truth_at
-    from fgnav.pipeline import state_errors
-
-    s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
-         "wall_s": float(sol.wall_s), "chi2": float(sol.chi2), "measurements": p.counts(),
-         "process_noise_m2_s3": options.q_m2_s3, "third_body": options.third_body,
-         "gravity": options.gravity, "source": p.source, "converged": sol.extras.get("converged"),
-         "reference_spacecraft": p.spacecraft[0], "spacecraft": {}}
-    states = spacecraft_states(sol, p.layout)
-    x_true = [None] * len(states) if truths is None else [truth_at(*t, sol.t_s) for t in truths]
-    for sc, (x, P), xt in zip(p.spacecraft, states, x_true):
-        d = _sigmas(P)
-        if xt is not None:
-            d.update(state_errors(x, P, xt))
-        s["spacecraft"][sc] = d
-    rel_all = {}
-    for j in range(1, len(states)):
-        rel, C, _ = relative_rows(sol, p, j)
-        d = _sigmas(C)
-        rel_true = None if x_true[0] is None else relative_state_lvlh(x_true[0], x_true[j])[0]
-        if rel_true is not None:
-            d.update(state_errors(rel, C, rel_true))
-            d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
-                                                                        rel_true[:, :3])
-        if relative == "spherical":
-            d.update(_spherical_summary(rel, C, rel_true))
-        rel_all[p.spacecraft[j]] = d
-    s["relative"] = rel_all[p.spacecraft[1]]
-    s["relative"]["frame"] = f"LVLH of spacecraft {p.spacecraft[0]}"
-    if len(rel_all) > 1:
-        s["relative_by_spacecraft"] = rel_all
-    s["integrity"] = formation_integrity(sol, p)
-    return s
-
-
-def smooth_formation(log, method: str, options, *, truth_path=None, progress=None,
-                     stage=None, t0=None, gap_factor: float | None = 10.0,
-                     relative: str = "cartesian", aberration: bool = True):
-    """Solve a formation's log: ``(SmoothResult, Pass)`` as :func:`fgnav.pipeline.smooth_log`
-    (``aberration=False``: :func:`fgnav.apparent.without_aberration`, for comparison)."""
-    from contextlib import nullcontext
-
-    from fgnav.measurements import build_pass
-    from fgnav.pipeline import SmoothResult
-
-    stage = stage or (lambda what, size: nullcontext())
-    t0 = time.perf_counter() if t0 is None else t0
-    if options.estimate:
-        raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
-                        "and carrier ambiguities; further variables are not yet supported there")
-    if getattr(options, "centre", "earth") != "earth":
-        raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
-                        "the Earth in this version")
-    if getattr(options, "state", "cartesian") != "cartesian":
-        raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
-                        "Cartesian states")
-    p = build_pass(log)
-    if not aberration:
-        from fgnav.apparent import without_aberration
-
-        p = without_aberration(p)
-    if gap_factor is not None and len(long_gaps(p, gap_factor)):
-        k = int(long_gaps(p, gap_factor)[0])
-        raise UserError(
-            f"{p.source}: a gap of {format_duration(p.t_s[k + 1] - p.t_s[k])} after "
-            f"{format_utc(add_seconds(p.epoch0, p.t_s[k]))} (more than {gap_factor:g} median "
-            "steps): gaps are not yet bridged for a log of several spacecraft; split the log "
-            "at the gap and solve the parts")
-    truths = None if truth_path is None else read_formation_truth(truth_path, p)
-    with stage(f"solving {p.n_epochs:,} epochs of {len(p.spacecraft)} spacecraft ({method})",
-               p.n_epochs):
-        sol = solve_formation(p, method, options, progress=progress)
-    sol.wall_s = time.perf_counter() - t0
-    summary = formation_summary(sol, p, options, truths, relative)
-    sol.extras["relative_parameterization"] = relative
-    if truth_path is not None:
-        summary["truth_path"] = str(truth_path)
-    return SmoothResult(sol, summary, None), p
-
-
-def _relative_csv(sol, p) -> str:
+def relative_csv_text(sol, p) -> str:
+    """``relative.csv`` (module docstring) of a formation's solution."""
     spherical = sol.extras.get("relative_parameterization") == "spherical"
     cols = ["epoch", "t_s", "reference", "spacecraft"]
     cols += [f"lvlh_{c}_{'mps' if c.startswith('v') else 'm'}" for c in _LVLH]
@@ -299,32 +199,3 @@ def _relative_csv(sol, p) -> str:
                                    p.spacecraft[j]] + ["" if not np.isfinite(v) else f"{v:.9g}"
                                                        for v in vals]))
     return "\n".join(lines) + "\n"
-
-
-def write_formation_outputs(out_dir, res, p) -> list[Path]:
-    """Write a formation's outputs (module docstring) as one set, as
-    :func:`fgnav.pipeline.write_outputs` does for one spacecraft."""
-    from fgnav.pipeline import residual_times, write_residuals_csv, write_variables_csv
-
-    with staged(out_dir) as (out, stage):
-        sol = res.solution
-        names = []
-        for sc, (x, P) in zip(p.spacecraft, spacecraft_states(sol, p.layout)):
-            name = f"trajectory-{sc}.oem"
-            write_oem(stage / name, sol.epoch0, sol.t_s, x, P,
-                      comments=(f"fgnav {sol.method} solution of a formation: spacecraft {sc}",
-                                "states and marginal covariances at every epoch"),
-                      object_name=sc)
-            names.append(name)
-        atomic_write_text(stage / "relative.csv", _relative_csv(sol, p))
-        names.append("relative.csv")
-        write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
-        names.append("residuals.csv")
-        params = {v.name: v for v in p.layout.parameters}
-        if params:   # the clocks and ambiguities
-            write_variables_csv(stage / "variables.csv", sol, params)
-            names.append("variables.csv")
-        write_summary(stage / "summary.json", res.summary)
-        names.append("summary.json")
-        return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))
-

@@ -28,9 +28,9 @@ gives:
   ``sigma(fam, dt_s)`` and ``factor(fam, j, keys0, keys1, noise, dt_s)``, with ``dt_s`` the
   interval ``t_k - t_(k-1)`` of each row.
 
-In a formation's pass (several spacecraft, :mod:`fgnav.formation.joint`) a row's variables
-depend on the row: ``"orbit"`` is the orbit of the row's spacecraft and an inter-satellite
-row also names ``"orbit_tx"``, ``"clock"`` (and ``"ambiguity"``); each family then carries
+In a formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) a row's
+variables depend on the row: ``"orbit"`` is the orbit of the row's spacecraft and an
+inter-satellite row also names ``"orbit_tx"``, ``"clock"`` (and ``"ambiguity"``); each family then carries
 the block column of every such role per row (``values["col:<role>"]``), and ``evaluate``,
 ``keys`` and ``factors`` bind row by row. The residual functions do not change.
 
@@ -171,7 +171,7 @@ class MeasurementModel:
         """:meth:`evaluate` for rows whose variables differ from row to row (a formation: the
         orbit of the row's spacecraft, a link's two orbits and its clock): ``fam.values``
         holds, per variable role ``name``, the first column of that row's variable in the
-        block, ``values["col:<name>"]`` (M,) (:func:`fgnav.formation.joint.build_formation_pass`)."""
+        block, ``values["col:<name>"]`` (M,) (:func:`fgnav.measurements.build_pass`)."""
         M, m = len(fam), self.dim
         k = np.asarray(fam.k)
         rows = np.arange(M)

@@ -31,8 +31,6 @@ from factors.direction import (body_direction_residual, earth_direction_residual
                                star_direction_apparent_residual)
 from factors.planets import moon_position_geo_m, sun_position_geo_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
-from factors.isl import (isl_carrier_residual, isl_range_residual, make_isl_carrier_factor,
-                         make_isl_range_factor)
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
                            prior_velocity_kernel, state_prior_residual)
@@ -43,6 +41,7 @@ from factors.errors import EphemerisSpanError
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
+from fgnav.models.isl import ISL_CARRIER_PHASE, ISL_PSEUDORANGE
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
 from fgnav.simulate.celestial_angles import (body_position_eci_m, body_velocity_mps,
@@ -615,44 +614,7 @@ BODY_BODY_ANGLE = _angle_model(
     star=False, limb=False, keys=("sigma_deg", "body", "body2"))
 
 
-# ---- inter-satellite links (a formation's log) ------------------------------------------------
-# A row ties two spacecraft's orbits and their pair's clock (and a carrier link's ambiguity):
-# variables that differ from row to row, bound per row (MeasurementModel._evaluate_per_row,
-# fgnav.formation.isl_rows).
-
-def _isl_residual(carrier):
-    def residual(fam, v):
-        args = (v["orbit"], v["orbit_tx"], fam.values["R_rx"], fam.values["R_tx"],
-                fam.values["a_rx"], fam.values["a_tx"], v["clock"][:, 0], fam.values["sign"],
-                fam.values["rho_m"])
-        if not carrier:
-            e, H_rx, H_tx, H_c = isl_range_residual(*args)
-            return e, {"orbit": H_rx, "orbit_tx": H_tx, "clock": H_c}
-        e, H_rx, H_tx, H_c, H_a = isl_carrier_residual(*args, v["ambiguity"][:, 0])
-        return e, {"orbit": H_rx, "orbit_tx": H_tx, "clock": H_c, "ambiguity": H_a}
-    return residual
-
-
-def _isl_model(kind, summary, carrier):
-    from fgnav.formation.isl_rows import isl_values
-
-    def factor(fam, j, keys, noise):
-        v = fam.values
-        args = (keys["orbit"], keys["orbit_tx"], keys["clock"]) + (
-            (keys["ambiguity"],) if carrier else ())
-        make = make_isl_carrier_factor if carrier else make_isl_range_factor
-        return make(*args, v["R_rx"][j], v["R_tx"][j], v["a_rx"][j], v["a_tx"][j], v["sign"][j],
-                    v["rho_m"][j], noise)
-
-    return MeasurementModel(kind=kind, dim=1, unit="m", observes_orbit=True, summary=summary,
-                            values=isl_values, residual=_isl_residual(carrier), factor=factor,
-                            variables=(), range_m=lambda fam: fam.values["rho_m"])
-
-
-ISL_PSEUDORANGE = _isl_model("isl_pseudorange", "one-way inter-satellite pseudorange (m) between "
-                             "two spacecraft's antennas, with the pair's clock", carrier=False)
-ISL_CARRIER_PHASE = _isl_model("isl_carrier_phase", "inter-satellite carrier phase times the "
-                               "wavelength (m), with the link's float ambiguity", carrier=True)
+# (the inter-satellite links, ISL_PSEUDORANGE and ISL_CARRIER_PHASE: fgnav.models.isl)
 
 
 # ---- attitude motion without a gyro ---------------------------------------------------------

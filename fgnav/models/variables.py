@@ -26,7 +26,8 @@ import numpy as np
 
 from factors.geometry import so3_exp, so3_log
 
-__all__ = ["Variable", "Layout", "ORBIT", "CONSTANT_PSD_FLOOR", "orbit_variable"]
+__all__ = ["Variable", "Layout", "ORBIT", "CONSTANT_PSD_FLOOR", "orbit_variable", "clock_variable",
+           "ambiguity_variable", "CLOCK_PSD_M2_S", "CLOCK_PRIOR_SIGMA_M", "AMBIGUITY_PRIOR_SIGMA_M"]
 
 CONSTANT_PSD_FLOOR = 1e-18
 """A random walk's spectral density (unit^2/s) never goes below this: a "constant" variable is
@@ -95,6 +96,32 @@ def orbit_variable(i: int, spacecraft_id: str) -> Variable:
                     components=tuple(f"{c}_{spacecraft_id}" for c in ORBIT.components),
                     description=f"orbit state of spacecraft {spacecraft_id}, EME2000",
                     orbit=True, index=i)
+
+
+CLOCK_PSD_M2_S = 1e-4
+"""Spectral density (m^2/s) of the pair's relative clock bias c (dt_A - dt_B), a random walk:
+1 cm per 1 s step, 0.6 m in an hour (two free-running oscillators of ~1e-11 Allan deviation)."""
+CLOCK_PRIOR_SIGMA_M = 1e5
+"""Prior 1-sigma of the relative clock bias at the first epoch (m): unknown (0.3 ms)."""
+AMBIGUITY_PRIOR_SIGMA_M = 1e3
+"""Prior 1-sigma of a carrier link's float ambiguity (m): unknown."""
+
+
+def clock_variable(a: str, b: str, index: int) -> Variable:
+    """The relative clock bias ``c (dt_a - dt_b)`` (m) of the spacecraft pair (a, b), a random
+    walk of :data:`CLOCK_PSD_M2_S` (Xing et al.'s relative clock, per pair)."""
+    return Variable(f"clock_{a}_{b}", "c", 1, "m", components=(f"clock_{a}_{b}_m",),
+                    psd=CLOCK_PSD_M2_S, prior_sigma=CLOCK_PRIOR_SIGMA_M, index=index,
+                    description=f"relative clock bias c (dt_{a} - dt_{b}), m (random walk)")
+
+
+def ambiguity_variable(name: str, index: int) -> Variable:
+    """The float carrier-phase ambiguity (m) of one link, constant while the link stays
+    locked (as :mod:`fgnav.formation.smoother` treats it; a constant is a random walk of
+    zero ``psd``, Maybeck 1979, sec. 4.10)."""
+    return Variable(f"ambiguity_{name}", "n", 1, "m", components=(f"ambiguity_{name}_m",),
+                    psd=0.0, prior_sigma=AMBIGUITY_PRIOR_SIGMA_M, index=index,
+                    description=f"carrier-phase ambiguity of link {name}, m (constant)")
 
 
 @dataclass(frozen=True)

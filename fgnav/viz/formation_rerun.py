@@ -92,7 +92,7 @@ def link_segments(sol, p):
     epoch ``k`` and unordered pair of spacecraft indices (``s_rx < s_tx`` after ordering),
     ``|w|`` the largest ``|whitened residual|`` of the kind's rows on that pair at that epoch.
     Kinds whose residuals do not match their rows (none logged) are left out."""
-    from fgnav.formation.joint import orbit_columns
+    from fgnav.measurements import orbit_columns
     from fgnav.io.log_spacecraft import ISL_KINDS
     from fgnav.models.model import COLUMN_PREFIX
 
@@ -126,7 +126,7 @@ def _tested_residuals(sol) -> dict:
 def log_formation_result(rrd_path, res, p, *, truth=None, sigma_scale=3.0) -> dict:
     """:func:`log_formation` of ``fgnav smooth``'s formation result (``res``, ``p``); with
     ``truth`` (the ``--truth`` directory) each spacecraft's ``truth-<id>.oem``."""
-    from fgnav.formation.outputs import read_formation_truth
+    from fgnav.pipeline import read_formation_truth
     from fgnav.orbit import truth_at
 
     truths = None
@@ -142,7 +142,7 @@ def log_formation(rrd_path, sol, p, *, truths=None, sigma_scale=3.0,
     (m, m/s). Returns ``{"path", "entities", "epochs", "magnification"}``."""
     import rerun as rr
 
-    from fgnav.formation.joint import spacecraft_states
+    from fgnav.measurements import spacecraft_states
     from fgnav.formation.outputs import relative_rows
     from fgnav.formation.relative_state import relative_state_lvlh
 
@@ -333,7 +333,7 @@ class _Logger:
 
     def residuals(self, sol, p):
         """Whitened residuals per kind: celestial rows per spacecraft, links per direction."""
-        from fgnav.formation.joint import orbit_columns
+        from fgnav.measurements import orbit_columns
         from fgnav.io.log_spacecraft import ISL_KINDS
         from fgnav.models.model import COLUMN_PREFIX
 
