@@ -76,6 +76,8 @@ ADVICE = {
                 "units, or try --ignore-prior",
     "observability": "add measurements (limb, altitude) or a longer pass",
     "third_body": "try --third-body",
+    "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
+              "direction), or a prior on the relative position",
 }
 
 

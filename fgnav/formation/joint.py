@@ -142,19 +142,72 @@ def solve_formation(p: Pass, method: str, options, *, progress=None):
     if method == "ekf":
         from fgnav.solvers.ekf import run_ekf
 
-        return run_ekf(p, options, progress=progress, x_start=X0[0],
-                       P_start=start_covariance(p))
-    if method == "isam2":
+        sol = run_ekf(p, options, progress=progress, x_start=X0[0],
+                      P_start=start_covariance(p))
+    elif method == "isam2":
         from fgnav.solvers.incremental import smooth_incremental
 
-        return smooth_incremental(p, options, relinearizing_links(p), method="isam2",
-                                  progress=progress, x_start=X0[0])
-    if filtered:   # every orbit filtered: Gauss-Newton at the requested process noise at once
-        sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3), x_init=X0,
-                           progress=progress)
-        if sol.extras.get("converged"):
-            return sol
-    return smooth_batch(p, options, x_init=X0, progress=progress)
+        sol = smooth_incremental(p, options, relinearizing_links(p), method="isam2",
+                                 progress=progress, x_start=X0[0])
+    else:
+        sol = None
+        if filtered:   # every orbit filtered: Gauss-Newton at the requested process noise at once
+            sol = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3), x_init=X0,
+                               progress=progress)
+        if sol is None or not sol.extras.get("converged"):
+            sol = smooth_batch(p, options, x_init=X0, progress=progress)
+    sol.extras["mirror_test"] = mirror_test(p, sol, options)
+    return sol
+
+
+MIRROR_MARGIN_CHI2 = 25.0
+"""A mirrored relative geometry whose batch chi-square is not this much larger than the
+solution's (5 sigma of a one-parameter choice) explains the data as well: the links cannot
+tell the two apart."""
+
+
+def mirrored(p: Pass, X: np.ndarray) -> np.ndarray:
+    """The block values ``X`` (N, n) with every further spacecraft's orbit reflected through
+    the first's, ``x_s -> 2 x_1 - x_s`` (relative position and velocity negated): the other
+    minimum that ranges between the spacecraft allow when their lever arms barely tell the
+    direction (one link each way per epoch)."""
+    lay = p.layout
+    out = np.array(X, dtype=float, copy=True)
+    for v in lay.orbits[1:]:
+        sl = lay.slices[v.name]
+        out[:, sl] = 2.0 * X[:, :6] - X[:, sl]
+    return out
+
+
+def mirror_test(p: Pass, sol, options) -> dict:
+    """The batch from the solution and from its mirrored relative geometry (:func:`mirrored`),
+    compared by chi-square (the integrity issue, item 1: links through one antenna each way
+    put sat2 950 m behind sat1 instead of ahead, relative NEES 3e11, and the verdict said ok).
+    ``status`` is ``failed`` when the mirror fits better (the solution is the wrong minimum)
+    or within :data:`MIRROR_MARGIN_CHI2` (the data cannot choose), else ``ok``."""
+    from fgnav.graph import block_values
+    from fgnav.solvers.batch import smooth_batch
+
+    X = block_values(p, sol.x_eci, sol.variables)
+    here = sol if sol.method == "batch" else smooth_batch(p, options, x_init=X)
+    there = smooth_batch(p, options, x_init=mirrored(p, block_values(p, here.x_eci,
+                                                                     here.variables)))
+    chi2, chi2_m = float(here.chi2), float(there.chi2)
+    moved, separation = [], []   # the relative positions of the two minima
+    for v in p.layout.orbits[1:]:
+        if v.name in here.variables and v.name in there.variables:
+            rel_here = here.variables[v.name][0][:, :3] - here.x_eci[:, :3]
+            rel_there = there.variables[v.name][0][:, :3] - there.x_eci[:, :3]
+            moved.append(float(np.max(np.linalg.norm(rel_there - rel_here, axis=1))))
+            separation.append(float(np.median(np.linalg.norm(rel_here, axis=1))))
+    # another minimum, not the same one reached again: its relative position differs by more
+    # than 1 % of the separation (and 1 m)
+    distinct = bool(moved) and max(moved) > max(1.0, 0.01 * max(separation))
+    status = "failed" if distinct and chi2_m < chi2 + MIRROR_MARGIN_CHI2 else "ok"
+    return {"status": status, "chi2": chi2, "chi2_mirrored": chi2_m,
+            "mirror_converged": bool(there.extras.get("converged", False)),
+            "distinct_minimum": distinct,
+            "largest_difference_m": max(moved) if moved else 0.0}
 
 
 def start_covariance(p: Pass) -> np.ndarray:

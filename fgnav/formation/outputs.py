@@ -155,6 +155,16 @@ def formation_integrity(sol, p) -> dict:
         worse(motion["status"], f"motion: chi2/dof {motion['normalized']:.3g}", "force")
     if not sol.extras.get("converged", True):
         worse("failed", "the solver did not converge", "converge")
+    mirror = sol.extras.get("mirror_test")
+    if mirror is not None:
+        tests["mirror"] = mirror
+        if mirror["status"] != "ok":
+            better = mirror["chi2_mirrored"] < mirror["chi2"]
+            worse("failed", f"the relative geometry mirrored through the first spacecraft "
+                  f"{'fits the data better' if better else 'fits the data as well'} "
+                  f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
+                  f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
+                  f"relative position from its mirror image", "mirror")
     if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
         worse("failed", "non-finite states or covariances", None)
     return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
