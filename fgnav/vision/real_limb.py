@@ -5,7 +5,7 @@ attitude, the lit limb, the limb's height, correlated residuals and a model-erro
 and fits a sphere. On real frames (DSCOVR/EPIC, docs/epic.md) that sigma was 11.7 times
 smaller than the frame-to-frame scatter. :func:`real_limb_fix` adds, each optional:
 
-1. **Flattening** (Christian 2021, sec. V; Christian & Robinson 2016): the limb surface is
+1. **Flattening** (Christian & Robinson 2016 and Christian's 2021 tutorial): the limb surface is
    the oblate ellipsoid ``x^T A x = 1``, ``A_body = diag(a^-2, a^-2, b^-2)``,
    ``b = a (1 - f)``, its axis the ECI z axis (the J2000 pole; the precession of the pole
    since J2000, 0.3 deg in 2022, changes the apparent flattening by < 1e-5 of the range);
