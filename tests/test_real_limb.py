@@ -204,3 +204,17 @@ def test_cli_limb_fov_and_real_limb_options(tmp_path, capsys):
         main(base + ["--fov-deg", "30", "--attitude=1,0,0"])
     assert exc.value.code == 2
     assert "4 comma-separated numbers" in capsys.readouterr().err
+
+
+def test_psf_correction_moves_the_points_outward():
+    """With the PSF given, the points move outward by the edge locator's curvature bias of
+    the limb's image radius (fgnav.vision.limb.edge_curvature_bias_px), as in the plain path."""
+    from fgnav.vision.limb import edge_curvature_bias_px
+
+    c = np.array([0.0, 0.0, 40_000e3])
+    U = np.eye(3) / 6378e3
+    pts = _exact_points(NARROW, c, U)
+    fix = real_limb_fix(pts, NARROW, LimbModel(r_limb_m=6378e3, psf_sigma_px=1.0))
+    r_px = NARROW.f_px * np.tan(np.arcsin(6378e3 / 40_000e3))
+    assert fix.extra["curvature_correction_px"] == pytest.approx(edge_curvature_bias_px(r_px, 1.0), rel=1e-6)
+    assert fix.rho_rad > np.arcsin(6378e3 / 40_000e3)      # exact points moved out: a larger disk

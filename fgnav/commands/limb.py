@@ -21,8 +21,9 @@ only the lit limb (limb points whose tangent point sees the Sun; the others lie 
 terminator); --correlated-residuals inflates the covariance by the limb residuals'
 correlation along the limb; --limb-height-sigma-km and --floor-px add the limb height's
 uncertainty and a model-error floor (px, on the limb's radius and centre). Any of these
-selects that model (christian-robinson only). EPIC level-1B frames (north-up, re-centred,
-1080 px over EPIC's 0.62 deg field):
+selects that model (christian-robinson only). Write a vector that starts with a minus sign
+as --sun-eci=-1,2,3. EPIC level-1B frames (north-up, re-centred, 1080 px over EPIC's
+0.62 deg field):
   fgnav limb epic_1b_*.jpg --fov-deg 0.62 --r-limb-km 6378.137 --attitude Q --sun-eci S
         --correlated-residuals --floor-px 0.05
 
