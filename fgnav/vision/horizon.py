@@ -57,7 +57,7 @@ from fgnav.vision.limb import LimbPoints, edge_curvature_bias_px
 __all__ = [
     "HorizonFix", "fit_conic", "conic_to_ellipse", "ellipse_to_direction",
     "horizon_ellipse", "horizon_christian_robinson", "cr_jacobians", "estimate_horizon",
-    "correct_edge_curvature", "METHODS",
+    "correct_edge_curvature", "cr_point_gains", "cr_residuals_px", "METHODS",
 ]
 
 METHODS = ("ellipse", "christian-robinson")
@@ -328,6 +328,30 @@ def horizon_christian_robinson(points: LimbPoints, camera: PinholeCamera,
     return HorizonFix(u, rho, float(np.linalg.norm(c)), cov4[:3, :3],
                       float(np.sqrt(max(cov4[3, 3], 0.0))), r, cov_r, cov4, sigma_px, N, centre,
                       "christian-robinson", {"n": n, "cov_n": Pn})
+
+
+def _transformed_rays(points: LimbPoints, camera: PinholeCamera, U: np.ndarray):
+    s = camera.pixel_to_ray(points.uv_px)
+    Us = s @ U.T
+    Usn = np.linalg.norm(Us, axis=1)
+    return s, Us / Usn[:, None], Usn
+
+
+def cr_point_gains(points: LimbPoints, camera: PinholeCamera, n_vec: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """``g_i = d(s'_i^T n)/dt_i`` (N,): the Christian–Robinson residual per pixel of motion of
+    each limb point along its normal, ``n^T (I - s' s'^T) U ds/dt / |U s|`` (module doc)."""
+    s, sp, Usn = _transformed_rays(points, camera, np.asarray(U, float))
+    ds = _ray_derivative(s, 1.0 / s[:, 2], points.normal, camera.f_px)
+    Uds = ds @ np.asarray(U, float).T
+    proj = Uds - sp * np.sum(sp * Uds, axis=1, keepdims=True)
+    return (proj @ np.asarray(n_vec, float)) / Usn
+
+
+def cr_residuals_px(points: LimbPoints, camera: PinholeCamera, n_vec: np.ndarray, U: np.ndarray) -> np.ndarray:
+    """Normal residuals (px, > 0 outside the fitted limb) of limb points against the cone
+    ``s'^T n = 1`` of shape matrix ``U``: ``(s'_i^T n - 1) / g_i`` (:func:`cr_point_gains`)."""
+    _, sp, _ = _transformed_rays(points, camera, np.asarray(U, float))
+    return (sp @ np.asarray(n_vec, float) - 1.0) / cr_point_gains(points, camera, n_vec, U)
 
 
 def _ray_derivative(s, vnorm, normal_uv, f_px):
