@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from fgnav.errors import UserError
+from fgnav.graph import block_values
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.measurements import (Pass, build_pass, orbit_columns, spacecraft_pass,  # noqa: F401
                                 spacecraft_states)
@@ -185,7 +186,6 @@ def mirror_test(p: Pass, sol, options) -> dict:
     put sat2 950 m behind sat1 instead of ahead, relative NEES 3e11, and the verdict said ok).
     ``status`` is ``failed`` when the mirror fits better (the solution is the wrong minimum)
     or within :data:`MIRROR_MARGIN_CHI2` (the data cannot choose), else ``ok``."""
-    from fgnav.graph import block_values
     from fgnav.solvers.batch import smooth_batch
 
     X = block_values(p, sol.x_eci, sol.variables)
