@@ -44,7 +44,7 @@ __all__ = ["THIRD_BODIES", "MU_THIRD_M3_S2", "TABLE_START_J2000_S", "TABLE_STOP_
            "TABLE_STEP_S", "origin_state_bcrs", "sun_position_geo_m", "moon_position_geo_m",
            "earth_position_helio_m", "moon_position_helio_m",
            "planet_state_helio", "third_body_positions_m", "third_body_table",
-           "table_positions_nb", "NO_TABLE", "check_table_span"]
+           "table_positions_nb", "NO_TABLE", "check_table_span", "SPAN_J2000_S", "check_span"]
 
 _DAY_S = 86400.0
 _AU_PER_DAY_TO_MPS = AU_M / _DAY_S
@@ -68,6 +68,21 @@ TABLE_STEP_S = _DAY_S
 
 NO_TABLE = np.zeros((1, 6))
 """The kernels' table argument of a geocentric model (no planet: ``nb = 0`` in the header)."""
+
+
+SPAN_J2000_S = (-36525.0 * _DAY_S, 36525.0 * _DAY_S)
+"""The epochs ERFA's series are valid over (their documentation: 1900-2100), s after J2000."""
+
+
+def check_span(t_j2000_s) -> None:
+    """:class:`EphemerisSpanError` unless every epoch lies in :data:`SPAN_J2000_S` (for what
+    needs the span but calls no ERFA series, e.g. a geocentric angle log whose bodies are
+    all the Earth: its aberration takes the Earth's velocity from the low-precision series)."""
+    t = np.asarray(t_j2000_s, dtype=float)
+    if t.size and not (SPAN_J2000_S[0] <= t.min() and t.max() <= SPAN_J2000_S[1]):
+        bad = t.min() if t.min() < SPAN_J2000_S[0] else t.max()
+        raise EphemerisSpanError(f"planetary ephemeris outside its span: an epoch "
+                                 f"{bad / (365.25 * _DAY_S):+.1f} years from J2000")
 
 
 def _jd2(t_j2000_s):

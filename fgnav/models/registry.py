@@ -29,7 +29,7 @@ from factors.direction import (body_direction_residual, earth_direction_residual
                                make_earth_direction_factor,
                                make_star_direction_apparent_factor,
                                star_direction_apparent_residual)
-from factors.planets import moon_position_geo_m, sun_position_geo_m
+from factors.planets import check_span, moon_position_geo_m, sun_position_geo_m
 from factors.geometry import so3_exp, so3_log, tangent_basis
 from factors.limb import limb_radius_kernel, limb_radius_residual, make_limb_radius_factor
 from factors.prior import (POSITION, VELOCITY, make_state_prior_factor, prior_position_kernel,
@@ -549,6 +549,7 @@ def _angle_values(star, limb):
     def rows(log, i):
         xyz = _xyz(log, i)
         tj = float(j2000_seconds(log.epoch0)) + np.asarray(log.t_s, dtype=float)[i]
+        check_span(tj)   # also where every body is the Earth (no ERFA call below)
         centre = getattr(log, "centre", "earth")
         codes = np.asarray(log.extra["body"], float)[i]
         out = {"a_rad": xyz[:, 0], "p_body_eci_m": _bodies_at(codes, tj, centre),
