@@ -73,10 +73,13 @@ analytic Jacobians. Never imports fgnav.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from factors.adapters import custom_factor, vector_state
 from factors.constants import C_LIGHT_M_S
+from factors.errors import ModelDomainError
 from factors.geometry import skew
 
 __all__ = [
@@ -105,7 +108,15 @@ def light_time(d0_m, v_tx_mps, c_mps=C_LIGHT_M_S):
     A = c_mps * c_mps - np.einsum("...i,...i->...", v, v)
     b = np.einsum("...i,...i->...", d0, v)
     C = np.einsum("...i,...i->...", d0, d0)
-    S = np.sqrt(b * b + A * C)
+    disc = b * b + A * C
+    bad = ~((A > 0.0) & (disc >= 0.0))
+    if np.any(bad):   # a transmitter at or beyond the speed of light: no light time
+        k = int(np.flatnonzero(np.ravel(bad))[0])
+        speed = math.sqrt(max(c_mps ** 2 - float(np.ravel(A)[k]), 0.0))
+        raise ModelDomainError(f"inter-satellite light time undefined at row {k}: the "
+                               f"transmitter's speed {speed:.4g} m/s is not below the speed "
+                               f"of light", row=k)
+    S = np.sqrt(disc)
     tau = (b + S) / A
     D = d0 + v * tau[..., None]
     return tau, D, S

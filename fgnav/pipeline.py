@@ -98,7 +98,14 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if p.spacecraft:   # several spacecraft: one joint graph, started by its links
         refuse_for_formation(options, ignore_prior=ignore_prior, checkpoint=checkpoint,
                              resume=resume)
-        return solve_formation(p, method, options, progress=progress)
+        try:
+            return solve_formation(p, method, options, progress=progress)
+        except ModelDomainError as exc:
+            raise NotObservableError(
+                f"{p.source}: the {method} estimate left the domain of a measurement model "
+                f"({exc}): a row that does not fit the others (an outlier, a unit error) can "
+                f"drive it there; check the rows near the epoch where the solution departs from "
+                f"the spacecraft's own rows") from exc
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)

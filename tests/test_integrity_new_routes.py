@@ -205,3 +205,27 @@ def test_a_geocentric_angle_log_outside_the_ephemeris_span_is_refused(tmp_path, 
     rc = main(["smooth", str(log), "--out", str(tmp_path / "r"), "--quiet"])
     err = capsys.readouterr().err
     assert rc == 2 and "line" in err and "1900-2100" in err, err
+
+
+@pytest.mark.parametrize("value", ["1e9", "3e8"])
+def test_a_wild_link_row_is_a_message_not_a_warning_and_an_unobservable_state(formation_log,
+                                                                              tmp_path, capsys,
+                                                                              value):
+    """One link row of 1e9 m drove the estimate beyond light speed, where the light time has
+    no root: numpy warned 'invalid value in sqrt' and the solve ended 'state component x not
+    observable' (the integrity issue, item 8). Now the model's domain error names a log line."""
+    lines = (formation_log / "measurements.csv").read_text().splitlines()
+    i = next(n for n, ln in enumerate(lines) if ",isl_pseudorange," in ln and "T00:10" in ln)
+    f = lines[i].split(",")
+    f[2] = value
+    lines[i] = ",".join(f)
+    log = tmp_path / "wild.csv"
+    log.write_text("\n".join(lines) + "\n")
+    rc = main(["smooth", str(log), "--out", str(tmp_path / "r"), "--quiet"])
+    err = capsys.readouterr().err
+    assert "Warning" not in err and "Traceback" not in err, err
+    if rc == 2:
+        assert "log line" in err and "not observable" not in err, err
+    else:   # solved: then the verdict must not call it ok
+        s = json.loads((tmp_path / "r" / "summary.json").read_text())
+        assert rc == 0 and s["integrity"]["status"] != "ok"

@@ -181,7 +181,13 @@ class MeasurementModel:
                 name = key[len(COLUMN_PREFIX):]
                 d = ROLE_DIMS.get(name, 1)
                 vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
-        e, jac = self.residual(fam, vals)
+        try:
+            e, jac = self.residual(fam, vals)
+        except ModelDomainError as exc:   # name the row's log line
+            if exc.row is None:
+                raise
+            raise ModelDomainError(f"{self.kind} row at log line {int(fam.line[exc.row])}: "
+                                   f"{exc}", row=exc.row) from exc
         e = np.asarray(e, dtype=float).reshape(M, m)
         H = np.zeros((M, m, layout.n))
         for name, h in jac.items():
