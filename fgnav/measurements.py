@@ -39,6 +39,7 @@ from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
                                    SUN_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import (ORBIT, Layout, ambiguity_variable, clock_variable,
                                     orbit_variable)
+from fgnav.vision.attitude import wahba_by_epoch
 
 
 @dataclass
@@ -351,12 +352,47 @@ def directions_in_eci(p: Pass) -> Pass:
     if not body:
         return p
     fams = dict(p.families)
+    att = _with_star_attitudes(p.families.get(ATTITUDE.kind),
+                               p.families.get(STAR_DIRECTION_BODY.kind)
+                               or p.deferred.get(STAR_DIRECTION_BODY.kind))
     for kind in body:
-        new, _ = _rotated_to_eci(fams.pop(kind), p.families.get(ATTITUDE.kind))
+        new, _ = _rotated_to_eci(fams.pop(kind), att)
         if len(new):
             into = MODELS[kind].body_frame_of
             fams[into] = _merged(fams.get(into), new)
     return dataclasses.replace(p, families=fams, layout=Layout())
+
+
+def _with_star_attitudes(att: Family | None, stars: Family | None) -> Family | None:
+    """The attitude rows, and at the epochs without one, the attitude each epoch's own stars
+    give (Wahba's problem by SVD, Markley 1988: >= 2 stars not all parallel; the catalogue
+    directions, the star camera taken as the body frame), so that a raw-star log without
+    attitude rows can be started by the initial orbit (the integrity issue, item 8)."""
+    if stars is None:
+        return att
+    ep, R, cov = wahba_by_epoch(stars.k, stars.values["u_body"], stars.values["s_eci"],
+                                stars.sigma)
+    have = set() if att is None else {int(kk) for kk in att.k}
+    new = np.array([int(e) not in have for e in ep], dtype=bool)
+    if not new.any():
+        return att
+    first_line = {int(kk): int(ln) for kk, ln in zip(stars.k[::-1], stars.line[::-1])}
+    from_stars = Family(k=np.asarray(ep)[new],
+                        values={"R_eci_from_body": R[new], "cov_rad2": cov[new]},
+                        sigma=np.sqrt(np.linalg.eigvalsh(cov[new])[:, -1]),
+                        line=np.array([first_line[int(e)] for e in np.asarray(ep)[new]]))
+    if att is None:
+        return from_stars
+    cov_att = att.values.get("cov_rad2")
+    if cov_att is None:   # rows with a sigma only: isotropic, as _attitude_sigma_on reads them
+        cov_att = np.asarray(att.sigma, dtype=float)[:, None, None] ** 2 * np.eye(3)
+    merged = {"R_eci_from_body": (att.values["R_eci_from_body"], R[new]),
+              "cov_rad2": (cov_att, cov[new])}
+    order = np.argsort(np.concatenate([att.k, from_stars.k]), kind="stable")
+    return Family(k=np.concatenate([att.k, from_stars.k])[order],
+                  values={key: np.concatenate(pair)[order] for key, pair in merged.items()},
+                  sigma=np.concatenate([att.sigma, from_stars.sigma])[order],
+                  line=np.concatenate([att.line, from_stars.line])[order])
 
 
 def _without_body_rows(fam: Family) -> Family | None:

@@ -229,3 +229,22 @@ def test_a_wild_link_row_is_a_message_not_a_warning_and_an_unobservable_state(fo
     else:   # solved: then the verdict must not call it ok
         s = json.loads((tmp_path / "r" / "summary.json").read_text())
         assert rc == 0 and s["integrity"]["status"] != "ok"
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_a_raw_star_log_without_a_prior_starts_from_its_stars(raw_star_pass, tmp_path, seed):
+    """Each frame's stars fix the attitude (Wahba), which turns the body-frame Earth
+    directions into ECI for the initial orbit: a raw-star log without prior rows could not be
+    started (the integrity issue, item 8), so `fgnav extract --raw-stars` without priors gave
+    an unusable log. Now it is solved from the data alone, consistent with truth."""
+    d = raw_star_pass[seed]
+    lines = (d / "measurements.csv").read_text().splitlines()
+    log = tmp_path / "noprior.csv"
+    log.write_text("\n".join(ln for ln in lines if ",prior_" not in ln) + "\n")
+    assert main(["check", str(log)]) == 0
+    assert main(["smooth", str(log), "--out", str(tmp_path / "r"), "--estimate", "attitude",
+                 "--third-body", "--truth", str(d / "truth.oem"), "--quiet"]) == 0
+    s = json.loads((tmp_path / "r" / "summary.json").read_text())
+    assert s["initial_orbit"]["prior"] == "initial_orbit"
+    assert s["integrity"]["status"] == "ok" and s["nees_mean"] < 12.6
+    assert s["position_rms_m"] < 2.0 * s["sigma_position_rms_m"]
