@@ -184,10 +184,14 @@ def limb_contrast(img: np.ndarray, uv_px: np.ndarray, valid: np.ndarray | None =
     (D, E, F), *_ = np.linalg.lstsq(A, -(uv ** 2).sum(axis=1), rcond=None)
     cx, cy = -0.5 * D, -0.5 * E
     r = math.sqrt(max(cx * cx + cy * cy - F, 0.0))
-    yy, xx = np.indices(f.shape)
-    d = np.hypot(xx - cx, yy - cy) - r
-    inner = (d > -band_px[1]) & (d < -band_px[0])
-    outer = (d > band_px[0]) & (d < band_px[1])
+    yy, xx = np.ogrid[:f.shape[0], :f.shape[1]]
+    d2 = (xx - cx) ** 2 + (yy - cy) ** 2   # squared distances: no index grids, no square roots
+
+    def ring(lo, hi):   # lo < |p - c| < hi
+        return (d2 > (lo * lo if lo > 0 else -1.0)) & (d2 < (hi * hi if hi > 0 else -1.0))
+
+    inner = ring(r - band_px[1], r - band_px[0])
+    outer = ring(r + band_px[0], r + band_px[1])
     if valid is not None:
         inner &= valid
         outer &= valid
