@@ -19,7 +19,7 @@ from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit, traje
 from fgnav.chi2 import chi2_ppf
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
 from fgnav.measurements import Pass, prior_covariance, prior_state
-from fgnav.models.registry import prior_kinds
+from fgnav.models.registry import PRIOR_POSITION, prior_kinds
 
 __all__ = ["prior_consistency", "start_point", "Start", "batch_first_guess",
            "PRIOR_GATE_PROBABILITY", "START_INFLATION", "MAX_TEST_RMS"]
@@ -104,7 +104,7 @@ def check_prior_centre(p: Pass, centre: str) -> None:
         return
     k0, x0 = prior_state(p)
     r = float(np.linalg.norm(x0[:3]))
-    fam = p.families[prior_kinds()[0]]
+    fam = p.families[PRIOR_POSITION.kind]   # the line of the position row prior_state uses
     line = int(fam.line[np.flatnonzero(fam.k == k0)[0]])
     if centre == "earth" and r > GEOCENTRIC_MAX_PRIOR_RANGE_M:
         raise UserError(f"{p.source}, line {line}: the prior position lies {r / AU_M:.3g} AU "

@@ -344,19 +344,19 @@ def check_runs(study: Study, shown: int = 10) -> None:
     grid point and method (the seeds were checked with the file). ``UserError`` naming the
     study file and the first ``shown`` runs with their reasons."""
     task = TASKS[study.task]
+    points = study_runs(replace(study, seeds=study.seeds[:1]))   # each with every seed
     bad = []
-    for run in study_runs(replace(study, seeds=study.seeds[:1])):
+    for run in points:
         try:
             task.check(run.params)
         except UserError as exc:
-            reason = str(exc)
             where = ";".join(x for x in run.run_id.split(";") if not x.startswith("seed="))
-            bad.append(f"{where or 'every run'}: {reason}")
+            bad.append(f"{where or 'every run'}: {exc}")
     if bad:
         n = len(study.seeds)
         lines = "\n".join(f"  {b}" for b in bad[:shown])
         more = f"\n  ... and {len(bad) - shown} more" if len(bad) > shown else ""
-        raise UserError(f"{study.source}: {len(bad) * n} of {len(study_runs(study))} run(s) cannot "
+        raise UserError(f"{study.source}: {len(bad) * n} of {len(points) * n} run(s) cannot "
                         f"start, so none was started:\n{lines}{more}")
 
 
