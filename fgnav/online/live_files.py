@@ -89,10 +89,13 @@ class LiveFiles:
         self._write(self.oem, text)
 
     def sizes(self) -> tuple[int, int]:
+        if self.oem.closed:
+            return self.final_sizes
         return self.oem.tell(), self.lat.tell()
 
     def close(self) -> None:
         self.flush()
+        self.final_sizes = self.oem.tell(), self.lat.tell()
         self.oem.close()
         self.lat.close()
 

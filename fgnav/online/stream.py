@@ -14,6 +14,7 @@ input.
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import sys
@@ -263,3 +264,41 @@ class StreamReader:
         if out:
             self.completed = out[-1][1]
         return out
+
+
+def pace_log(path, speed: float, out=None, sleep=time.sleep) -> int:
+    """Copy the log ``path`` to ``out`` (default stdout) line by line, each row when its
+    epoch is due at ``speed`` times real time from the first row (``speed`` 0: at once);
+    comment lines and the header at once. Each line is one flushed write. Returns the rows
+    written."""
+    if not (speed >= 0 and math.isfinite(speed)):
+        raise UserError(f"--speed must be a finite number >= 0 (0: as fast as possible), got "
+                        f"{speed}")
+    out = out or sys.stdout.buffer
+    t_wall0 = ns0 = None
+    n = 0
+    with open(path, "rb") as f:
+        header = False
+        for line in f:
+            s = line.strip()
+            if not header or not s or s.startswith(b"#"):
+                header = header or bool(s and not s.startswith(b"#"))
+                out.write(line)
+                out.flush()
+                continue
+            if speed > 0:
+                try:
+                    ns = int(np.datetime64(s.split(b",", 1)[0].decode().rstrip("Z"), "ns")
+                             .astype(np.int64))
+                except ValueError:
+                    ns = None
+                if ns is not None:
+                    if ns0 is None:
+                        ns0, t_wall0 = ns, time.monotonic()
+                    wait = (ns - ns0) / 1e9 / speed - (time.monotonic() - t_wall0)
+                    if wait > 0:
+                        sleep(wait)
+            out.write(line)
+            out.flush()
+            n += 1
+    return n
