@@ -56,10 +56,12 @@ def check_args(args) -> None:
     from fgnav.commands.smooth import check_solver_args
     from fgnav.errors import UserError
 
-    for name, v, low in (("--window-s", args.window_s, 0.0), ("--idle-timeout", args.idle_timeout, 0.0),
-                         ("--integrity-window-s", args.integrity_window_s, 0.0)):
-        if v is not None and not (math.isfinite(v) and v > low):
+    for name, v in (("--window-s", args.window_s), ("--integrity-window-s", args.integrity_window_s)):
+        if v is not None and not (math.isfinite(v) and v > 0):
             raise UserError(f"{name} must be a finite number > 0 (s), got {v}")
+    if args.idle_timeout is not None and not (math.isfinite(args.idle_timeout)
+                                              and args.idle_timeout >= 0):
+        raise UserError(f"--idle-timeout must be a finite number >= 0 (s), got {args.idle_timeout}")
     if not (math.isfinite(args.reorder_window_s) and args.reorder_window_s >= 0):
         raise UserError(f"--reorder-window-s must be a finite number >= 0 (s), got "
                         f"{args.reorder_window_s}")

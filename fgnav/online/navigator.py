@@ -451,6 +451,9 @@ class _Window:
         params.setRelinearizeThreshold(tmap)
         params.relinearizeSkip = inc.relinearize_skip
         params.enablePartialRelinearizationCheck = inc.partial_relinearization_check
+        gn = gtsam.ISAM2GaussNewtonParams()
+        gn.setWildfireThreshold(inc.wildfire_threshold)
+        params.setOptimizationParams(gn)
         self.smoother = gtsam.IncrementalFixedLagSmoother(nav.window_s, params)
         self.kernel = RobustKernel.create(nav.options.robust, nav.options.robust_k)
         self.held = None
