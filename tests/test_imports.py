@@ -80,6 +80,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("solvers", ("fgnav.solvers",)),
     ("start policy", ("fgnav.start",)),
     ("pipeline", ("fgnav.pipeline", "fgnav.results")),
+    ("online navigation", ("fgnav.online",)),
     ("studies", ("fgnav.analysis", "fgnav.formation")),
     ("reports, campaigns", ("fgnav.viz", "fgnav.campaign")),
     ("interfaces", ("fgnav.api", "fgnav.commands", "fgnav.cli", "fgnav.__main__")),
