@@ -314,7 +314,8 @@ def run(args) -> int:
     import json
 
     from fgnav.io.outputs import check_output_paths
-    from fgnav.pipeline import read_measurements, residual_times, smooth_file, write_outputs
+    from fgnav.pipeline import read_measurements, smooth_file
+    from fgnav.results import residual_times, write_outputs
 
     # Every option and output path before any solving (the truth in smooth_file).
     resolve_attitude_option(args)

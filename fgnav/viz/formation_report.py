@@ -2,7 +2,7 @@
 
 The directory holds ``trajectory-<id>.oem`` per spacecraft, ``relative.csv`` (every further
 spacecraft's state in the reference's LVLH frame with its 1-sigmas and 6x6 covariance,
-:mod:`fgnav.formation.outputs`), ``residuals.csv`` and ``summary.json`` (``spacecraft`` and
+:mod:`fgnav.results`), ``residuals.csv`` and ``summary.json`` (``spacecraft`` and
 ``relative`` objects). The truth is each spacecraft's ``truth-<id>.oem`` in the directory
 given by ``--truth`` (or ``summary.json``'s ``truth_path``), as ``fgnav simulate`` writes it.
 
@@ -34,6 +34,8 @@ from fgnav.io.atomic import atomic_write_text
 from fgnav.io.oem import read_oem
 from fgnav.io.outputs import commit_outputs
 from fgnav.io.summary import read_summary
+from fgnav.frames import relative_state_lvlh
+from fgnav.results import truth_path_of
 from fgnav.time import format_utc
 from fgnav.viz.report import (_H, _band_and_error, _figure, _legend_and_title, _save, _shift_s,
                               estimate_label, metrics_rows, plot_orbit_3d,
@@ -152,7 +154,6 @@ def report_formation_dir(result_dir, out_dir=None, *, truth_path=None, k_sigma=3
     """Write the plots (module docstring), ``report.md`` and ``report.html`` of the formation's
     result directory ``result_dir`` into ``out_dir`` (default ``result_dir``). Returns
     ``{"markdown", "html", "images": {name: path}, "figures": {name: Figure}, "notes"}``."""
-    from fgnav.formation.outputs import truth_path_of
 
     d = Path(result_dir)
     out = Path(out_dir) if out_dir is not None else d
@@ -204,7 +205,6 @@ def report_formation_dir(result_dir, out_dir=None, *, truth_path=None, k_sigma=3
     for sc, r in rel.items():
         x_true = None
         if ref in truths and sc in truths:
-            from fgnav.formation.relative_state import relative_state_lvlh
 
             t_ref = np.asarray(traj[ref].t_s, float)
             t_sc = np.asarray(traj[sc].t_s, float)

@@ -11,7 +11,7 @@
   ``world/links/<kind>``: one segment between the two spacecraft per linked pair, coloured by
   the whitened residual (:func:`residual_color`);
 * ``lvlh/...`` (3-D, **m**, the reference spacecraft's LVLH frame: x radial, y along-track,
-  z orbit normal, :mod:`fgnav.formation.relative_state`): the reference at the origin, the
+  z orbit normal, :mod:`fgnav.frames`): the reference at the origin, the
   LVLH axes, each further spacecraft's relative trajectory ``lvlh/<id>/estimate/trajectory``
   and position at the cursor, its relative-position covariance ellipsoid at the cursor
   (``lvlh/<id>/covariance_<k>sigma_x<magnification>``), with truth its true relative
@@ -46,6 +46,8 @@ from pathlib import Path
 import numpy as np
 
 from factors.constants import R_EARTH_M
+from fgnav.frames import relative_state_lvlh
+from fgnav.results import relative_rows
 from fgnav.viz.rerun_log import (_F_WGS84, AXIS_COLORS, RTN_AXES, _lighter, _safe, _time_index,
                                  auto_magnification, covariance_ellipsoids, error_and_sigma,
                                  nees, orbit_eye, recording_file, spatial_view,
@@ -118,7 +120,7 @@ def link_segments(sol, p):
 
 def _tested_residuals(sol) -> dict:
     """The whitened residuals the integrity verdict tests
-    (:func:`fgnav.formation.outputs.formation_integrity`): a filter's innovations normalized
+    (:func:`fgnav.diagnostics.integrity.assess`): a filter's innovations normalized
     by their own covariance, else the solution's whitened residuals."""
     return (sol.extras or {}).get("normalized_innovations") or sol.residuals or {}
 
@@ -143,8 +145,6 @@ def log_formation(rrd_path, sol, p, *, truths=None, sigma_scale=3.0,
     import rerun as rr
 
     from fgnav.measurements import spacecraft_states
-    from fgnav.formation.outputs import relative_rows
-    from fgnav.formation.relative_state import relative_state_lvlh
 
     t_s = np.asarray(sol.t_s, float)
     n = len(t_s)

@@ -47,7 +47,7 @@ from factors.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV, read_truth_params_csv
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, eci_ray_kinds
-from fgnav.orbit import rtn_frame
+from fgnav.frames import rtn_frame
 from fgnav.time import format_utc
 from fgnav.time import seconds_since
 
@@ -76,7 +76,7 @@ def estimate_label(method) -> str:
 # Frame helpers (vectorized)
 # --------------------------------------------------------------------------------------
 def rtn_rotations(x_eci: np.ndarray) -> np.ndarray:
-    """Rotations ``R_rtn_from_eci`` (N, 3, 3), rows R, T, N (``fgnav.orbit.rtn_frame``).
+    """Rotations ``R_rtn_from_eci`` (N, 3, 3), rows R, T, N (``fgnav.frames.rtn_frame``).
 
     R = r/|r|, N = (r x v)/|r x v|, T = N x R. ``x_eci`` is (N, 6) or (6,).
     """
