@@ -22,8 +22,6 @@ from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
 from fgnav.io.log_csv import read_log
-from fgnav.io.oem import read_oem
-from fgnav.io.outputs import check_readable_file
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
@@ -32,8 +30,8 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
-from fgnav.results import (pairs, relative_rows, sigma_rms, spherical_position_nees,
-                           spherical_summary, truth_path_of)
+from fgnav.results import (pairs, read_formation_truth, read_truth, relative_rows,
+                           sigma_rms, spherical_position_nees, spherical_summary)
 from fgnav.results import write_outputs  # noqa: F401  (the route's last stage, by its old name)
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
@@ -501,42 +499,6 @@ def truth_variables(truth: dict, sol: Solution) -> dict:
     interpolation): name -> (N, d)."""
     return {name: np.column_stack([np.interp(sol.t_s, t, x[:, i]) for i in range(x.shape[1])])
             for name, (t, x) in truth.items() if name in sol.variables}
-
-
-def read_truth(path: str | Path, p: Pass, centre: str = "earth") -> tuple[np.ndarray, np.ndarray]:
-    """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
-    validated before any solving: readable, finite states, epochs covering the pass, about
-    the log's ``centre``."""
-    check_readable_file(path, "--truth")
-    oem = read_oem(path)
-    if str(oem.meta.get("CENTER_NAME", "EARTH")).lower() != centre:
-        raise UserError(f"--truth {path}: CENTER_NAME = {oem.meta.get('CENTER_NAME')}, but the "
-                        f"log's positions are about the {centre} (its '# centre:' line)")
-    t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
-        "timedelta64[ns]")), p.epoch0), dtype=float)
-    x = np.asarray(oem.x_eci, dtype=float)
-    if len(t_truth) == 0 or not np.all(np.isfinite(x)):
-        raise UserError(f"--truth {path}: expected finite states, found "
-                        f"{'none' if len(t_truth) == 0 else 'NaN or infinite values'}")
-    if t_truth[0] > p.t_s[0] + 1e-6 or t_truth[-1] < p.t_s[-1] - 1e-6:
-        raise UserError(f"--truth {path}: the truth does not cover the log's epochs "
-                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {p.t_s[0]:.1f}.."
-                        f"{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
-    return t_truth, x
-
-
-def read_formation_truth(truth: str | Path, p: Pass) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
-    writes them; :func:`fgnav.results.truth_path_of`), checked against the pass's
-    epochs before any solving."""
-    out = []
-    for sc in p.spacecraft:
-        path = truth_path_of(truth, sc)
-        if not path.exists():
-            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
-                            f"'{sc}') in {path.parent}")
-        out.append(read_truth(path, p))
-    return out
 
 
 def read_measurements(path: str | Path, estimate=()):

@@ -39,16 +39,17 @@ from fgnav.io.aem import write_aem
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.attitude_covariance import write_attitude_covariance
 from fgnav.io.number_text import render_rows
-from fgnav.io.oem import oem_frame, write_oem
-from fgnav.io.outputs import commit_outputs, staged
+from fgnav.errors import UserError
+from fgnav.io.oem import oem_frame, read_oem, write_oem
+from fgnav.io.outputs import check_readable_file, commit_outputs, staged
 from fgnav.io.summary import write_summary
 from fgnav.measurements import Pass, spacecraft_states
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, variable
 from fgnav.solution import Solution
-from fgnav.time import add_seconds, format_utc
+from fgnav.time import add_seconds, format_utc, seconds_since
 
-__all__ = ["write_outputs", "write_variables_csv", "write_attitude_outputs",
+__all__ = ["read_truth", "read_formation_truth", "write_outputs", "write_variables_csv", "write_attitude_outputs",
            "write_residuals_csv", "residual_times", "pairs", "relative_rows",
            "relative_csv_text", "truth_path_of", "sigma_rms", "spherical_position",
            "spherical_position_nees", "spherical_summary", "online_states"]
@@ -62,6 +63,42 @@ def truth_path_of(truth: str | Path, spacecraft_id: str) -> Path:
     """``truth-<id>.oem`` in the directory ``truth`` (or beside the file ``truth``)."""
     d = Path(truth)
     return (d if d.is_dir() else d.parent) / f"truth-{spacecraft_id}.oem"
+
+
+def read_truth(path: str | Path, p: Pass, centre: str = "earth") -> tuple[np.ndarray, np.ndarray]:
+    """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
+    validated before any solving: readable, finite states, epochs covering the pass, about
+    the log's ``centre``."""
+    check_readable_file(path, "--truth")
+    oem = read_oem(path)
+    if str(oem.meta.get("CENTER_NAME", "EARTH")).lower() != centre:
+        raise UserError(f"--truth {path}: CENTER_NAME = {oem.meta.get('CENTER_NAME')}, but the "
+                        f"log's positions are about the {centre} (its '# centre:' line)")
+    t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
+        "timedelta64[ns]")), p.epoch0), dtype=float)
+    x = np.asarray(oem.x_eci, dtype=float)
+    if len(t_truth) == 0 or not np.all(np.isfinite(x)):
+        raise UserError(f"--truth {path}: expected finite states, found "
+                        f"{'none' if len(t_truth) == 0 else 'NaN or infinite values'}")
+    if t_truth[0] > p.t_s[0] + 1e-6 or t_truth[-1] < p.t_s[-1] - 1e-6:
+        raise UserError(f"--truth {path}: the truth does not cover the log's epochs "
+                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {p.t_s[0]:.1f}.."
+                        f"{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
+    return t_truth, x
+
+
+def read_formation_truth(truth: str | Path, p: Pass) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
+    writes them; :func:`truth_path_of`), checked against the pass's
+    epochs before any solving."""
+    out = []
+    for sc in p.spacecraft:
+        path = truth_path_of(truth, sc)
+        if not path.exists():
+            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
+                            f"'{sc}') in {path.parent}")
+        out.append(read_truth(path, p))
+    return out
 
 
 def pairs(n_spacecraft: int) -> list[tuple[int, int]]:

@@ -20,7 +20,7 @@ from fgnav.frames import relative_state_lvlh  # noqa: E402
 from fgnav.io.log_csv import log_from_arrays, write_log  # noqa: E402
 from fgnav.io.oem import read_oem, write_oem  # noqa: E402
 from fgnav.time import parse_utc  # noqa: E402
-from fgnav.viz.formation_rerun import residual_color  # noqa: E402
+from fgnav.viz.rerun_log import residual_color  # noqa: E402
 
 
 def _smooth(tmp_path, log, truth, *extra):

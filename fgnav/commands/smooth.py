@@ -352,7 +352,7 @@ def run(args) -> int:
             if "gap" in note:
                 print(f"fgnav: note: {note}", file=sys.stderr)
     if args.rerun and p.spacecraft:   # a formation: every orbit, the links, LVLH
-        from fgnav.viz.formation_rerun import log_formation_result
+        from fgnav.viz.rerun_log import log_formation_result
         log_formation_result(args.rerun, res, p, truth=args.truth)
     elif args.rerun:
         from fgnav.models.registry import ATTITUDE_VARIABLE
