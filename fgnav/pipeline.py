@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fgnav.diagnostics.alternatives import applies as mounting_applies, camera_mounting_test
 from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping_shared
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
@@ -458,6 +459,9 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         sol.extras["centre"] = centre
     sol.wall_s = time.perf_counter() - t0
     with stage("checking the solution (Cramer-Rao bound, integrity tests)", p.n_epochs):
+        if mounting_applies(p) and not p.breaks:   # do the stars ask for a mounting rotation?
+            sol.extras["camera_mounting_test"] = camera_mounting_test(p, sol, options,
+                                                                      smooth_batch)
         summary = summarize(sol, p, options)
     x_true = None
     if truth is not None:
