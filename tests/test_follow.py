@@ -305,3 +305,23 @@ def test_integrity_change_is_an_event_and_a_line(log_20min, tmp_path, capsys):
     assert first_bad["t_s"] >= 600.0
     assert captured.err.count("fgnav: integrity ") == len(changes)
     assert "window" in changes[0] and "all" in changes[0]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_ends_the_input_and_writes_the_final_set(log_20min, tmp_path, sig):
+    """A file followed without an idle timeout runs until a signal: SIGTERM or SIGINT ends
+    the input, and the final set is written for the rows received."""
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, "-m", "fgnav", "follow", str(log_20min), "--out",
+                             str(out)], env=_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    n = 0
+    while n < 100:
+        n += b'"epoch"' in proc.stdout.readline()
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr.decode()
+    assert json.loads(stdout.splitlines()[-1])["event"] == "end"
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    assert len(read_oem(out / "trajectory.oem").t_s) == len(read_oem(out / "online.oem").t_s)
