@@ -93,7 +93,7 @@ def test_stdin_stream_one_line_per_epoch_and_batch_history(log_1h, batch_1h, tmp
     assert len(online.t_s) == 361 and np.all(np.diff(online.t_s) > 0)
     assert online.x_eci[-1] == pytest.approx(ep[-1]["r_eci_m"] + ep[-1]["v_eci_mps"], abs=1e-5)
     lat = (out / "latency.csv").read_text().splitlines()
-    assert lat[0] == "t_s,latency_s" and len(lat) == 362
+    assert lat[0] == "t_s,latency_s,cpu_s" and len(lat) == 362
     s = json.loads((out / "summary.json").read_text())
     assert s["integrity"]["status"] in ("ok", "suspect", "failed")
     assert s["online"]["epochs"] == 361 and s["online"]["stream"]["rows"] == 363
