@@ -325,3 +325,46 @@ def test_signal_ends_the_input_and_writes_the_final_set(log_20min, tmp_path, sig
     for name in OUTPUTS:
         assert (out / name).is_file(), name
     assert len(read_oem(out / "trajectory.oem").t_s) == len(read_oem(out / "online.oem").t_s)
+
+
+def _free_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_rerun_serve_streams_the_recording(log_20min, tmp_path):
+    """--rerun-serve: the web viewer answers over HTTP while it runs, and a Rerun client
+    connected to the served stream receives the online state per epoch and, at the end, the
+    smoothed history (saved with ``rerun --save``, read back with ``rerun rrd stats``).
+    (No headless browser on the test machines: the viewer's page is fetched, not drawn.)"""
+    import shutil
+    import urllib.request
+
+    rerun = shutil.which("rerun", path=os.path.dirname(sys.executable)) or shutil.which("rerun")
+    if rerun is None:
+        pytest.skip("the rerun command line is not installed")
+    web, grpc = _free_port(), _free_port()
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, "-m", "fgnav", "follow", str(log_20min), "--out",
+                             str(out), "--idle-timeout", "6", "--quiet", "--rerun-serve",
+                             "--rerun-web-port", str(web), "--rerun-grpc-port", str(grpc)],
+                            env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    line = proc.stderr.readline().decode()
+    assert "Rerun web viewer: http://localhost:" in line, line
+    page = urllib.request.urlopen(f"http://localhost:{web}/", timeout=30).read()
+    assert len(page) > 1000
+    saved = tmp_path / "served.rrd"
+    client = subprocess.run([rerun, "--save", str(saved), f"rerun+http://127.0.0.1:{grpc}/proxy"],
+                            capture_output=True, timeout=300)
+    proc.wait(timeout=300)
+    proc.stderr.close()
+    assert proc.returncode == 0 and client.returncode == 0, client.stderr.decode()[-500:]
+    stats = subprocess.run([rerun, "rrd", "stats", str(saved)], capture_output=True, text=True,
+                           timeout=120).stdout
+    for entity in ("/world/online/state", "/online/sigma_position_m",
+                   "/world/estimate/trajectory", "/residuals/earth_direction"):
+        assert entity in stats, entity
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
