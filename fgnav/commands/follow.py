@@ -109,7 +109,7 @@ def run(args) -> int:
                                          save_checkpoint)
     from fgnav.online.navigator import Navigator
     from fgnav.online.stream import LineSource, StreamReader
-    from fgnav.pipeline import write_outputs
+    from fgnav.results import write_outputs
 
     check_args(args)
     options = solver_options(args)
@@ -230,7 +230,7 @@ def run(args) -> int:
     write_outputs(out, res, p)
     commit_outputs(out, None, ["online.oem", "latency.csv"], "follow", replaces=("follow",))
     if live is not None:
-        from fgnav.pipeline import residual_times
+        from fgnav.results import residual_times
         live.final(res.solution, residual_t_s=residual_times(res, p))
         live.close()
     integrity = res.summary["integrity"]
