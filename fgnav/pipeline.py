@@ -27,7 +27,6 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 format_duration, spacecraft_states, with_estimates)
-from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
@@ -622,9 +621,7 @@ def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
              "sigma_rms": np.sqrt(np.mean(sig * sig, axis=0)).tolist(),
              "sigma_final": sig[-1].tolist()}
         if truth is not None and name in truth:
-            err = x - truth[name]
-            if v.manifold == "rot3":
-                err = so3_log(np.swapaxes(so3_exp(truth[name]), -1, -2) @ so3_exp(x))
+            err = v.manifold.local(truth[name], x)
             d["error_rms"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
             d["max_abs_error_over_sigma"] = np.max(np.abs(err) / sig, axis=0).tolist()
             d["nees_mean"] = float(np.mean(np.sum(err * err / (sig * sig), axis=1)) / x.shape[1])
