@@ -16,7 +16,6 @@ from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
-from fgnav.formation.joint import link_fixes, solve_formation
 from fgnav.formation.outputs import (formation_integrity, relative_csv_text, relative_rows,
                                      sigma_rms, spherical_position_nees, spherical_summary,
                                      truth_path_of)
@@ -24,6 +23,7 @@ from fgnav.formation.relative_state import relative_state_lvlh
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
+from fgnav.diagnostics.mirror import mirror_test
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
 from fgnav.io.oem import oem_frame, read_oem, write_oem
@@ -36,19 +36,20 @@ from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 format_duration, spacecraft_states, with_estimates)
 from factors.geometry import so3_exp, so3_log
-from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, VARIABLES, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
-from fgnav.start import START_INFLATION, Start, batch_first_guess, start_point
+from fgnav.start import START_INFLATION, Start, batch_first_guess, link_fixes, start_point
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.incremental import smooth_incremental
-from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.solvers.options import (IncrementalOptions, SmootherOptions, converging_to_links,
+                                   relinearizing_links)
 from fgnav.solvers.state_elements import check_state
 from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 
@@ -85,27 +86,20 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
 
-    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) is solved
-    as one joint graph from each spacecraft's own rows and the links
-    (:func:`fgnav.formation.joint.solve_formation`; what it cannot do yet is refused by
-    :func:`refuse_for_formation`).
+    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) takes
+    the same route as one joint graph, started from each spacecraft's own rows and the links
+    (:func:`fgnav.start.formation_start`); its solution carries the mirror test of its
+    relative geometry (:func:`fgnav.diagnostics.mirror.mirror_test`,
+    ``extras["mirror_test"]``).
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_state(options.state, method)   # (the options alone: checked before the pass)
-    if p.spacecraft:   # several spacecraft: one joint graph, started by its links
+    if p.spacecraft:
         refuse_for_formation(options, ignore_prior=ignore_prior, checkpoint=checkpoint,
-                             resume=resume)
-        try:
-            return solve_formation(p, method, options, progress=progress)
-        except ModelDomainError as exc:
-            raise NotObservableError(
-                f"{p.source}: the {method} estimate left the domain of a measurement model "
-                f"({exc}): a row that does not fit the others (an outlier, a unit error) can "
-                f"drive it there; check the rows near the epoch where the solution departs from "
-                f"the spacecraft's own rows") from exc
+                             resume=resume, method=method)
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
@@ -119,10 +113,12 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                                                ignore_prior=ignore_prior), method)
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
+    formation = len(p.spacecraft) > 1
 
     def run(start: Start) -> Solution:
         try:
-            check_observability(start.p, start.x_guess, model)
+            if not formation:
+                check_observability(start.p, start.x_guess, model)
         except ModelDomainError as exc:   # a row with no value on the first guess's orbit
             raise NotObservableError(
                 f"{p.source}: {exc}, along the first guess's orbit: check that row (a limb "
@@ -137,18 +133,25 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
             sol = _dispatch(start, method, options, lag_s=lag_s, progress=progress,
                             checkpoint=checkpoint, checkpoint_every=checkpoint_every,
                             resume=resume)
+            if formation:   # the other minimum the links allow (fgnav.diagnostics.mirror)
+                sol.extras["mirror_test"] = mirror_test(start.p, sol, converging_to_links(
+                    start.p, options), smooth_batch)
         except ModelDomainError as exc:
             raise NotObservableError(
                 f"{p.source}: the {method} estimate left the domain of a measurement model "
                 f"({exc}): "
-                + ("check the row named: it may not fit the other rows, from whose orbit the "
+                + ("a row that does not fit the others (an outlier, a unit error) can drive it "
+                   "there; check the rows near the epoch where the solution departs from the "
+                   "spacecraft's own rows" if formation else
+                   "check the row named: it may not fit the other rows, from whose orbit the "
                    "estimate started" if from_data else
                    "the first guess is far from the data's orbit; check the prior rows, or try "
                    "--ignore-prior")) from exc
         return start.finish(sol)
 
-    if from_data or checkpoint:
-        return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior))
+    if from_data or checkpoint or formation:
+        return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior,
+                               options=options))
     # From the log's prior first; the prior is tested against the orbit of the measurements
     # alone (initial orbit determination, 0.2-0.5 s) only when the solution does not fit the
     # data, and the solve is repeated from that orbit when the data refute the prior.
@@ -171,11 +174,17 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 
 
 def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False,
-                         checkpoint=None, resume: bool = False) -> None:
+                         checkpoint=None, resume: bool = False, method: str = "batch") -> None:
     """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
     is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
     wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
     the Earth in Cartesian states."""
+    if method not in ("batch", "isam2", "ekf"):
+        raise UserError(f"--method {method}: a log of several spacecraft is solved with "
+                        "--method batch, isam2 or ekf in this version")
+    if options.gate_probability is not None:
+        raise UserError("--gate: not yet available for a log of several spacecraft (the online "
+                        "gate predicts one orbit's covariance)")
     given = [name for name, on in (("--ignore-prior", ignore_prior), ("--checkpoint", checkpoint),
                                    ("--resume", resume)) if on]
     if given:
@@ -206,8 +215,11 @@ def refuse_formation_gaps(p: Pass, gap_factor: float | None) -> None:
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
               checkpoint_every, resume) -> Solution:
-    """The chosen estimator from a start point (:class:`fgnav.start.Start`)."""
+    """The chosen estimator from a start point (:class:`fgnav.start.Start`), its
+    Gauss-Newton tolerances and iSAM2 thresholds fine enough for the pass's links
+    (:func:`fgnav.solvers.options.converging_to_links`, :func:`relinearizing_links`)."""
     p = start.p
+    options = converging_to_links(p, options)
     if method == "batch":
         how, x_init = batch_first_guess(start, options.init, options.robust,
                                         short_pass=interpret_active())
@@ -232,10 +244,12 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
         if options.gate_probability is None and options.state == "cartesian" and numba_supports(p):
             return run_ekf_numba(p, options, progress=progress)
-        return run_ekf(p, options, progress=progress)
-    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                              progress=progress, checkpoint=checkpoint,
-                              checkpoint_every=checkpoint_every, resume=resume)
+        return run_ekf(p, options, progress=progress, x_start=start.x_start,
+                       P_start=start.P_start)
+    return smooth_incremental(p, options, relinearizing_links(p, IncrementalOptions(lag_s=lag_s)),
+                              method=method, progress=progress, checkpoint=checkpoint,
+                              checkpoint_every=checkpoint_every, resume=resume,
+                              x_start=start.x_start)
 
 
 DIRECT_ITERATIONS = 8
@@ -284,9 +298,9 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     """
     if p.spacecraft:
         refuse_formation_gaps(p, gap_factor)
-        return p
     from_data = ignore_prior or not has_prior(p)
-    if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
+    estimated = {v.name for v in p.layout.extra if v.name in VARIABLES}   # (not the formation's)
+    if estimated != {variable(n).name for n in options.estimate}:
         p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
     for name, sigma in options.prior_sigma:       # priors other than the registry's
         if not p.layout.has(variable(name).name):
@@ -414,7 +428,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     (default: now). A log of several spacecraft takes the same route (its truth:
     ``truth-<id>.oem`` per spacecraft beside ``truth_path``, :func:`read_formation_truth`;
     ``relative="spherical"`` adds the relative position's spherical form), with its start
-    from the links (:func:`fgnav.formation.joint.link_fixes`)."""
+    from the links (:func:`fgnav.start.link_fixes`)."""
     from contextlib import nullcontext
 
     stage = stage or (lambda what, size: nullcontext())
@@ -428,7 +442,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         if truth is not None:
             raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
         refuse_for_formation(options, ignore_prior=ignore_prior,
-                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"))
+                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"),
+                             method=method)
     elif relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")

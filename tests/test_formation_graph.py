@@ -1,4 +1,4 @@
-"""Several spacecraft in one graph (fgnav.measurements.build_pass, fgnav.formation.joint): the joint solution against the
+"""Several spacecraft in one graph (fgnav.measurements.build_pass, fgnav.start, fgnav.pipeline.solve): the joint solution against the
 separate ones, the links against truth from the independent integrator, the outputs and
 what a user is told (tests/formation_data.py builds the pass)."""
 
@@ -162,7 +162,7 @@ def test_isam2_ends_where_batch_does_and_stays_sane_online():
     """iSAM2 on the formation (code and carrier links, lever arms): the final trajectory is
     batch's (polished chain) and the online states stay at the absolute accuracy (~100 m)
     instead of jumping by kilometres when a stale linearization meets a 10 um carrier row
-    (fgnav.formation.joint.relinearizing_links)."""
+    (fgnav.solvers.options.relinearizing_links)."""
     log, truth = formation_log(1, carrier=True, lever_arms=True)
     rb, _ = smooth_log(log, "batch", SmootherOptions())
     ri, p = smooth_log(log, "isam2", SmootherOptions())

@@ -41,7 +41,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     """Filter the pass forward; ``x_eci``/``P_eci`` are the filtered (a-posteriori) states.
 
     ``x_start`` (n,), ``P_start`` (n, n): the first epoch's block and covariance (a
-    formation's: every spacecraft's prior, :mod:`fgnav.formation.joint`); default the
+    formation's: every spacecraft's prior, :func:`fgnav.start.start_covariance`); default the
     log's prior and the further variables' priors."""
     t_start = time.perf_counter()
     model = options.motion_model()

@@ -177,7 +177,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     are those of the resumed run.
 
     ``x_start``: the block values (n,) to start from at the first epoch (a formation's: every
-    spacecraft's orbit, :func:`fgnav.formation.joint.first_guess`); default the prior.
+    spacecraft's orbit, :func:`fgnav.start.formation_start`); default the prior.
     """
     t_start = time.perf_counter()
     model = options.motion_model()
