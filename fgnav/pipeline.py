@@ -33,8 +33,9 @@ from fgnav.io.outputs import (
 from fgnav.io.summary import write_summary
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
-from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
-                                format_duration, spacecraft_states, with_estimates)
+from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas, fill_gaps,
+                                format_duration, spacecraft_pass, spacecraft_states,
+                                with_estimates)
 from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, VARIABLES, variable
 from fgnav.orbit import truth_at
@@ -179,17 +180,10 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
     is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
     wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
     the Earth in Cartesian states."""
-    if method not in ("batch", "isam2", "ekf"):
-        raise UserError(f"--method {method}: a log of several spacecraft is solved with "
-                        "--method batch, isam2 or ekf in this version")
-    if options.gate_probability is not None:
-        raise UserError("--gate: not yet available for a log of several spacecraft (the online "
-                        "gate predicts one orbit's covariance)")
-    given = [name for name, on in (("--ignore-prior", ignore_prior), ("--checkpoint", checkpoint),
-                                   ("--resume", resume)) if on]
-    if given:
-        raise UserError(f"{', '.join(given)}: not yet available for a log of several "
-                        "spacecraft")
+    if ignore_prior and method != "batch":
+        raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
+                        "several spacecraft (their online start is each spacecraft's prior); "
+                        "--method batch starts from the measurements alone")
     if options.estimate:
         raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
                         "and carrier ambiguities; further variables are not yet supported there")
@@ -199,18 +193,6 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
                         "Cartesian states")
-
-
-def refuse_formation_gaps(p: Pass, gap_factor: float | None) -> None:
-    """Refuse a formation's pass with a gap longer than ``gap_factor`` median steps (not yet
-    bridged for several spacecraft), naming the gap."""
-    if gap_factor is not None and len(long_gaps(p, gap_factor)):
-        k = int(long_gaps(p, gap_factor)[0])
-        raise UserError(
-            f"{p.source}: a gap of {format_duration(p.t_s[k + 1] - p.t_s[k])} after "
-            f"{format_utc(add_seconds(p.epoch0, p.t_s[k]))} (more than {gap_factor:g} median "
-            "steps): gaps are not yet bridged for a log of several spacecraft; split the log "
-            "at the gap and solve the parts")
 
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
@@ -293,11 +275,8 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     online methods (:func:`fgnav.start.start_point`). A pass already planned is
     returned as is.
 
-    A formation's pass (several spacecraft) is solved as it is, its long gaps refused
-    (:func:`refuse_formation_gaps`).
+    A formation's long gaps: :func:`formation_gaps`.
     """
-    if p.spacecraft:
-        refuse_formation_gaps(p, gap_factor)
     from_data = ignore_prior or not has_prior(p)
     estimated = {v.name for v in p.layout.extra if v.name in VARIABLES}   # (not the formation's)
     if estimated != {variable(n).name for n in options.estimate}:
@@ -322,10 +301,30 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     if from_data and len(long_gaps(p, gap_factor)):
         model = options.motion_model()
         t0 = float(j2000_seconds(p.epoch0))
-        p = strip_prior(p)
-        x0, P0 = propagate_orbit(initial_orbit(p, model, t0), p, model, t0, 0)
+        p = replace(p, families=strip_prior(p).families) if p.spacecraft else strip_prior(p)
+        first = spacecraft_pass(p, 0) if p.spacecraft else p   # (the gaps' plan's start)
+        x0, P0 = propagate_orbit(initial_orbit(first, model, t0), first, model, t0, 0)
         start = (x0, *covering_sigmas(START_INFLATION * P0))
+    if len(p.spacecraft) > 1 and len(long_gaps(p, gap_factor)):
+        return formation_gaps(p, options, gap_factor, start)
     return plan_gaps(p, options, gap_factor, start=start)
+
+
+def formation_gaps(p: Pass, options: SmootherOptions, gap_factor: float, start=None) -> Pass:
+    """A formation's long gaps planned on its first spacecraft's own rows (whether the orbit's
+    prediction across a gap stays linear, :func:`fgnav.solvers.arcs.plan_gaps`: the links
+    fix the relative state, not the absolute orbit across the gap) and bridged for every
+    spacecraft (:func:`fgnav.measurements.fill_gaps`). A gap too long to bridge is refused,
+    naming it: separate arcs of several spacecraft are not solved in this version."""
+    plan = plan_gaps(spacecraft_pass(p, 0), options, gap_factor, start=start)
+    if plan.breaks:
+        g = next(g for g in plan.gap_notes if not g["bridged"])
+        raise UserError(
+            f"{p.source}: a gap of {format_duration(g['length_s'])} from t = "
+            f"{g['t_start_s']:.0f} s is too long to bridge (the orbit's prediction across it "
+            "leaves the linear regime), and a log of several spacecraft is not yet solved as "
+            "separate arcs: split the log at the gap and solve the parts")
+    return fill_gaps(replace(p, gap_notes=plan.gap_notes), gap_factor)
 
 
 def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
@@ -454,7 +453,6 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         p = without_aberration(p)
     gap_factor = solve_kw.pop("gap_factor", 10.0)
     if formation:
-        refuse_formation_gaps(p, gap_factor)
         truths = None if truth_path is None else read_formation_truth(truth_path, p)
     elif truth is None and truth_path is not None:
         truth = read_truth(truth_path, p, centre)  # checked before solving
@@ -467,6 +465,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         sol = solve(p, method, options, lag_s=lag_s, progress=progress,
                     ignore_prior=ignore_prior, **solve_kw)
     if formation:
+        if ignore_prior:   # (the summary's counts and tests: the rows the solution used)
+            p = replace(p, families=strip_prior(p).families)
         sol.wall_s = time.perf_counter() - t0
         summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian")
         sol.extras["relative_parameterization"] = relative or "cartesian"

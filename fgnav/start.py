@@ -7,7 +7,7 @@ See :func:`start_point` and the README, "No prior".
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -147,7 +147,8 @@ def start_point(p: Pass, method: str, model: MotionModel, t0_j2000_s: float, *,
       ekf start at epoch 0 from it with its covariance inflated by ``START_INFLATION``.
     """
     if len(p.spacecraft) > 1:
-        return formation_start(p, method, model, t0_j2000_s, options)
+        q = replace(p, families=strip_prior(p).families) if ignore_prior else p
+        return formation_start(q, method, model, t0_j2000_s, options)
     prior = has_prior(p) and not ignore_prior
     if prior:
         check_prior_centre(p, model.centre)
@@ -336,7 +337,7 @@ def formation_start(p: Pass, method: str, model: MotionModel, t0_j2000_s: float,
     filtered, ``how="initial orbit"``; else the continuation, ``"prior"``); the online
     methods from its first epoch, the filter with :func:`start_covariance`."""
     X, filtered = formation_guess(p, model, t0_j2000_s, options)
-    info = {"prior": "log", "start": ("each spacecraft's own rows"
+    info = {"prior": "log" if has_prior(p) else "initial_orbit", "start": ("each spacecraft's own rows"
                                       + (", the links" if p.link_fixes is not None else ""))}
     P0 = start_covariance(p) if method == "ekf" else None
     return Start(p, X, X, info, how="initial orbit" if filtered else "prior", x_start=X[0],

@@ -58,7 +58,8 @@ def mirror_test(p: Pass, sol, options, smooth_batch) -> dict:
     # link: 1.4e6 against 593), and Gauss-Newton walking it back reaches the same minimum
     quick = replace(options, q_start_m2_s3=options.q_m2_s3, max_iterations=MIRROR_MAX_ITERATIONS)
     X = block_values(p, sol.x_eci, sol.variables)
-    here = sol if sol.method == "batch" else smooth_batch(p, quick, x_init=X)
+    # (iSAM2's final trajectory is Gauss-Newton's over the whole chain: the batch optimum)
+    here = sol if sol.method in ("batch", "isam2") else smooth_batch(p, quick, x_init=X)
     try:
         there = smooth_batch(p, quick, x_init=mirrored(p, block_values(p, here.x_eci,
                                                                        here.variables)))

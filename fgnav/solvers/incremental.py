@@ -101,6 +101,11 @@ def _read_block(source, lay, k):
                                          else vec(v.key(k)) for v in lay.extra])
 
 
+def _keys(lay, k):
+    """Epoch ``k``'s keys."""
+    return [X(k)] + [v.key(k) for v in lay.extra]
+
+
 def _timestamps(lay, k, t):
     """Fixed-lag timestamps of epoch ``k``'s keys."""
     return {X(k): t, **{v.key(k): t for v in lay.extra}}
@@ -269,6 +274,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         if gate is not None:
             _read_variable_marginals(isam, lay, k_start - 1, online_V)
     _warm_up(p, per_epoch, options, model, t0_j2000, x_prev, kernel)
+    held = None if inc.relinearize_window_s is None or fixed_lag else gtsam.KeyList()
+    n_held = 0
     with _gc_paused():
         for k in range(k_start, N):
             if fixed_lag and oldest < k and p.t_s[oldest] < p.t_s[k] - lag_internal:
@@ -306,7 +313,14 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     x_prev = _read_block(smoother, lay, k)
                     P = smoother.marginalCovariance(X(k))
                 else:
-                    isam.update(graph, values)
+                    if held is None:
+                        isam.update(graph, values)
+                    else:   # the states out of the relinearization window: held
+                        while p.t_s[n_held] < p.t_s[k] - inc.relinearize_window_s:
+                            for key in _keys(lay, n_held):
+                                held.push_back(key)
+                            n_held += 1
+                        isam.update(graph, values, noRelinKeys=held)
                     if held_lp is None:
                         held_lp = isam.getLinearizationPoint()
                     x_prev = _read_block(isam, lay, k)
@@ -358,7 +372,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
                     P_eci=P_final[:, :6, :6], variables=block_variables(lay, x_final, P_final),
-                    P_block=None if fixed_lag or not lay.extra else P_final,
+                    P_block=None if (fixed_lag and len(lay.orbits) == 1) or not lay.extra
+                    else P_final,
                     iterations=N, wall_s=wall,
                     chi2=lin.chi2_meas + lin.chi2_motion,
                     residuals=lin.residuals, online_x_eci=online_x,
@@ -456,22 +471,36 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
     (100 m, 100 m/s), so an old state read from it lags its own smoothed value; on a 1 h
     gto-transfer pass at 10 s the motion chi-square of the states read that way was 6e14,
     1e2 from the full back-substitution. Variables beyond the orbit state get their own
-    marginal (their cross-covariance with the orbit is not read: block-diagonal here).
+    marginal (their cross-covariance with the orbit is not read: block-diagonal here), except
+    for several spacecraft, whose relative state needs the cross-covariances of their orbits:
+    there the block's joint marginal (:func:`_joint_block`).
     """
     isam = smoother.getISAM2()
     est = isam.calculateBestEstimate() if oldest < k_end and t_s[oldest] < t_due else None
     j = oldest
+    joint = len(lay.orbits) > 1   # several spacecraft: their relative state needs the joint
     while j < k_end and t_s[j] < t_due:
         lagged_x[j] = _read_block(est, lay, j)
-        lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
-        for v in lay.extra:
-            sl = lay.slices[v.name]
-            lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
+        if joint:
+            lagged_P[j] = _joint_block(isam, lay, j)
+        else:
+            lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
+            for v in lay.extra:
+                sl = lay.slices[v.name]
+                lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
         if j + 1 < k_end:
             lagged_next[j] = _read_block(est, lay, j + 1)
         j += 1
     isam.deleteCachedShortcuts()
     return j
+
+
+def _joint_block(isam, lay, k: int) -> np.ndarray:
+    """The joint marginal covariance (n, n) of epoch ``k``'s block (every variable's key, in
+    the layout's order) from the Bayes tree (``ISAM2.jointMarginalCovariance``)."""
+    keys = [X(k)] + [v.key(k) for v in lay.extra]
+    jm = isam.jointMarginalCovariance(gtsam.KeyVector(keys))
+    return np.block([[jm.at(a, b) for b in keys] for a in keys])
 
 
 def polish_chain(p: Pass, x: np.ndarray, q_m2_s3: float, model, t0_j2000_s: float, kernel,
