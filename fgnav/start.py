@@ -18,6 +18,7 @@ from fgnav.errors import UserError
 from fgnav.iod.fit import InitialOrbit
 from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit, trajectory
 from fgnav.iod.links import far_field_guess, logged_epoch
+from fgnav.graph import prior_block_covariance
 from fgnav.iod.single_epoch import solve_single_epoch
 from fgnav.chi2 import chi2_ppf
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
@@ -318,16 +319,14 @@ def start_covariance(p: Pass) -> np.ndarray:
     """The first epoch's block covariance (n, n) for the filter: each spacecraft's prior rows
     (:func:`fgnav.measurements.prior_covariance`), each further variable's prior."""
     lay = p.layout
-    P = np.zeros((lay.n, lay.n))
+    orbit_covariances = []
     for s, v in enumerate(lay.orbits):
         sub = spacecraft_pass(p, s)
         if not has_prior(sub):
             raise UserError(f"--method ekf: spacecraft '{p.spacecraft[s]}' has no prior rows "
                             "(prior_position, prior_velocity); the filter starts from them")
-        P[lay.slices[v.name], lay.slices[v.name]] = prior_covariance(sub)
-    for v in lay.parameters:
-        P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
-    return P
+        orbit_covariances.append(prior_covariance(sub))
+    return prior_block_covariance(lay, orbit_covariances)
 
 
 def formation_start(p: Pass, method: str, model: MotionModel, t0_j2000_s: float,

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgnav.graph import linearize_all
+from fgnav.solvers.batch import process_blocks
 from fgnav.time import j2000_seconds
 
 __all__ = ["dense_bound"]
@@ -33,7 +34,6 @@ def dense_bound(p, X_true: np.ndarray, options) -> np.ndarray:
     steps), where QR agrees with the chain marginals to 0.05 %."""
     import scipy.linalg as sla
 
-    from fgnav.solvers.batch import process_blocks
 
     N, n = X_true.shape
     if N * n > MAX_UNKNOWNS:
