@@ -70,6 +70,9 @@ def test_every_method_and_option_gives_an_honest_relative_state(formation_hour, 
         assert d["position_rms_m"] <= 3.0 * d["sigma_position_rms_m"], (sc, d)
     if case == "ignore-prior":
         assert "prior_position" not in s["measurements"]
+    if case in ("isam2", "fixed-lag", "isam2-gate"):   # the online outputs, per spacecraft
+        names = {f.name for f in (tmp_path / "r").iterdir()}
+        assert {"latency.csv", "online-sat1.oem", "online-sat2.oem"} <= names, names
 
 
 def test_a_20_minute_gap_is_bridged_for_both_spacecraft(formation_hour, tmp_path, capsys):
@@ -125,6 +128,9 @@ def test_the_online_solution_carries_its_latency_and_states(formation_hour):
         assert np.all(np.isfinite(sol.online_x_eci)) and sol.online_x_eci.shape == (p.n_epochs, 6)
         assert sol.P_block is not None and sol.P_block.shape == (p.n_epochs, p.layout.n,
                                                                  p.layout.n)
+        (x2, P2), = sol.extras["online_variables"].values()   # the second spacecraft's
+        assert x2.shape == (p.n_epochs, 6) and np.all(np.isfinite(x2))
+        assert np.all(np.linalg.eigvalsh(P2) > 0)
 
 
 @pytest.mark.slow

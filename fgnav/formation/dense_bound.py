@@ -34,7 +34,6 @@ def dense_bound(p, X_true: np.ndarray, options) -> np.ndarray:
     steps), where QR agrees with the chain marginals to 0.05 %."""
     import scipy.linalg as sla
 
-
     N, n = X_true.shape
     if N * n > MAX_UNKNOWNS:
         raise ValueError(f"dense_bound: {N * n} unknowns (at most {MAX_UNKNOWNS})")

@@ -157,6 +157,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     online_P_eci=Ps[:, :6, :6].copy(),
                     latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3, "residuals_are": "innovations (prior)",
+                            **({"online_variables": {
+                                v.name: (xs[:, lay.slices[v.name]].copy(),
+                                         Ps[:, lay.slices[v.name], lay.slices[v.name]].copy())
+                                for v in lay.orbits[1:]}} if len(lay.orbits) > 1 else {}),
                             "normalized_innovations": normalized,
                             **({"gate_probability": options.gate_probability, "rejected": rejected,
                                 "row_weights": weights}

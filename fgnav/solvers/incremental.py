@@ -190,6 +190,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))
+    # a formation's further spacecraft as read at each epoch
+    online_more = {v.name: (np.full((N, 6), np.nan), np.full((N, 6, 6), np.nan))
+                   for v in lay.orbits[1:]}
     online_V = np.zeros((N, lay.n, lay.n))  # the gate: further variables' online marginals
     lagged_x = np.empty((N, lay.n))   # fixed-lag: each state's estimate when it leaves the window
     lagged_P = np.zeros((N, lay.n, lay.n))
@@ -246,6 +249,11 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         isam.update(graph, values)
         held_lp = isam.getLinearizationPoint()
         x_prev = _read_block(isam, lay, k_start - 1)
+        for v in lay.orbits[1:]:   # (the checkpoint keeps the first's online states only:
+            xo, Po = online_more[v.name]   # the others' as of the checkpoint's estimate)
+            for j in range(k_start):
+                xo[j] = x_est[j][lay.slices[v.name]]
+                Po[j] = isam.marginalCovariance(v.key(j))
         if gate is not None:
             _read_variable_marginals(isam, lay, k_start - 1, online_V)
     _warm_up(p, per_epoch, options, model, t0_j2000, x_prev, kernel)
@@ -307,6 +315,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     f"first epoch)") from exc
             online_x[k] = x_prev[:6]
             online_P[k] = P
+            for v in lay.orbits[1:]:
+                xo, Po = online_more[v.name]
+                xo[k] = x_prev[lay.slices[v.name]]
+                Po[k] = (smoother if fixed_lag else isam).marginalCovariance(v.key(k))
             if gate is not None:
                 _read_variable_marginals(smoother if fixed_lag else isam, lay, k, online_V)
             latency[k] = time.perf_counter() - t_k0
@@ -354,6 +366,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     residuals=lin.residuals, online_x_eci=online_x,
                     online_P_eci=online_P, latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3,
+                            **({"online_variables": online_more} if online_more else {}),
                             "chi2_measurements": lin.chi2_meas, "chi2_motion": lin.chi2_motion,
                             **({"chi2_motion_is": "each step within the window estimate its "
                                                   "first state was read from"} if fixed_lag else {}),
