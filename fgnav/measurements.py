@@ -91,7 +91,7 @@ class Pass:
     spacecraft: tuple[str, ...] = ()
     # a formation's relative positions fixed from one epoch's links alone (t_s (F,), the
     # second spacecraft's position minus the first's, ECI (F, 3), m): its first guess, set by
-    # the formation's start (fgnav.formation.joint.build_formation_pass), not by build_pass
+    # the formation's start (fgnav.start.link_fixes, set by fgnav.pipeline.smooth_log), not by build_pass
     link_fixes: tuple | None = None
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
 

@@ -17,17 +17,18 @@ from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
-from fgnav.formation.joint import link_fixes, solve_formation
 from fgnav.frames import relative_state_lvlh
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
+from fgnav.diagnostics.mirror import mirror_test
 from fgnav.io.log_csv import read_log
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
-from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
-                                format_duration, spacecraft_states, with_estimates)
-from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
+from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas, fill_gaps,
+                                format_duration, spacecraft_pass, spacecraft_states,
+                                with_estimates)
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, VARIABLES, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.results import (pairs, read_formation_truth, read_truth, relative_rows,
@@ -35,16 +36,18 @@ from fgnav.results import (pairs, read_formation_truth, read_truth, relative_row
 from fgnav.results import write_outputs  # noqa: F401  (the route's last stage, by its old name)
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
-from fgnav.start import START_INFLATION, Start, batch_first_guess, start_point
+from fgnav.start import (START_INFLATION, Start, batch_first_guess, link_fixes,
+                         start_point)
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.incremental import smooth_incremental
-from fgnav.solvers.options import IncrementalOptions, SmootherOptions
+from fgnav.solvers.options import (IncrementalOptions, SmootherOptions, converging_to_links,
+                                   relinearizing_links)
 from fgnav.solvers.state_elements import check_state
-from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
+from fgnav.time import j2000_seconds, seconds_since
 
 METHODS = ("batch", "isam2", "fixed-lag", "ekf")
 
@@ -79,27 +82,20 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     refute it, the solve is repeated from the orbit; ``Solution.extras["initial_orbit"]``
     records the start.
 
-    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) is solved
-    as one joint graph from each spacecraft's own rows and the links
-    (:func:`fgnav.formation.joint.solve_formation`; what it cannot do yet is refused by
-    :func:`refuse_for_formation`).
+    A formation's pass (several spacecraft, :func:`fgnav.measurements.build_pass`) takes
+    the same route as one joint graph, started from each spacecraft's own rows and the links
+    (:func:`fgnav.start.formation_start`); its solution carries the mirror test of its
+    relative geometry (:func:`fgnav.diagnostics.mirror.mirror_test`,
+    ``extras["mirror_test"]``).
     """
     if method not in METHODS:
         raise UserError(f"unknown method '{method}'; expected one of {', '.join(METHODS)}")
     if (checkpoint or resume) and method != "isam2":
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_state(options.state, method)   # (the options alone: checked before the pass)
-    if p.spacecraft:   # several spacecraft: one joint graph, started by its links
+    if p.spacecraft:
         refuse_for_formation(options, ignore_prior=ignore_prior, checkpoint=checkpoint,
-                             resume=resume)
-        try:
-            return solve_formation(p, method, options, progress=progress)
-        except ModelDomainError as exc:
-            raise NotObservableError(
-                f"{p.source}: the {method} estimate left the domain of a measurement model "
-                f"({exc}): a row that does not fit the others (an outlier, a unit error) can "
-                f"drive it there; check the rows near the epoch where the solution departs from "
-                f"the spacecraft's own rows") from exc
+                             resume=resume, method=method)
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
@@ -113,10 +109,12 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                                                ignore_prior=ignore_prior), method)
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
+    formation = len(p.spacecraft) > 1
 
     def run(start: Start) -> Solution:
         try:
-            check_observability(start.p, start.x_guess, model)
+            if not formation:
+                check_observability(start.p, start.x_guess, model)
         except ModelDomainError as exc:   # a row with no value on the first guess's orbit
             raise NotObservableError(
                 f"{p.source}: {exc}, along the first guess's orbit: check that row (a limb "
@@ -131,18 +129,25 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
             sol = _dispatch(start, method, options, lag_s=lag_s, progress=progress,
                             checkpoint=checkpoint, checkpoint_every=checkpoint_every,
                             resume=resume)
+            if formation:   # the other minimum the links allow (fgnav.diagnostics.mirror)
+                sol.extras["mirror_test"] = mirror_test(start.p, sol, converging_to_links(
+                    start.p, options), smooth_batch)
         except ModelDomainError as exc:
             raise NotObservableError(
                 f"{p.source}: the {method} estimate left the domain of a measurement model "
                 f"({exc}): "
-                + ("check the row named: it may not fit the other rows, from whose orbit the "
+                + ("a row that does not fit the others (an outlier, a unit error) can drive it "
+                   "there; check the rows near the epoch where the solution departs from the "
+                   "spacecraft's own rows" if formation else
+                   "check the row named: it may not fit the other rows, from whose orbit the "
                    "estimate started" if from_data else
                    "the first guess is far from the data's orbit; check the prior rows, or try "
                    "--ignore-prior")) from exc
         return start.finish(sol)
 
-    if from_data or checkpoint:
-        return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior))
+    if from_data or checkpoint or formation:
+        return run(start_point(p, method, model, t0_j2000, ignore_prior=ignore_prior,
+                               options=options))
     # From the log's prior first; the prior is tested against the orbit of the measurements
     # alone (initial orbit determination, 0.2-0.5 s) only when the solution does not fit the
     # data, and the solve is repeated from that orbit when the data refute the prior.
@@ -165,16 +170,15 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 
 
 def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False,
-                         checkpoint=None, resume: bool = False) -> None:
+                         checkpoint=None, resume: bool = False, method: str = "batch") -> None:
     """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
     is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
     wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
     the Earth in Cartesian states."""
-    given = [name for name, on in (("--ignore-prior", ignore_prior), ("--checkpoint", checkpoint),
-                                   ("--resume", resume)) if on]
-    if given:
-        raise UserError(f"{', '.join(given)}: not yet available for a log of several "
-                        "spacecraft")
+    if ignore_prior and method != "batch":
+        raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
+                        "several spacecraft (their online start is each spacecraft's prior); "
+                        "--method batch starts from the measurements alone")
     if options.estimate:
         raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
                         "and carrier ambiguities; further variables are not yet supported there")
@@ -186,22 +190,13 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
                         "Cartesian states")
 
 
-def refuse_formation_gaps(p: Pass, gap_factor: float | None) -> None:
-    """Refuse a formation's pass with a gap longer than ``gap_factor`` median steps (not yet
-    bridged for several spacecraft), naming the gap."""
-    if gap_factor is not None and len(long_gaps(p, gap_factor)):
-        k = int(long_gaps(p, gap_factor)[0])
-        raise UserError(
-            f"{p.source}: a gap of {format_duration(p.t_s[k + 1] - p.t_s[k])} after "
-            f"{format_utc(add_seconds(p.epoch0, p.t_s[k]))} (more than {gap_factor:g} median "
-            "steps): gaps are not yet bridged for a log of several spacecraft; split the log "
-            "at the gap and solve the parts")
-
-
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
               checkpoint_every, resume) -> Solution:
-    """The chosen estimator from a start point (:class:`fgnav.start.Start`)."""
+    """The chosen estimator from a start point (:class:`fgnav.start.Start`), its
+    Gauss-Newton tolerances and iSAM2 thresholds fine enough for the pass's links
+    (:func:`fgnav.solvers.options.converging_to_links`, :func:`relinearizing_links`)."""
     p = start.p
+    options = converging_to_links(p, options)
     if method == "batch":
         how, x_init = batch_first_guess(start, options.init, options.robust,
                                         short_pass=interpret_active())
@@ -226,10 +221,12 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
         # 1.1 us/step vs ~500 us) wherever it models every family and no gating is asked.
         if options.gate_probability is None and options.state == "cartesian" and numba_supports(p):
             return run_ekf_numba(p, options, progress=progress)
-        return run_ekf(p, options, progress=progress)
-    return smooth_incremental(p, options, IncrementalOptions(lag_s=lag_s), method=method,
-                              progress=progress, checkpoint=checkpoint,
-                              checkpoint_every=checkpoint_every, resume=resume)
+        return run_ekf(p, options, progress=progress, x_start=start.x_start,
+                       P_start=start.P_start)
+    return smooth_incremental(p, options, relinearizing_links(p, IncrementalOptions(lag_s=lag_s)),
+                              method=method, progress=progress, checkpoint=checkpoint,
+                              checkpoint_every=checkpoint_every, resume=resume,
+                              x_start=start.x_start)
 
 
 DIRECT_ITERATIONS = 8
@@ -273,14 +270,11 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     online methods (:func:`fgnav.start.start_point`). A pass already planned is
     returned as is.
 
-    A formation's pass (several spacecraft) is solved as it is, its long gaps refused
-    (:func:`refuse_formation_gaps`).
+    A formation's long gaps: :func:`formation_gaps`.
     """
-    if p.spacecraft:
-        refuse_formation_gaps(p, gap_factor)
-        return p
     from_data = ignore_prior or not has_prior(p)
-    if {v.name for v in p.layout.extra} != {variable(n).name for n in options.estimate}:
+    estimated = {v.name for v in p.layout.extra if v.name in VARIABLES}   # (not the formation's)
+    if estimated != {variable(n).name for n in options.estimate}:
         p = with_estimates(p, options.estimate)   # first: deferred rows may observe the orbit
     for name, sigma in options.prior_sigma:       # priors other than the registry's
         if not p.layout.has(variable(name).name):
@@ -302,10 +296,30 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
     if from_data and len(long_gaps(p, gap_factor)):
         model = options.motion_model()
         t0 = float(j2000_seconds(p.epoch0))
-        p = strip_prior(p)
-        x0, P0 = propagate_orbit(initial_orbit(p, model, t0), p, model, t0, 0)
+        p = replace(p, families=strip_prior(p).families) if p.spacecraft else strip_prior(p)
+        first = spacecraft_pass(p, 0) if p.spacecraft else p   # (the gaps' plan's start)
+        x0, P0 = propagate_orbit(initial_orbit(first, model, t0), first, model, t0, 0)
         start = (x0, *covering_sigmas(START_INFLATION * P0))
+    if len(p.spacecraft) > 1 and len(long_gaps(p, gap_factor)):
+        return formation_gaps(p, options, gap_factor, start)
     return plan_gaps(p, options, gap_factor, start=start)
+
+
+def formation_gaps(p: Pass, options: SmootherOptions, gap_factor: float, start=None) -> Pass:
+    """A formation's long gaps planned on its first spacecraft's own rows (whether the orbit's
+    prediction across a gap stays linear, :func:`fgnav.solvers.arcs.plan_gaps`: the links
+    fix the relative state, not the absolute orbit across the gap) and bridged for every
+    spacecraft (:func:`fgnav.measurements.fill_gaps`). A gap too long to bridge is refused,
+    naming it: separate arcs of several spacecraft are not solved in this version."""
+    plan = plan_gaps(spacecraft_pass(p, 0), options, gap_factor, start=start)
+    if plan.breaks:
+        g = next(g for g in plan.gap_notes if not g["bridged"])
+        raise UserError(
+            f"{p.source}: a gap of {format_duration(g['length_s'])} from t = "
+            f"{g['t_start_s']:.0f} s is too long to bridge (the orbit's prediction across it "
+            "leaves the linear regime), and a log of several spacecraft is not yet solved as "
+            "separate arcs: split the log at the gap and solve the parts")
+    return fill_gaps(replace(p, gap_notes=plan.gap_notes), gap_factor)
 
 
 def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
@@ -408,7 +422,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     (default: now). A log of several spacecraft takes the same route (its truth:
     ``truth-<id>.oem`` per spacecraft beside ``truth_path``, :func:`read_formation_truth`;
     ``relative="spherical"`` adds the relative position's spherical form), with its start
-    from the links (:func:`fgnav.formation.joint.link_fixes`)."""
+    from the links (:func:`fgnav.start.link_fixes`)."""
     from contextlib import nullcontext
 
     stage = stage or (lambda what, size: nullcontext())
@@ -422,7 +436,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         if truth is not None:
             raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
         refuse_for_formation(options, ignore_prior=ignore_prior,
-                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"))
+                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"),
+                             method=method)
     elif relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")
@@ -433,7 +448,6 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         p = without_aberration(p)
     gap_factor = solve_kw.pop("gap_factor", 10.0)
     if formation:
-        refuse_formation_gaps(p, gap_factor)
         truths = None if truth_path is None else read_formation_truth(truth_path, p)
     elif truth is None and truth_path is not None:
         truth = read_truth(truth_path, p, centre)  # checked before solving
@@ -446,6 +460,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         sol = solve(p, method, options, lag_s=lag_s, progress=progress,
                     ignore_prior=ignore_prior, **solve_kw)
     if formation:
+        if ignore_prior:   # (the summary's counts and tests: the rows the solution used)
+            p = replace(p, families=strip_prior(p).families)
         sol.wall_s = time.perf_counter() - t0
         summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian")
         sol.extras["relative_parameterization"] = relative or "cartesian"

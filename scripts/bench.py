@@ -511,7 +511,7 @@ def images_case(quick: bool, tmp: Path) -> dict:
 # Two spacecraft in one graph (``formation_4h``): formation-gto (two spacecraft 1 km apart on
 # the same transfer orbit, an Earth direction each and six 1 cm inter-satellite pseudoranges
 # per epoch, antenna lever arms and attitude rows) at 1 Hz, solved by batch as ``fgnav smooth``
-# solves a log of several spacecraft (fgnav.formation.joint.solve_formation), in a fresh
+# solves a log of several spacecraft (fgnav.pipeline.solve), in a fresh
 # subprocess; ``formation_ratio`` is its solver time over the one-spacecraft ``batch_4h``
 # case's of the same run (the same pass length; the first spacecraft's Earth directions are
 # gto-transfer's rows of the same seed).
@@ -624,13 +624,15 @@ FORMATION_TARGETS = {"formation_4h": {"formation_ratio_max": 4.0}}
 def make_formation_pass(duration_h: float, seed: int, tmp: Path) -> Path:
     """Simulate formation-gto at 1 Hz for ``duration_h`` and pickle (Pass, the first
     spacecraft's truth at its epochs, None) as :func:`make_pass` does."""
-    from fgnav.formation.joint import build_formation_pass
+    from fgnav.measurements import build_pass
     from fgnav.scenarios import load_scenario
+    from fgnav.start import link_fixes
     from fgnav.simulate.formation_sim import simulate_formation_pass
 
     scn = load_scenario("formation-gto").with_options(step_s=STEP_S, duration_h=duration_h)
     sim = simulate_formation_pass(scn, seed)
-    p = build_formation_pass(sim.log)   # (with the links' fixes its start uses)
+    p = build_pass(sim.log)
+    p.link_fixes = link_fixes(sim.log)   # (the links' fixes its start uses)
     x_true = sim.x_true[sim.ids[0]][sim.t_s.searchsorted(p.t_s)]
     f = tmp / f"formation_{duration_h:g}h_seed{seed}.pkl"
     with open(f, "wb") as fh:
@@ -646,11 +648,11 @@ def formation_worker(pass_file: str) -> dict:
     with open(pass_file, "rb") as fh:
         p, x_true, _ = pickle.load(fh)
     from factors.jit import load_numba
-    from fgnav.formation.joint import solve_formation
+    from fgnav.pipeline import solve
     from fgnav.solvers.options import SmootherOptions
     load_numba()
     t0 = time.perf_counter()
-    sol = solve_formation(p, "batch", SmootherOptions())
+    sol = solve(p, "batch", SmootherOptions())
     out = {"method": "batch", "epochs": int(p.n_epochs), "spacecraft": len(p.spacecraft),
            "solver_s": time.perf_counter() - t0, "iterations": int(sol.iterations),
            "converged": bool(sol.extras.get("converged")),

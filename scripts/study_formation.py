@@ -44,7 +44,7 @@ constellation-leo 3 h (the conclusions the slow test asserts hold there too). ``
 also ``--method isam2`` on the celestial-alone and pseudorange cases (not on the carrier
 case, to bound the study's time: iSAM2 took 130 s on one formation-gto pseudorange pass on
 the shared 2-core machine, its links relinearized at 1.4 m,
-:func:`fgnav.formation.joint.relinearizing_links`, 45 mm with carrier phase).
+:func:`fgnav.solvers.options.relinearizing_links`, 45 mm with carrier phase).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ import pytest
 from factors.pseudorange import predict_ranges
 from fgnav.cli import main
 from fgnav.errors import UserError
-from fgnav.formation.single_epoch import solve_single_epoch
+from fgnav.iod.single_epoch import solve_single_epoch
 from fgnav.formation.study import (
     FORMATION_REFERENCE, conditioning_study, coverage_monte_carlo, covariance_change, formation_reference_truth,
 )

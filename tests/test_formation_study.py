@@ -153,7 +153,7 @@ def test_formation_study_quick_conclusions(tmp_path):
                 assert x["integrity"] != "ok", (case, x)
     for run in gto["runs"]:
         assert run["alone/batch"]["integrity"] == "ok"
-    # since the links place the second spacecraft (fgnav.formation.joint.link_fixes) no pass
+    # since the links place the second spacecraft (fgnav.start.link_fixes) no pass
     # lands in a wrong minimum (10 seeds: 0/10, relative RMS at 1.1x its bound; before, 8/10)
     for case in ("links", "carrier"):
         bound = gto["bounds"][case]["qr"]["relative"]

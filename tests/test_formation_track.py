@@ -198,7 +198,7 @@ def test_carrier_phase_improves_angles_by_orders_of_magnitude():
     sig_a = a.spherical()[1][:, 1:].mean()
     sig_b = b.spherical()[1][:, 1:].mean()
     assert sig_a / sig_b > 100
-    from fgnav.formation.single_epoch import to_param
+    from fgnav.iod.single_epoch import to_param
     err = b.spherical()[0][:, 1:] - to_param(sim_p["r_body_m"], "spherical")[:, 1:]
     assert np.sqrt(np.mean(err ** 2)) < 3 * sig_b
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from fgnav.graph import linearize_all
+from fgnav.solvers.batch import process_blocks
 from fgnav.time import j2000_seconds
 
 __all__ = ["dense_bound"]
@@ -32,8 +33,6 @@ def dense_bound(p, X_true: np.ndarray, options) -> np.ndarray:
     formation-gto its inverse gave sigmas up to 1.3x too large (negative variances at 10 s
     steps), where QR agrees with the chain marginals to 0.05 %."""
     import scipy.linalg as sla
-
-    from fgnav.solvers.batch import process_blocks
 
     N, n = X_true.shape
     if N * n > MAX_UNKNOWNS:

@@ -36,7 +36,7 @@ from fgnav.formation.relative_motion import (
     chief_circular_state, circular_relative_orbit, cw_matrices, mean_motion,
     two_body_relative_truth,
 )
-from fgnav.formation.single_epoch import PARAMS, from_param, solve_single_epoch_many, to_param
+from fgnav.iod.single_epoch import PARAMS, from_param, solve_single_epoch_many, to_param
 
 __all__ = ["FormationScenario", "simulate_formation", "attitude_track", "FormationGraph",
            "solve_batch", "solve_isam2", "TrackResult", "nees_of", "cw_motion_residual"]

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 from factors.pseudorange import offset_range_residual, predict_ranges, spherical_to_cartesian
-from fgnav.formation.single_epoch import (
+from fgnav.iod.single_epoch import (
     PARAMS, conditioning, design_matrix, from_param, solve_single_epoch, solve_single_epoch_many,
     to_param,
 )
@@ -81,7 +81,7 @@ def range_coverage(r_m, cdt_m, M21, runs, seed, sigma_m, param="spherical", x0_c
                    links=None):
     """Monte Carlo 1-sigma coverage of the range at any geometry: sat 2 at ``r_m`` (3,) in
     the sat-1 body frame, clock ``cdt_m``, Xing et al.'s links through ``M21`` or ``links``
-    (:class:`~fgnav.formation.single_epoch.LinkGeometry`); ``sigma_m`` scalar or per link (m);
+    (:class:`~fgnav.iod.single_epoch.LinkGeometry`); ``sigma_m`` scalar or per link (m);
     Gauss–Newton from ``x0_cart`` (4,) Cartesian. Returns ``(fraction, errors, sigmas)`` as
     :func:`coverage_monte_carlo`."""
     rng = np.random.default_rng(seed)

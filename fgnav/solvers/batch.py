@@ -484,7 +484,7 @@ ITERATED_GUESS = True
 """Filter and smooth once more, linearized about the smoothed states (compiled route)."""
 
 
-def _ekf_first_guess(p: Pass, options: SmootherOptions):
+def filtered_guess(p: Pass, options: SmootherOptions):
     """The numba EKF's states, smoothed backward (:mod:`fgnav.solvers.rts`) and, on the
     compiled route, filtered and smoothed once more about them (the iterated smoother), as a
     first guess, or None where it does not apply (measurement kinds it does not model,
@@ -494,7 +494,7 @@ def _ekf_first_guess(p: Pass, options: SmootherOptions):
 
 
 def _ekf_guess(p: Pass, options: SmootherOptions):
-    """``(x (N, 6), sigma (N, 6) or None)``: :func:`_ekf_first_guess`'s states and the
+    """``(x (N, 6), sigma (N, 6) or None)``: :func:`filtered_guess`'s states and the
     filter's standard deviations, float32, where they bound the smoother's from above (the
     filter has seen only the earlier measurements: Rauch, Tung & Striebel 1965) because it
     estimates the same variables (not with the attitude known); or None.

@@ -22,6 +22,7 @@ import numpy as np
 
 from factors.dynamics import process_noise, propagate
 from factors.errors import ModelDomainError
+from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.errors import UserError
 from fgnav.graph import (enters, initial_block, layout_of, linearize_family,
                          prior_block_covariance, process_rows)
@@ -41,13 +42,15 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     """Filter the pass forward; ``x_eci``/``P_eci`` are the filtered (a-posteriori) states.
 
     ``x_start`` (n,), ``P_start`` (n, n): the first epoch's block and covariance (a
-    formation's: every spacecraft's prior, :mod:`fgnav.formation.joint`); default the
+    formation's: every spacecraft's prior, :func:`fgnav.start.start_covariance`); default the
     log's prior and the further variables' priors."""
     t_start = time.perf_counter()
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
     N = p.n_epochs
     per_epoch = rows_by_epoch(p)
+    if len(p.layout.orbits) > 1:   # the links first: see relative_coordinates
+        per_epoch = [sorted(rows, key=lambda kr: kr[0] not in ISL_KINDS) for rows in per_epoch]
     lay = layout_of(p)
     n = lay.n
     between = {kind for kind in p.families if enters(p, kind) and model_of(kind).between}
@@ -64,6 +67,9 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     if chart is not None:
         chart.check_filter_start(x)
         P = chart.covariance_from_cartesian(x, P)
+    T, T_inv = relative_coordinates(lay)
+    if T is not None:   # several spacecraft: P of (x_1, x_s - x_1), see relative_coordinates
+        P = T @ P @ T.T
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))
     latency = np.empty(N)
@@ -83,8 +89,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
             if chart is not None:
                 Phi6, Q6 = chart.transition(x_prev[:6], x[:6], Phi6, Q6)
             if len(lay.orbits) > 1:   # a formation: every orbit, the clocks, the ambiguities
-                x, P = _propagate_formation(lay, x, P, Phi6, Q6, dt, model,
-                                            t0_j2000 + p.t_s[k - 1])
+                x, F, Q = _propagate_formation(lay, x, Phi6, Q6, dt, model,
+                                               t0_j2000 + p.t_s[k - 1])
+                F = T @ F @ T_inv
+                P = F @ P @ F.T + T @ Q @ T.T
             elif lay.extra:
                 rows_k = [(kind, rows) for kind, rows in per_epoch[k] if kind in between]
                 x, P, r_between = propagate_variables(p, lay, x_prev, x, P, Phi6, Q6, dt, rows_k)
@@ -107,6 +115,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 b = b.reshape(-1)
                 if chart is not None:
                     A = chart.chain(A, chart.jacobian(x))
+                if T is not None:
+                    A = A @ T_inv
                 if kind not in residuals:
                     residuals[kind] = np.full((len(fam), len(b)), np.nan)
                 residuals[kind][j] = -b
@@ -122,8 +132,9 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     normalized[kind] = np.full((len(fam), len(b)), np.nan)
                 normalized[kind][j] = np.linalg.solve(np.linalg.cholesky(S), b)
                 K = np.linalg.solve(S, A @ P).T
+                dx = K @ b if T is None else T_inv @ (K @ b)
                 try:
-                    x = lay.retract(x, K @ b) if chart is None else chart.retract(lay, x, K @ b)
+                    x = lay.retract(x, dx) if chart is None else chart.retract(lay, x, dx)
                 except ModelDomainError as exc:   # the element chart's (--state elements)
                     raise ModelDomainError(f"{kind} row at log line {int(fam.line[j])}: "
                                            f"{exc}") from exc
@@ -131,6 +142,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 P = IKA @ P @ IKA.T + K @ K.T
         xs[k] = x
         Ps[k] = P if chart is None else chart.covariance_to_cartesian(x, P)
+        if T is not None:
+            Ps[k] = T_inv @ P @ T_inv.T
         x_prev = x
         latency[k] = time.perf_counter() - t_k0
         if progress is not None:
@@ -144,6 +157,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     online_P_eci=Ps[:, :6, :6].copy(),
                     latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3, "residuals_are": "innovations (prior)",
+                            **({"online_variables": {
+                                v.name: (xs[:, lay.slices[v.name]].copy(),
+                                         Ps[:, lay.slices[v.name], lay.slices[v.name]].copy())
+                                for v in lay.orbits[1:]}} if len(lay.orbits) > 1 else {}),
                             "normalized_innovations": normalized,
                             **({"gate_probability": options.gate_probability, "rejected": rejected,
                                 "row_weights": weights}
@@ -151,10 +168,33 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                             "latency_p50_s": float(np.median(latency))})
 
 
-def _propagate_formation(lay, x, P, Phi6, Q6, dt, model, t_j2000_s):
+def relative_coordinates(lay):
+    """``(T, T^-1)`` (n, n) taking a formation's block to the coordinates the filter's
+    covariance is kept in: the first orbit ``x_1`` and every further one relative to it,
+    ``x_s - x_1`` (the rest unchanged); ``(None, None)`` for one spacecraft. Km-sigma
+    absolute orbits whose difference the links know to centimetres make ``P`` of the
+    absolute states nearly singular: a link row's ``A P A^T`` is then a difference of
+    terms 1e10 times its value and lost positive definiteness to rounding (a 2 h
+    formation-gto pass: ``LinAlgError`` in the Cholesky factor of the innovation
+    covariance). In these coordinates a link's Jacobian ``A T^-1`` has no absolute part:
+    the same filter (a linear change of variables, Bar-Shalom, Li & Kirubarajan 2001), its
+    covariance well conditioned."""
+    if len(lay.orbits) < 2:
+        return None, None
+    T, T_inv = np.eye(lay.n), np.eye(lay.n)
+    s0 = lay.slices[lay.orbits[0].name]
+    for v in lay.orbits[1:]:
+        sl = lay.slices[v.name]
+        T[sl, s0] = -np.eye(6)
+        T_inv[sl, s0] = np.eye(6)
+    return T, T_inv
+
+
+def _propagate_formation(lay, x, Phi6, Q6, dt, model, t_j2000_s):
     """A formation's prediction step: each further spacecraft's orbit propagated with its
     STM and the same white-acceleration noise as the first's (``x[:6]``, already propagated
-    with ``Phi6``), every other variable a random walk (variance ``+ psd dt``)."""
+    with ``Phi6``), every other variable a random walk (variance ``+ psd dt``): ``(x, F, Q)``,
+    the block's transition and process noise (``P -> F P F^T + Q``)."""
     n = lay.n
     F = np.eye(n)
     Q = np.zeros((n, n))
@@ -166,7 +206,7 @@ def _propagate_formation(lay, x, P, Phi6, Q6, dt, model, t_j2000_s):
     for v in lay.parameters:
         sl = lay.slices[v.name]
         Q[sl, sl] = v.process.step_covariance(v, dt)
-    return x, F @ P @ F.T + Q
+    return x, F, Q
 
 
 def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iterations=4):

@@ -95,6 +95,11 @@ def _read_block(source, lay, k):
         for v in lay.extra])
 
 
+def _keys(lay, k):
+    """Epoch ``k``'s keys."""
+    return [X(k)] + [v.key(k) for v in lay.extra]
+
+
 def _timestamps(lay, k, t):
     """Fixed-lag timestamps of epoch ``k``'s keys."""
     return {X(k): t, **{v.key(k): t for v in lay.extra}}
@@ -155,7 +160,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     are those of the resumed run.
 
     ``x_start``: the block values (n,) to start from at the first epoch (a formation's: every
-    spacecraft's orbit, :func:`fgnav.formation.joint.first_guess`); default the prior.
+    spacecraft's orbit, :func:`fgnav.start.formation_start`); default the prior.
     """
     t_start = time.perf_counter()
     model = options.motion_model()
@@ -185,6 +190,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     held_lp = None
     online_x = np.empty((N, 6))
     online_P = np.empty((N, 6, 6))
+    # a formation's further spacecraft as read at each epoch
+    online_more = {v.name: (np.full((N, 6), np.nan), np.full((N, 6, 6), np.nan))
+                   for v in lay.orbits[1:]}
     online_V = np.zeros((N, lay.n, lay.n))  # the gate: further variables' online marginals
     lagged_x = np.empty((N, lay.n))   # fixed-lag: each state's estimate when it leaves the window
     lagged_P = np.zeros((N, lay.n, lay.n))
@@ -241,9 +249,16 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         isam.update(graph, values)
         held_lp = isam.getLinearizationPoint()
         x_prev = _read_block(isam, lay, k_start - 1)
+        for v in lay.orbits[1:]:   # (the checkpoint keeps the first's online states only:
+            xo, Po = online_more[v.name]   # the others' as of the checkpoint's estimate)
+            for j in range(k_start):
+                xo[j] = x_est[j][lay.slices[v.name]]
+                Po[j] = isam.marginalCovariance(v.key(j))
         if gate is not None:
             _read_variable_marginals(isam, lay, k_start - 1, online_V)
     _warm_up(p, per_epoch, options, model, t0_j2000, x_prev, kernel)
+    held = None if inc.relinearize_window_s is None or fixed_lag else gtsam.KeyList()
+    n_held = 0
     with _gc_paused():
         for k in range(k_start, N):
             if fixed_lag and oldest < k and p.t_s[oldest] < p.t_s[k] - lag_internal:
@@ -281,7 +296,14 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     x_prev = _read_block(smoother, lay, k)
                     P = smoother.marginalCovariance(X(k))
                 else:
-                    isam.update(graph, values)
+                    if held is None:
+                        isam.update(graph, values)
+                    else:   # the states out of the relinearization window: held
+                        while p.t_s[n_held] < p.t_s[k] - inc.relinearize_window_s:
+                            for key in _keys(lay, n_held):
+                                held.push_back(key)
+                            n_held += 1
+                        isam.update(graph, values, noRelinKeys=held)
                     if held_lp is None:
                         held_lp = isam.getLinearizationPoint()
                     x_prev = _read_block(isam, lay, k)
@@ -293,6 +315,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     f"first epoch)") from exc
             online_x[k] = x_prev[:6]
             online_P[k] = P
+            for v in lay.orbits[1:]:
+                xo, Po = online_more[v.name]
+                xo[k] = x_prev[lay.slices[v.name]]
+                Po[k] = (smoother if fixed_lag else isam).marginalCovariance(v.key(k))
             if gate is not None:
                 _read_variable_marginals(smoother if fixed_lag else isam, lay, k, online_V)
             latency[k] = time.perf_counter() - t_k0
@@ -333,12 +359,14 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
                     P_eci=P_final[:, :6, :6], variables=block_variables(lay, x_final, P_final),
-                    P_block=None if fixed_lag or not lay.extra else P_final,
+                    P_block=None if (fixed_lag and len(lay.orbits) == 1) or not lay.extra
+                    else P_final,
                     iterations=N, wall_s=wall,
                     chi2=lin.chi2_meas + lin.chi2_motion,
                     residuals=lin.residuals, online_x_eci=online_x,
                     online_P_eci=online_P, latency_s=latency,
                     extras={"q_m2_s3": options.q_m2_s3,
+                            **({"online_variables": online_more} if online_more else {}),
                             "chi2_measurements": lin.chi2_meas, "chi2_motion": lin.chi2_motion,
                             **({"chi2_motion_is": "each step within the window estimate its "
                                                   "first state was read from"} if fixed_lag else {}),
@@ -431,22 +459,36 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
     (100 m, 100 m/s), so an old state read from it lags its own smoothed value; on a 1 h
     gto-transfer pass at 10 s the motion chi-square of the states read that way was 6e14,
     1e2 from the full back-substitution. Variables beyond the orbit state get their own
-    marginal (their cross-covariance with the orbit is not read: block-diagonal here).
+    marginal (their cross-covariance with the orbit is not read: block-diagonal here), except
+    for several spacecraft, whose relative state needs the cross-covariances of their orbits:
+    there the block's joint marginal (:func:`_joint_block`).
     """
     isam = smoother.getISAM2()
     est = isam.calculateBestEstimate() if oldest < k_end and t_s[oldest] < t_due else None
     j = oldest
+    joint = len(lay.orbits) > 1   # several spacecraft: their relative state needs the joint
     while j < k_end and t_s[j] < t_due:
         lagged_x[j] = _read_block(est, lay, j)
-        lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
-        for v in lay.extra:
-            sl = lay.slices[v.name]
-            lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
+        if joint:
+            lagged_P[j] = _joint_block(isam, lay, j)
+        else:
+            lagged_P[j, :6, :6] = smoother.marginalCovariance(X(j))
+            for v in lay.extra:
+                sl = lay.slices[v.name]
+                lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
         if j + 1 < k_end:
             lagged_next[j] = _read_block(est, lay, j + 1)
         j += 1
     isam.deleteCachedShortcuts()
     return j
+
+
+def _joint_block(isam, lay, k: int) -> np.ndarray:
+    """The joint marginal covariance (n, n) of epoch ``k``'s block (every variable's key, in
+    the layout's order) from the Bayes tree (``ISAM2.jointMarginalCovariance``)."""
+    keys = [X(k)] + [v.key(k) for v in lay.extra]
+    jm = isam.jointMarginalCovariance(gtsam.KeyVector(keys))
+    return np.block([[jm.at(a, b) for b in keys] for a in keys])
 
 
 def polish_chain(p: Pass, x: np.ndarray, q_m2_s3: float, model, t0_j2000_s: float, kernel,
