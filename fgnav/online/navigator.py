@@ -47,6 +47,7 @@ from fgnav.models.registry import ATTITUDE_VARIABLE, model as model_of, variable
 from fgnav.online.stream import Row
 from fgnav.pipeline import smooth_log
 from fgnav.robust import RobustKernel, passes_gate
+from fgnav.solvers.incremental import isam2_params
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.start import START_INFLATION
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
@@ -434,19 +435,8 @@ class _Window:
         import gtsam
 
         self.gtsam, self.nav = gtsam, nav
-        inc = IncrementalOptions()
-        params = gtsam.ISAM2Params()
-        params.setFactorization("QR")
-        tmap = gtsam.ISAM2ThresholdMap()
-        tmap.insert(("x", np.array([inc.relinearize_position_m] * 3
-                                   + [inc.relinearize_velocity_mps] * 3)))
-        params.setRelinearizeThreshold(tmap)
-        params.relinearizeSkip = inc.relinearize_skip
-        params.enablePartialRelinearizationCheck = inc.partial_relinearization_check
-        gn = gtsam.ISAM2GaussNewtonParams()
-        gn.setWildfireThreshold(inc.wildfire_threshold)
-        params.setOptimizationParams(gn)
-        self.smoother = gtsam.IncrementalFixedLagSmoother(nav.window_s, params)
+        self.smoother = gtsam.IncrementalFixedLagSmoother(
+            nav.window_s, isam2_params(IncrementalOptions()))   # (the orbit's thresholds)
         self.kernel = RobustKernel.create(nav.options.robust, nav.options.robust_k)
         self.held = None
         self.k = None            # the key index of the newest state

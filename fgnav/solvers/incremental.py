@@ -115,7 +115,7 @@ def _process_factors(lay, k, dt, q, model, t0_j2000_s):
     return motion_factors(lay, k, dt, q, model, t0_j2000_s) + process_factors(lay, k, dt)
 
 
-def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
+def isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
     """iSAM2's parameters. The relinearization threshold of a further vector variable
     (``lay``) is its prior sigma: the models that use one so far are linear in it (a bias),
     so its value never asks for relinearization. A rotation (the attitude) is relinearized
@@ -181,9 +181,9 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
         # harvest_s at a time, outside the latency (see _harvest).
         lag_internal = inc.lag_s + inc.harvest_s
-        smoother = gtsam.IncrementalFixedLagSmoother(lag_internal, _isam2_params(inc, lay))
+        smoother = gtsam.IncrementalFixedLagSmoother(lag_internal, isam2_params(inc, lay))
     else:
-        isam = gtsam.ISAM2(_isam2_params(inc, lay))
+        isam = gtsam.ISAM2(isam2_params(inc, lay))
     # Holding a Python reference to the internal linearization point spares the copy of all
     # values on every CustomFactor call during relinearization (measured: the copy made the latency
     # ~7x).
