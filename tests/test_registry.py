@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgnav.io import log_csv
+from fgnav.io import log_csv, tdm
 from fgnav.graph import initial_block
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import Pass, build_pass, with_estimates
@@ -26,11 +26,12 @@ from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
                                    BODY_STAR_ANGLE, EARTH_DIRECTION, GYRO_BIAS, LIMB_STAR_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
-                                   SUN_DIRECTION_BODY, simulated_kinds, solved_models)
+                                   SUN_DIRECTION_BODY, solved_models)
 from fgnav.models import isl, registry
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.simulate.simulators import SIMULATORS, simulated_kinds
 from fgnav.solvers import ekf_numba
 from attitude_passes import with_gyro
 
@@ -97,8 +98,13 @@ def test_isl_models_read_the_attitude_rows_of_the_registry_and_are_registered():
     assert all(MODELS[k] is getattr(registry, k.upper()) for k in ISL_KINDS)
 
 
-def test_every_scenario_key_of_a_model_is_validated_by_the_scenario_reader():
+def test_the_tdm_reader_writes_the_kind_of_the_earth_direction_model():
+    assert tdm.EARTH_DIRECTION_KIND == log_csv.EARTH_DIRECTION_KIND == EARTH_DIRECTION.kind
+
+
+def test_every_scenario_key_of_a_simulator_is_validated_by_the_scenario_reader():
     assert set(SENSOR_KIND_KEYS) == set(simulated_kinds())
+    assert set(SIMULATORS) <= set(MODELS), "a simulator of a kind no model reads"
     for kind, keys in SENSOR_KIND_KEYS.items():
         assert set(keys) <= set(SENSOR_KEYS), (kind, set(keys) - set(SENSOR_KEYS))
     assert "model_bias_drift_m_per_h" in SENSOR_KIND_KEYS[REFRACTION.kind]

@@ -169,6 +169,7 @@ __all__ = [
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
     "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
     "ATT_COV_COLUMNS", "attitude_covariances", "CENTRES", "HELIOCENTRIC_KINDS",
+    "EARTH_DIRECTION_KIND",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
@@ -441,6 +442,9 @@ _KIND_SPEC: dict[str, _Kind] = {
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""
 KINDS = tuple(_KIND_SPEC)
+EARTH_DIRECTION_KIND = "earth_direction"
+"""The kind of a geocentric direction row (the rows other formats' angles become,
+:mod:`fgnav.io.tdm`; its model is ``fgnav.models.registry.EARTH_DIRECTION``)."""
 SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
     k: (s.sigma_min, s.sigma_max, s.unit) for k, s in _KIND_SPEC.items()}
 """Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""

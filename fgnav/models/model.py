@@ -12,7 +12,6 @@ gives:
 * ``factor(fam, j, keys, noise)``: its GTSAM factor (``factors/`` adapter) for row ``j``;
 * ``numba_kernel``/``numba_data``: the per-row numba kernel the compiled EKF dispatches on
   (``fgnav.solvers.ekf_numba``) and the packed data it reads;
-* ``simulate``: the sensor simulator (``fgnav.simulate`` protocol: chunks of rows);
 * flags for the consumers: ``prior``, ``observes_orbit``, ``geocentric_direction``,
   ``eci_ray``, ``range_m``; ``requires`` (a variable without which the rows stay out of the
   graphs: an attitude row is a prior on the attitude variable) and ``body_frame_of`` (the
@@ -101,8 +100,6 @@ class MeasurementModel:
     observes_orbit: bool = False
     numba_kernel: Callable | None = None
     numba_data: Callable | None = None
-    simulate: Callable | None = None
-    scenario_keys: tuple[str, ...] = ()
     eci_ray: bool = False
     geocentric_direction: bool = False
     range_m: Callable | None = None

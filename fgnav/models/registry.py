@@ -11,7 +11,6 @@ format's columns and value checks stay in ``fgnav.io.log_csv`` (the format's def
 from __future__ import annotations
 
 import contextlib
-import functools
 
 import numpy as np
 
@@ -41,22 +40,15 @@ from factors.errors import EphemerisSpanError
 from fgnav.constants import R_EARTH_M
 from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
+from fgnav.models.bodies import body_position_eci_m, body_velocity_mps, frame_velocity_bcrs_mps
 from fgnav.models.isl import ISL_CARRIER_PHASE, ISL_PSEUDORANGE
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import ORBIT, Variable
-from fgnav.simulate.celestial_angles import (body_position_eci_m, body_velocity_mps,
-                                             frame_velocity_bcrs_mps, simulate_angle_rows)
-from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
-                                            simulate_body_direction_rows, sun_target)
-from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
-from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
-                                    limb_radius_readings)
-from fgnav.simulate.star_camera import simulate_star_camera_rows
 from fgnav.time import j2000_seconds
 from fgnav.vision.attitude import wahba_by_epoch
 
 __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_ray_kinds",
-           "simulated_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
+           "variable", "REFRACTION_BIAS", "ATTITUDE", "ATTITUDE_VARIABLE",
            "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION", "LIMB_RADIUS", "ALTITUDE",
            "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY", "MOON_DIRECTION_BODY",
            "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE", "LIMB_STAR_ANGLE",
@@ -66,15 +58,6 @@ __all__ = ["MODELS", "VARIABLES", "model", "solved_models", "prior_kinds", "eci_
 
 def _xyz(log, i):
     return np.asarray(log.xyz, dtype=float)[i]
-
-
-def _readings(fn):
-    """A simulator entry from a readings function ``(spec, t, x_true, rng) -> (xyz, sigma)``:
-    rows of the sensor's own kind (``spec.kind``, the model the simulator dispatched on)."""
-    def simulate(spec, t_s, x_true, epoch0, rng):
-        xyz, sigma = fn(spec, t_s, x_true, rng)
-        return [(spec.kind, t_s, xyz, sigma)]
-    return simulate
 
 
 def _position_model(residual):
@@ -119,8 +102,7 @@ EARTH_DIRECTION = MeasurementModel(
                                                                    fam.values["u_eci"][j], noise),
     numba_kernel=earth_direction_row_kernel,
     numba_data=lambda fam: (fam.values["u_eci"], tangent_basis(fam.values["u_eci"])),
-    simulate=_readings(geocentric_direction_readings),
-    scenario_keys=("sigma_deg",), eci_ray=True, geocentric_direction=True)
+    eci_ray=True, geocentric_direction=True)
 
 
 # ---- ranges --------------------------------------------------------------------------------
@@ -146,8 +128,6 @@ LIMB_RADIUS = MeasurementModel(
     factor=lambda fam, j, keys, noise: make_limb_radius_factor(
         keys["orbit"], fam.values["rho_rad"][j], fam.values["r_limb_m"][j], noise),
     numba_kernel=limb_radius_kernel, numba_data=_columns_data("rho_rad", "r_limb_m"),
-    simulate=_readings(limb_radius_readings),
-    scenario_keys=("sigma_deg", "r_limb_km"),
     range_m=lambda fam: fam.values["r_limb_m"] / np.sin(fam.values["rho_rad"]))
 
 ALTITUDE = MeasurementModel(
@@ -159,7 +139,6 @@ ALTITUDE = MeasurementModel(
     factor=lambda fam, j, keys, noise: make_altitude_factor(
         keys["orbit"], fam.values["h_m"][j], fam.values["r_ref_m"][j], noise),
     numba_kernel=altitude_kernel, numba_data=_columns_data("h_m", "r_ref_m"),
-    simulate=_readings(altitude_readings), scenario_keys=("sigma_m",),
     range_m=lambda fam: fam.values["h_m"] + fam.values["r_ref_m"])
 
 
@@ -233,9 +212,7 @@ REFRACTION = MeasurementModel(
     summary="refracted star: catalogue unit vector (EME2000), refraction angle gamma (rad)",
     values=_refraction_values, residual=_refraction_residual, factor=_refraction_factor,
     sigma=_refraction_sigma, optional_variables=(REFRACTION_BIAS,),
-    simulate=simulate_refraction_rows,
-    scenario_keys=("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
-                   "vmag_max", "azimuths_deg", "boresight_tangent_km") + MODEL_BIAS_KEYS,
+   
     eci_ray=True)
 
 
@@ -352,14 +329,12 @@ def _moon_sun_initial(fam):
     return {ATTITUDE_VARIABLE.name: so3_log(so3_exp(axis) @ R)}
 
 
-def _body(kind, target, observes, keys, seen, ephemeris=None, into=None, partner=None,
-          initial=None):
+def _body(kind, target, observes, ephemeris=None, into=None, partner=None, initial=None):
     return MeasurementModel(
         kind=kind, dim=2, unit="rad", observes_orbit=observes,
         summary=f"unit vector to the {target}, body frame",
         values=_body_values(ephemeris, partner),
-        simulate=functools.partial(simulate_body_direction_rows, target=seen),
-        scenario_keys=keys, body_frame_of=into,
+        body_frame_of=into,
         residual=_body_residual, factor=_body_factor, initial=initial,
         optional_variables=(ATTITUDE_VARIABLE,), requires=ATTITUDE_VARIABLE.name)
 
@@ -367,14 +342,11 @@ def _body(kind, target, observes, keys, seen, ephemeris=None, into=None, partner
 # Without --estimate attitude the Sun and Moon rows go through the TRIAD preprocessing
 # (fgnav.sun_earth_moon.preprocess_log) before the graph; with it they are factors on
 # (orbit, attitude), the target at its ephemeris position (parallax included).
-EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True, ("sigma_deg",),
-                             earth_centre_target, into=EARTH_DIRECTION.kind)
-SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ("sigma_deg",), sun_target,
-                           ephemeris=sun_position_geo_m)
-MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False,
-                            ("sigma_deg", "min_sun_elongation_deg"), moon_target,
-                            ephemeris=moon_position_geo_m, partner=SUN_DIRECTION_BODY.kind,
-                            initial=_moon_sun_initial)
+EARTH_DIRECTION_BODY = _body("earth_direction_body", "Earth centre", True,
+                             into=EARTH_DIRECTION.kind)
+SUN_DIRECTION_BODY = _body("sun_direction_body", "Sun", False, ephemeris=sun_position_geo_m)
+MOON_DIRECTION_BODY = _body("moon_direction_body", "Moon", False, ephemeris=moon_position_geo_m,
+                            partner=SUN_DIRECTION_BODY.kind, initial=_moon_sun_initial)
 
 
 # ---- rate gyro (between two epochs) ---------------------------------------------------------
@@ -510,8 +482,7 @@ STAR_DIRECTION_BODY = MeasurementModel(
     values=_star_values, residual=_star_residual, factor=_star_factor,
     optional_variables=(ATTITUDE_VARIABLE, CAMERA_ALIGNMENT), weak_orbit_dependence=True,
     requires=ATTITUDE_VARIABLE.name, initial=_star_initial,
-    simulate=simulate_star_camera_rows,
-    scenario_keys=("star_sigma_arcsec", "fov_deg", "vmag_max", "mounting_sigma_arcsec"))
+    )
 
 
 # ---- attitude-free angles (the INS/CNS lecture's position surfaces) ----------------------------
@@ -591,28 +562,24 @@ def _angle_residual(fam, v):
     return e, {"orbit": H}
 
 
-def _angle_model(kind, summary, star, limb, keys):
+def _angle_model(kind, summary, star, limb):
     return MeasurementModel(
         kind=kind, dim=1, unit="rad", observes_orbit=True, summary=summary,
         values=_angle_values(star, limb), residual=_angle_residual,
         factor=lambda fam, j, keys_, noise: make_celestial_angle_factor(
             keys_["orbit"], *(a[0] for a in _angle_packed(fam, slice(j, j + 1))), noise),
-        numba_kernel=celestial_angle_kernel, numba_data=_angle_packed,
-        simulate=functools.partial(simulate_angle_rows, star=star, limb=limb),
-        scenario_keys=keys)
+        numba_kernel=celestial_angle_kernel, numba_data=_angle_packed)
 
 
-_STAR_KEYS = ("sigma_deg", "body", "stars_per_epoch", "vmag_max", "min_sun_elongation_deg",
-              "star_spread")
 BODY_STAR_ANGLE = _angle_model(
     "body_star_angle", "angle between a near body's centre and a star (rad)",
-    star=True, limb=False, keys=_STAR_KEYS)
+    star=True, limb=False)
 LIMB_STAR_ANGLE = _angle_model(
     "limb_star_angle", "angle between a near body's limb and a star (rad): the sextant",
-    star=True, limb=True, keys=_STAR_KEYS + ("r_limb_km",))
+    star=True, limb=True)
 BODY_BODY_ANGLE = _angle_model(
     "body_body_angle", "angle between two near bodies' centres (rad)",
-    star=False, limb=False, keys=("sigma_deg", "body", "body2"))
+    star=False, limb=False)
 
 
 # (the inter-satellite links, ISL_PSEUDORANGE and ISL_CARRIER_PHASE: fgnav.models.isl)
@@ -665,10 +632,6 @@ def eci_ray_kinds() -> tuple[str, ...]:
     """Kinds whose x, y, z is a unit direction in ECI (drawn as rays)."""
     return tuple(k for k, m in MODELS.items() if m.eci_ray)
 
-
-def simulated_kinds() -> tuple[str, ...]:
-    """Kinds a scenario's ``[[sensor]]`` may simulate."""
-    return tuple(k for k, m in MODELS.items() if m.simulate is not None)
 
 
 def variable(name: str) -> Variable:
