@@ -36,7 +36,7 @@ from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 format_duration, spacecraft_states, with_estimates)
 from factors.geometry import so3_exp, so3_log
-from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
+from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, LOG_SCHEMA, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
@@ -555,7 +555,7 @@ def read_measurements(path: str | Path, estimate=()):
         raise UserError(f"{path}: no such file")
     if path.suffix.lower() in (".tdm", ".kvn"):
         return read_tdm(path)
-    log = read_log(path)
+    log = read_log(path, schema=LOG_SCHEMA)
     if uses_scheme(log) and ATTITUDE_VARIABLE.name not in {variable(n).name for n in estimate}:
         # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
         # ECI.

@@ -32,7 +32,7 @@ from fgnav.io.log_spacecraft import ID_COLUMNS
 from fgnav.io.oem import oem_frame, write_oem
 from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
                                    TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv)
-from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, PRIOR_POSITION,
+from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LOG_SCHEMA, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, SensorSpec, check_size
@@ -217,7 +217,8 @@ def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None,
                                        else np.asarray(e[c], dtype=float) for n, e in extras])[order]
     return log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
                            np.concatenate(xyz)[order], np.concatenate(sig)[order], extra,
-                           spacecraft=spacecraft, antennas=antennas, centre=centre)
+                           spacecraft=spacecraft, antennas=antennas, centre=centre,
+                           schema=LOG_SCHEMA)
 
 
 def write_pass_files(out_dir, sim: SimulatedPass) -> list:
@@ -231,7 +232,7 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
 
     out, scn = Path(out_dir), sim.scenario
     try:
-        write_log(out / "measurements.csv", sim.log)
+        write_log(out / "measurements.csv", sim.log, schema=LOG_SCHEMA)
         write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
                   object_name=scn.name.upper(), **oem_frame(scn.centre),
                   comments=(f"fgnav truth for scenario {scn.name}, seed {sim.seed}",
