@@ -27,6 +27,7 @@ from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, solved_models)
+from fgnav.iod import angles
 from fgnav.models import isl, registry
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
@@ -81,11 +82,11 @@ def test_no_kind_string_outside_the_registry_and_the_log_format():
 
 
 def test_the_registry_and_the_log_format_know_the_same_kinds():
-    assert set(MODELS) == set(log_csv.KINDS)
+    assert set(MODELS) == set(log_csv.KINDS) == set(registry.LOG_SCHEMA)
     assert set(log_csv.SIGMA_RANGE) == set(log_csv.KINDS)
     # a kind drawn as a direction, or turned into one, is a unit vector in the log
-    directions = {k for k, m in MODELS.items() if m.eci_ray or m.geocentric_direction
-                  or m.body_frame_of}
+    directions = {k for k, m in MODELS.items() if m.eci_ray or m.body_frame_of} | set(
+        angles.DIRECTION_KINDS)
     assert directions and directions <= set(log_csv.DIRECTION_KINDS)
     assert MODELS[LIMB_RADIUS.kind].range_m is not None
     assert LIMB_RADIUS.kind not in log_csv.DIRECTION_KINDS

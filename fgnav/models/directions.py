@@ -22,7 +22,7 @@ EARTH_DIRECTION = MeasurementModel(
                                                                    fam.values["u_eci"][j], noise),
     numba_kernel=earth_direction_row_kernel,
     numba_data=lambda fam: (fam.values["u_eci"], tangent_basis(fam.values["u_eci"])),
-    eci_ray=True, geocentric_direction=True)
+    eci_ray=True)
 
 MEASUREMENT_MODELS = (EARTH_DIRECTION,)
 """This module's measurement models (assembled by :mod:`fgnav.models.registry`)."""
