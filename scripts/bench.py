@@ -47,6 +47,14 @@ six inter-satellite pseudoranges per epoch) at 1 Hz over the pass length of ``ba
 solved by batch as ``fgnav smooth`` solves a log of several spacecraft; ``formation_ratio``
 is its solver time over ``batch_4h``'s in the same run (target: at most 4).
 
+Live online navigation (``follow_week``, ``follow_att_24h``; issue 30): ``fgnav follow LOG
+--idle-timeout 0`` as a fresh process on a gto-transfer log at 1 Hz, a week orbit-only
+(604,800 epochs; ``--follow-hours`` shortens it) and 24 h with the Earth direction in the
+body frame and an attitude row per epoch (known attitude, as :func:`make_pass`'s ``att``
+without estimating it): per-epoch latency (latency.csv) p50/p99 over the first hour and the
+last, their growth (last / first), wall and CPU seconds and peak RSS of the process, and the
+final trajectory.oem against ``fgnav smooth LOG`` (batch) of the same log, in its sigma.
+
 ``--quick`` (CI smoke, < 60 s): short passes, one run per case.
 """
 
@@ -507,6 +515,106 @@ def images_case(quick: bool, tmp: Path) -> dict:
 # subprocess; ``formation_ratio`` is its solver time over the one-spacecraft ``batch_4h``
 # case's of the same run (the same pass length; the first spacecraft's Earth directions are
 # gto-transfer's rows of the same seed).
+FOLLOW_CASES = {"follow_week": (168.0, ""), "follow_att_24h": (24.0, "att")}
+"""name -> (hours, variant): ``fgnav follow`` cases (module docstring); quick: 0.5 h, 0.25 h."""
+FOLLOW_TARGETS = {"last_p99_s_max": 5e-3, "growth_p99_max": 1.5, "max_diff_sigma_max": 1e-3}
+
+
+def make_log(duration_h: float, seed: int, tmp: Path, variant: str = "") -> Path:
+    """Simulate gto-transfer at 1 Hz for ``duration_h`` as a CSV v1 log (``variant="att"``:
+    the Earth direction in the body frame and an attitude row per epoch, as
+    :func:`make_pass` builds them)."""
+    import numpy as np
+    from dataclasses import replace
+
+    from fgnav.io.log_csv import log_from_arrays, write_log
+    from fgnav.scenarios import load_scenario
+    from fgnav.simulate.pass_sim import simulate_pass
+
+    scn = load_scenario("gto-transfer").with_options(step_s=STEP_S, duration_h=duration_h)
+    if variant == "att":
+        from factors.geometry import so3_exp, so3_log
+        from fgnav.simulate.body_directions import lvlh_R_eci_from_body
+
+        scn = scn.with_options(sensors=tuple(replace(s, kind="earth_direction_body")
+                                             if s.kind == "earth_direction" else s
+                                             for s in scn.sensors))
+    sim = simulate_pass(scn, seed=seed, max_epochs=10**7, max_duration_h=10**4)
+    log = sim.log
+    if variant == "att":
+        t_att = np.unique(log.t_s[log.kind == "earth_direction_body"])
+        R_att = lvlh_R_eci_from_body(sim.x_true[sim.t_s.searchsorted(t_att)])
+        sig = ATT_SIGMA_ARCSEC * np.pi / (180.0 * 3600.0)
+        noise = np.random.default_rng([seed, 2]).standard_normal((len(t_att), 3)) * sig
+        log = log_from_arrays(log.epoch0, np.concatenate([log.t_s, t_att]),
+                              np.concatenate([np.asarray(log.kind, dtype=object),
+                                              np.full(len(t_att), "attitude", dtype=object)]),
+                              np.concatenate([log.xyz, so3_log(R_att @ so3_exp(noise))]),
+                              np.concatenate([log.sigma, np.full(len(t_att), sig)]))
+    f = tmp / f"log_{duration_h:g}h_seed{seed}{'_' + variant if variant else ''}.csv"
+    write_log(f, log)
+    return f
+
+
+def _run_process(cmd: list[str], timeout_s: float) -> dict:
+    """A fresh process: wall, CPU seconds, peak RSS (``os.wait4``), return code, stderr."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    while True:
+        pid, status, ru = os.wait4(proc.pid, os.WNOHANG)
+        if pid:
+            break
+        if time.perf_counter() - t0 > timeout_s:
+            proc.kill()
+            os.wait4(proc.pid, 0)
+            return {"error": f"timeout after {timeout_s:g} s"}
+        time.sleep(0.05)
+    r = {"wall_s": time.perf_counter() - t0, "cpu_s": ru.ru_utime + ru.ru_stime,
+         "peak_rss_mb": ru.ru_maxrss / 1024.0, "returncode": os.waitstatus_to_exitcode(status)}
+    if r["returncode"] not in (0, 3):
+        r["error"] = proc.stderr.read().decode(errors="replace").strip().splitlines()[-3:]
+    proc.stderr.close()
+    return r
+
+
+def follow_case(name: str, hours: float, variant: str, seed: int, tmp: Path,
+                timeout_s: float) -> dict:
+    """One ``fgnav follow`` case (module docstring)."""
+    import numpy as np
+
+    from fgnav.io.oem import read_oem
+
+    log = make_log(hours, seed, tmp, variant)
+    out, ref = tmp / f"{name}_live", tmp / f"{name}_batch"
+    c = {"hours": hours, "variant": variant or "orbit-only"}
+    r = _run_process(fgnav_cmd() + ["follow", str(log), "--out", str(out), "--idle-timeout", "0",
+                                    "--quiet"], timeout_s)
+    c.update(r)
+    if "error" in r:
+        c["meets_targets"] = False
+        return c
+    lat = np.loadtxt(out / "latency.csv", delimiter=",", skiprows=1, ndmin=2)
+    t, lat = lat[:, 0], lat[:, 1]
+    c["epochs"] = int(len(t))
+    for part, mask in (("first", t < t[0] + 3600.0), ("last", t > t[-1] - 3600.0)):
+        c[f"{part}_hour_p50_s"] = float(np.median(lat[mask]))
+        c[f"{part}_hour_p99_s"] = float(np.percentile(lat[mask], 99))
+    c["growth_p50"] = c["last_hour_p50_s"] / c["first_hour_p50_s"]
+    c["growth_p99"] = c["last_hour_p99_s"] / c["first_hour_p99_s"]
+    b = _run_process(fgnav_cmd() + ["smooth", str(log), "--out", str(ref), "--quiet"], timeout_s)
+    c["batch"] = b
+    if "error" not in b:
+        a, o = read_oem(ref / "trajectory.oem"), read_oem(out / "trajectory.oem")
+        sig = np.sqrt(np.einsum("kii->ki", a.P_eci))
+        c["max_diff_sigma"] = float(np.max(np.abs(o.x_eci - a.x_eci) / sig))
+    if not variant:
+        c["targets"] = FOLLOW_TARGETS
+        c["meets_targets"] = (c["last_hour_p99_s"] <= FOLLOW_TARGETS["last_p99_s_max"]
+                              and c["growth_p99"] <= FOLLOW_TARGETS["growth_p99_max"]
+                              and c.get("max_diff_sigma", 1.0) <= FOLLOW_TARGETS["max_diff_sigma_max"])
+    return c
+
+
 FORMATION_CASES = {"formation_4h": "batch_4h"}   # name -> one-spacecraft case compared with
 FORMATION_TARGETS = {"formation_4h": {"formation_ratio_max": 4.0}}
 
@@ -595,6 +703,8 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="also write the JSON object to this file")
     ap.add_argument("--before-tree", help="a checkout of an earlier commit: the process cases also "
                     "run there, in the same session (e.g. git worktree add /tmp/before a98a318)")
+    ap.add_argument("--follow-hours", type=float,
+                    help="pass length of the orbit-only fgnav follow case (h, default 168)")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--pass-file", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -610,7 +720,8 @@ def main(argv=None) -> int:
     if args.isam2_hours is not None:
         cases["isam2_4h"] = ("isam2", args.isam2_hours)
         cases["isam2_att_4h"] = ("isam2", args.isam2_hours, "att")
-    special = {"cold_start", "images"} | set(PROCESS_CASES) | set(FORMATION_CASES)
+    special = ({"cold_start", "images"} | set(PROCESS_CASES) | set(FORMATION_CASES)
+               | set(FOLLOW_CASES))
     wanted = set(args.cases.split(",")) if args.cases else set(cases) | special
     unknown = wanted - set(cases) - special
     if unknown:
@@ -659,6 +770,14 @@ def main(argv=None) -> int:
             if name in wanted:
                 result["cases"][name] = formation_case(name, cases[base][1], args.seed, repeat,
                                                        tmp, args.timeout_s, result["cases"])
+        for name, (hours, variant) in FOLLOW_CASES.items():
+            if name in wanted:
+                if args.quick:
+                    hours = 0.25 if variant else 0.5
+                elif args.follow_hours is not None and not variant:
+                    hours = args.follow_hours
+                result["cases"][name] = follow_case(name, hours, variant, args.seed, tmp,
+                                                    args.timeout_s)
         before = Path(args.before_tree).resolve() if args.before_tree else None
         for name in PROCESS_CASES:
             if name in wanted:

@@ -20,7 +20,8 @@ from fgnav.io.log_csv import write_log
 from fgnav.simulate import faults as F
 
 KINDS = ["prior_position", "prior_velocity", "earth_direction", "limb_radius", "altitude",
-         "attitude", "earth_direction_body", "refraction", "bogus"]
+         "attitude", "earth_direction_body", "refraction", "bogus", "star_direction_body",
+         "body_star_angle", "limb_star_angle"]
 
 
 _CLEAN: list[str] = []
@@ -99,9 +100,18 @@ def options(draw):
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(data=st.data(), opts=options())
 def test_smooth_end_to_end_never_a_traceback(tmp_path, capsys, data, opts):
-    lines = clean_lines(tmp_path)
+    text = mutated_text(clean_lines(tmp_path), data)
+    log = tmp_path / "log.csv"
+    log.write_text(text)
+    out = tmp_path / "out"
+    rc = main(["smooth", str(log), "--out", str(out), "--quiet", *opts])
+    assert_smooth_contract(rc, capsys.readouterr().err, out)
+
+
+def mutated_text(lines: list[str], data) -> str:
+    """The log's lines mutated as a damaged file would be: a block dropped (a gap), a row
+    duplicated, up to four lines' values mutated (:func:`_mutate_line`), the text truncated."""
     n = len(lines)
-    # structural mutations: drop a block (a gap), duplicate rows, truncate, mutate values
     if data.draw(st.booleans()):
         a = data.draw(st.integers(2, n - 1))
         b = data.draw(st.integers(a, n))
@@ -116,6 +126,49 @@ def test_smooth_end_to_end_never_a_traceback(tmp_path, capsys, data, opts):
     text = "\n".join(lines) + "\n"
     if data.draw(st.booleans()):
         text = text[:data.draw(st.integers(0, len(text)))]
+    return text
+
+
+ROUTES = {   # the routes added last (the integrity issue): a short clean log of each
+    "raw-star": ["geo-limb", "--raw-stars", "--duration-h", "0.5", "--step-s", "120"],
+    "heliocentric": ["mars-cruise", "--duration-h", "72"],
+}
+_ROUTE_LINES: dict[str, list[str]] = {}
+
+
+def route_lines(tmp_path, route: str) -> list[str]:
+    """A clean log of ``route`` (:data:`ROUTES`) as lines; simulated once."""
+    if route not in _ROUTE_LINES:
+        d = tmp_path / route
+        assert main(["simulate", *ROUTES[route], "--out", str(d), "--quiet"]) == 0
+        _ROUTE_LINES[route] = (d / "measurements.csv").read_text().splitlines()
+    return list(_ROUTE_LINES[route])
+
+
+@st.composite
+def route_options(draw, route: str):
+    """:func:`options`, with the route's own options: for raw stars the attitude estimated
+    (random walk or constant rate) or taken from the stars, for the cruise sometimes
+    ``--no-aberration``."""
+    opts = draw(options())
+    if route == "raw-star" and draw(st.booleans()):
+        opts += ["--attitude", "estimate", "--attitude-motion",
+                 draw(st.sampled_from(["random-walk", "constant-rate"]))]
+    if route == "heliocentric" and draw(st.integers(0, 3)) == 0:
+        opts.append("--no-aberration")
+    return opts
+
+
+@pytest.mark.parametrize("route", list(ROUTES))
+@settings(max_examples=25, deadline=None, derandomize=os.environ.get("CI") == "true",
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_smooth_end_to_end_on_the_routes_added_last(tmp_path, capsys, route, data):
+    """The same contract on a raw-star log (star_direction_body rows, attitude from the stars
+    or estimated) and on a heliocentric log (# centre: sun, the angle kinds): the integrity
+    issue's fuzz, extended to the routes added last (formations: tests/test_formation_fuzz.py)."""
+    opts = data.draw(route_options(route))
+    text = mutated_text(route_lines(tmp_path, route), data)
     log = tmp_path / "log.csv"
     log.write_text(text)
     out = tmp_path / "out"

@@ -80,13 +80,16 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("solvers", ("fgnav.solvers",)),
     ("start policy", ("fgnav.start",)),
     ("pipeline", ("fgnav.pipeline", "fgnav.results")),
+    ("online navigation", ("fgnav.online",)),
     ("studies", ("fgnav.analysis", "fgnav.formation")),
     ("reports, campaigns", ("fgnav.viz", "fgnav.campaign")),
     ("interfaces", ("fgnav.api", "fgnav.commands", "fgnav.cli", "fgnav.__main__")),
 )
-# Modules that may import project modules inside functions: the command line loads a verb's
-# libraries only when it runs (`fgnav --help` loads no numpy, GTSAM or OpenCV).
-LAZY_ALLOWED = ("fgnav.commands", "fgnav.cli", "fgnav.__main__")
+# Modules that may import project modules inside functions: the interfaces on the top layer.
+# The command line loads a verb's libraries only when it runs (`fgnav --help` loads no numpy,
+# GTSAM or OpenCV), and `import fgnav.api` stays cheap (0.14 s, against 1.9 s for the
+# pipeline with GTSAM): each of its calls loads what it runs, as docs/api.md promises.
+LAZY_ALLOWED = ("fgnav.commands", "fgnav.cli", "fgnav.__main__", "fgnav.api")
 # What is still to be undone (the one-pipeline issue), one line each; the test fails when an
 # entry is added and when one is paid off without deleting its line, so the list only shrinks.
 # Rewrite it after paying debt off with: python tests/test_imports.py --write-debt

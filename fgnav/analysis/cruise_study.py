@@ -28,6 +28,14 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
+from fgnav.diagnostics.crb import cramer_rao_bound
+from fgnav.iod.geometric import fixes_along
+from fgnav.measurements import build_pass
+from fgnav.pipeline import accuracy_metrics, smooth_log
+from fgnav.scenarios import load_scenario
+from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.solvers.options import SmootherOptions
+
 __all__ = ["run_cruise_study", "format_cruise_study"]
 
 
@@ -36,14 +44,6 @@ def run_cruise_study(seeds=range(20), duration_h: float | None = None,
     """Run the study (module docstring) over ``seeds``; ``duration_h``/``step_s`` override
     the scenario's. Returns a dict of per-seed rows, the pooled figures and seed 0's
     per-epoch fixes."""
-    from fgnav.diagnostics.crb import cramer_rao_bound
-    from fgnav.iod.geometric import fixes_along
-    from fgnav.measurements import build_pass
-    from fgnav.pipeline import accuracy_metrics, smooth_log
-    from fgnav.scenarios import load_scenario
-    from fgnav.simulate.pass_sim import simulate_pass
-    from fgnav.solvers.options import SmootherOptions
-
     scn = load_scenario("mars-cruise").with_options(duration_h=duration_h, step_s=step_s)
     model = SmootherOptions(centre=scn.centre).motion_model()
     rows, crb, per_epoch = [], None, None

@@ -17,8 +17,9 @@ Runs are independent and deterministic: a run is a pure function of its paramete
 noise seed among them), so 1 worker, N workers and a Dask cluster give the same numbers.
 """
 
-from fgnav.campaign.reports import REPORTS, write_report
-from fgnav.campaign.runners import CampaignResult, execute_run, read_runs, run_campaign
+from fgnav.campaign.reports import REPORTS
+from fgnav.campaign.runners import (CampaignResult, execute_run, read_runs, run_campaign,
+                                     write_report)
 from fgnav.campaign.spec import RunSpec, Study, builtin_studies, load_study, study_runs
 from fgnav.campaign.tasks import TASKS, TIMING_COLUMNS
 

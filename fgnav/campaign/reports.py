@@ -22,7 +22,7 @@ from fgnav.diagnostics.consistency import anees, nees_curve
 from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 
-__all__ = ["Report", "REPORTS", "write_report", "NoiseReference", "PeriodReference",
+__all__ = ["Report", "REPORTS", "write_study_report", "NoiseReference", "PeriodReference",
            "ObservabilityReference", "VisibilityReference", "Table5Reference", "NeesReference"]
 
 
@@ -448,17 +448,16 @@ REPORTS = {r.name: r for r in (
 )}
 
 
-def write_report(study, out_dir) -> list[Path]:
+def write_study_report(study, out_dir, run_ids) -> list[Path]:
     """Write table.csv, table.md and plot.png of a finished campaign; return the paths.
 
-    The rows are taken in the study's run order, not in the order the runs finished, so a
-    resumed or parallel campaign reports the same numbers (means summed in the same order)."""
-    from fgnav.campaign.spec import study_runs
-
+    The rows are taken in the study's run order ``run_ids`` (:func:`fgnav.campaign.spec.study_runs`),
+    not in the order the runs finished, so a resumed or parallel campaign reports the same
+    numbers (means summed in the same order)."""
     out = Path(out_dir)
     rows = [r for r in RunsTable(out / "runs.csv", study.columns()).read() if r["status"] == "ok"]
     if not rows:
         raise UserError(f"{out}: no finished runs to report")
-    order = {s.run_id: i for i, s in enumerate(study_runs(study))}
+    order = {run_id: i for i, run_id in enumerate(run_ids)}
     rows.sort(key=lambda r: order.get(r["run_id"], len(order)))
     return REPORTS[study.report].write(study, rows, out)

@@ -20,7 +20,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from fgnav.campaign.reports import write_report
+from fgnav.campaign.reports import write_study_report
 from fgnav.campaign.spec import RunSpec, Study, run_columns, study_runs
 from fgnav.campaign.storage import RunsTable, safe_name
 from fgnav.campaign.tasks import TASKS, RunParams
@@ -28,7 +28,7 @@ from fgnav.errors import UserError
 from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.progress import progress
 
-__all__ = ["CampaignResult", "execute_run", "read_runs", "run_campaign"]
+__all__ = ["CampaignResult", "execute_run", "read_runs", "run_campaign", "write_report"]
 
 
 def execute_run(task: str, params: RunParams) -> dict:
@@ -164,6 +164,14 @@ def _save_curves(out: Path, spec: RunSpec, arrays: dict) -> None:
         np.savez(g, **arrays)
 
 
+def write_report(study, out_dir, runs=None) -> list[Path]:
+    """Write table.csv, table.md and plot.png of a finished campaign in ``out_dir``; return the
+    paths (:func:`fgnav.campaign.reports.write_study_report`, its rows in the order of
+    ``runs``, by default the study's own :func:`fgnav.campaign.spec.study_runs`)."""
+    runs = study_runs(study) if runs is None else runs
+    return write_study_report(study, out_dir, [r.run_id for r in runs])
+
+
 def run_campaign(study: Study, out_dir, *, workers: int = 1, scheduler: str | None = None,
                  client=None, resume: bool = False, quiet: bool = True, on_result=None,
                  report: bool = True) -> CampaignResult:
@@ -216,6 +224,6 @@ def run_campaign(study: Study, out_dir, *, workers: int = 1, scheduler: str | No
     files = []
     rows = table.read()
     if report and len(rows) == len(runs) and all(r["status"] == "ok" for r in rows):
-        files = write_report(study, out)
+        files = write_report(study, out, runs)
     return CampaignResult(out, len(runs), len(done), n_ok + n_failed, n_failed,
                           time.perf_counter() - t_start, run_s_sum, files)

@@ -37,6 +37,7 @@ from fgnav.campaign.tasks import TASKS, Column, RunParams
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.text import load_toml
 from fgnav.paths import data_dir
+from fgnav.pipeline import METHODS
 
 __all__ = ["Study", "RunSpec", "load_study", "builtin_studies", "study_runs", "run_columns",
            "typed_value", "typed_object"]
@@ -272,8 +273,6 @@ def study_from_dict(d: dict, path) -> Study:
                                f"({tuple(r for r in REPORTS if task.name in REPORTS[r].tasks)})", d["report"])
     seeds = _seeds(path, d.get("seeds", [0]))
     if task.takes_method:
-        from fgnav.pipeline import METHODS
-
         methods = d.get("methods")
         if (not isinstance(methods, list) or not methods or any(m not in METHODS for m in methods)
                 or len(set(methods)) != len(methods)):

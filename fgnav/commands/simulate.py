@@ -59,6 +59,12 @@ def register(sub):
     p.add_argument("--image-period-s", type=T.pos("s"),
                    help="image period (s, > 0; default the measurement period, thinned to at "
                         "most 100 image epochs: ~1.8 MB of PNG per epoch)")
+    p.add_argument("--stream", action="store_true",
+                   help="also write the measurement log to stdout, paced at --speed times real "
+                        "time (for fgnav follow -: one pipe); the notes go to stderr")
+    p.add_argument("--speed", type=T.number(0.0, 1e9, unit="x real time"), default=None,
+                   metavar="X",
+                   help="with --stream: X times real time (default 1; 0: as fast as possible)")
     p.set_defaults(func=run)
 
 
@@ -70,6 +76,9 @@ def run(args) -> int:
     from fgnav.scenarios import check_size, load_scenario
     from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass, write_pass_files
 
+    stream = getattr(args, "stream", False)
+    if getattr(args, "speed", None) is not None and not stream:
+        raise UserError("--speed paces --stream; give --stream with it")
     mounting = getattr(args, "star_mounting_sigma_arcsec", None)
     if mounting is not None and not getattr(args, "raw_stars", False):
         raise UserError("--star-mounting-sigma-arcsec needs --raw-stars (the star camera it "
@@ -88,7 +97,7 @@ def run(args) -> int:
             camera = replace(RAW_STAR_CAMERA, mounting_sigma_arcsec=mounting)
         scn = raw_star_scenario(scn) if camera is None else raw_star_scenario(scn, camera)
     if scn.formation is not None:
-        for opt, on in (("--raw-stars", getattr(args, "raw_stars", False)),
+        for opt, on in (("--stream", stream), ("--raw-stars", getattr(args, "raw_stars", False)),
                         ("--images", getattr(args, "images", False))):
             if on:
                 raise UserError(f"{opt}: scenario {scn.name} has several spacecraft; {opt} "
@@ -117,8 +126,9 @@ def run(args) -> int:
                         max_duration_h=args.max_duration_h)
     written = write_pass_files(out, sim)
     if not args.quiet:
+        import sys
         print(f"{scn.name}: {len(sim.log.t_s)} measurement rows over {len(sim.t_s)} epochs -> "
-              + ", ".join(str(w) for w in written))
+              + ", ".join(str(w) for w in written), file=sys.stderr if stream else sys.stdout)
     if getattr(args, "images", False):
         from fgnav.simulate.images import ImageConfig, render_pass_frames
 
@@ -128,4 +138,7 @@ def run(args) -> int:
             n_limb = sum(r.camera_name.startswith("limb") for r in recs)
             print(f"{len(recs)} frames ({len(recs) - n_limb} star, {n_limb} limb) -> "
                   f"{out / 'frames'}/, {out / 'frames.csv'}")
+    if stream:
+        from fgnav.online.stream import pace_log
+        pace_log(out / "measurements.csv", 1.0 if args.speed is None else args.speed)
     return 0

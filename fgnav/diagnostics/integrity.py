@@ -37,6 +37,7 @@ import numpy as np
 
 from factors.dynamics import accel_third_body
 from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
+from fgnav.apparent import aberration_off, with_aberration
 from fgnav.chi2 import chi2_isf, chi2_logsf, norm_isf
 from fgnav.diagnostics.crb import CHUNK, rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values
@@ -76,6 +77,8 @@ ADVICE = {
                 "units, or try --ignore-prior",
     "observability": "add measurements (limb, altitude) or a longer pass",
     "third_body": "try --third-body",
+    "aberration": "solve without --no-aberration: the correction is the physics, the option is "
+                  "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
               "direction), or a prior on the relative position",
 }
@@ -254,7 +257,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                                   f"{iod.get('prior_mahalanobis', math.nan):.3g} sigma from the "
                                   f"orbit determined from the data alone", "prior"))
 
-    glr = third = None
+    glr = third = aberration = None
     if getattr(p, "breaks", ()):
         notes.append("manoeuvre and omitted-force tests not run: the log is solved as separate "
                      "arcs")
@@ -266,6 +269,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         if mapped is not None:
             glr = manoeuvre_glr_windowed(p, sol, model, row_weights, mapped)
             third = third_body_sensitivity(mapped, sol, model)
+            aberration = aberration_sensitivity(mapped, p, sol, model)
     if glr is not None and glr["glr"] > glr["threshold"]:
         glr["t_s"] = float(p.t_s[glr["epoch_index"]])
         reasons.append(("failed" if glr["glr"] > 4.0 * glr["threshold"] else "suspect",
@@ -284,6 +288,23 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
             reasons.append(("suspect", text, "third_body"))
         else:
             notes.append(text + "; --third-body if the spacecraft feels them")
+
+    if aberration is not None and aberration["mean_nees"] > 0.25 * THIRD_BODY_NEES:
+        text = (f"--no-aberration: the stellar aberration left out of "
+                f"{', '.join(aberration['kinds'])} (up to {aberration['max_row_shift_sigma']:.3g} "
+                f"sigma of a row) moves this solution by ~{aberration['position_rms_m']:.3g} m RMS "
+                f"({math.sqrt(aberration['mean_nees'] / 6):.2g} sigma)")
+        if aberration["mean_nees"] > THIRD_BODY_NEES:
+            # a consider warning: the fit can absorb the shift into the orbit (chi-square 114.3
+            # against 113.6 with the correction on a week of mars-cruise), so the residuals
+            # need not say it is missing; the physics says it is there
+            reasons.append(("suspect", text + " (consider analysis)", "aberration"))
+        else:
+            notes.append(text)
+    if aberration_off(p) and any(v.name.startswith("attitude") for v in p.layout.extra):
+        notes.append("--no-aberration with the attitude estimated: the consider analysis moves "
+                     "the orbit's own rows only, not the attitude the star rows fix, whose shift "
+                     "turns every body-frame row (docs/integrity.md)")
 
     weak = weakest_direction(sol.x_eci, sol.P_eci)
     if weak.get("sigma_m", 0.0) > WEAK_POSITION_FRACTION * weak.get("radius_m", math.inf):
@@ -311,6 +332,8 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         out["manoeuvre_glr"] = glr
     if third is not None:
         out["third_body_omitted"] = third
+    if aberration is not None:
+        out["aberration_omitted"] = aberration
     return out
 
 
@@ -409,9 +432,10 @@ class _Mapped:
         rejected = {k: np.asarray(w) == 0 for k, w in (row_weights or {}).items()
                     if k not in PRIOR_KINDS}
         rejected = {k: r for k, r in rejected.items() if r.any()}   # none: the bound's rows
-        self.Phik, H, rows = rows_at_first_state(p, block_values(p, sol.x_eci, sol.variables),
-                                                 model, rejected or None)
-        live = np.any(rows.A != 0, axis=1)
+        self.X = block_values(p, sol.x_eci, sol.variables)
+        self.rejected = rejected or None
+        self.Phik, H, rows = rows_at_first_state(p, self.X, model, self.rejected)
+        live = self.live = np.any(rows.A != 0, axis=1)
         H = H[live]
         norm = np.sqrt(np.sum(H * H, axis=0))
         self.s = 1.0 / np.where(norm > 0, norm, 1.0)
@@ -561,6 +585,35 @@ def manoeuvre_glr_windowed(p, sol, model, row_weights, whole: _Mapped) -> dict |
     if best is not None:
         best["windows"] = n_windows
     return best
+
+
+def aberration_sensitivity(m: _Mapped, p, sol, model) -> dict | None:
+    """How far the stellar aberration a ``--no-aberration`` solve leaves out moves the
+    solution (consider analysis, as :func:`third_body_sensitivity`).
+
+    Along the solution, applying the correction (Urban & Seidelmann 2013, eq. 7.40) changes
+    the whitened rows by ``db = b_on - b_off``; the fit through the first state absorbs
+    ``dz_0 = J^-1 H^T db``, which moves the trajectory by ``e_k = Phi_k (s dz_0)`` (Tapley,
+    Schutz & Born 2004, ch. 6). Returned as its mean Mahalanobis size against the solution's
+    covariances, with the largest shift of a row in its own sigma (``max |db|``); None when every
+    row has its correction.
+    """
+    kinds = aberration_off(p)
+    if not kinds:
+        return None
+    _, _, rows_on = rows_at_first_state(with_aberration(p), m.X, model, m.rejected)
+    if rows_on.b.shape != m.live.shape:
+        return None
+    db = rows_on.b[m.live] - m.b
+    try:
+        dz0 = np.linalg.solve(m.J, m.H.T @ db)
+        e = np.einsum("kij,j->ki", m.Phik, dz0 * m.s)
+        nees = np.einsum("ki,ki->k", e, np.linalg.solve(sol.P_eci, e[..., None])[..., 0])
+    except np.linalg.LinAlgError:
+        return None
+    return {"kinds": kinds, "mean_nees": float(np.mean(nees)),
+            "position_rms_m": float(np.sqrt(np.mean(np.sum(e[:, :3] ** 2, axis=1)))),
+            "max_row_shift_sigma": float(np.max(np.abs(db))) if db.size else 0.0}
 
 
 def third_body_sensitivity(m: _Mapped, sol, model) -> dict | None:

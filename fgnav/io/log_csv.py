@@ -1377,3 +1377,38 @@ def write_log(path, log: MeasurementLog, *, comments=(), schema=None) -> None:
         out.append(",".join(row) + "\n")
     with atomic_writer(path, "w") as f:
         f.write("".join(out))
+
+
+# ---- one line at a time (a live stream: fgnav.online.stream) ----
+
+CENTRE_LINE = _CENTRE_LINE
+"""A ``# centre: NAME`` comment line (group 1: the name)."""
+
+
+def check_header(path, lineno: int, text: str) -> list[str]:
+    """The column names of a header line (the module docstring's rules), or
+    :class:`~fgnav.errors.InputFormatError` naming ``path``, ``lineno`` and the column."""
+    return _check_header(path, lineno, text)
+
+
+def parse_line(path, lineno: int, raw: bytes, header: list[str], *, last_unterminated=False,
+               vocab: dict | None = None):
+    """One line after the header by the same rules as :func:`read_log`: ``None`` for a blank
+    or comment line, else ``(epoch ns (int), kind, values (len(VALUE_COLUMNS),), reason)``
+    with ``reason`` None; a bad line raises :class:`~fgnav.errors.InputFormatError` naming
+    ``path`` and ``lineno``, with the row-level reason key as its ``reason`` attribute."""
+    vocab = vocab or {"spacecraft": Vocabulary(()), "antenna": Vocabulary()}
+    try:
+        row = _parse_row(raw, header, last_unterminated, vocab)
+    except _RowError as err:
+        exc = InputFormatError(path, lineno, err.column, err.expected, err.found)
+        exc.reason = err.reason
+        raise exc from None
+    if row is None:
+        return None
+    t, kind, v, _ = row
+    return int(t.astype(np.int64)), kind, v
+
+
+VALUE_COLUMNS = _VALUE_COLUMNS
+"""The order of :func:`parse_line`'s values: x, y, z, sigma, then :data:`EXTRA_COLUMNS`."""
