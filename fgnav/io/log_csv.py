@@ -1392,14 +1392,15 @@ def check_header(path, lineno: int, text: str) -> list[str]:
 
 
 def parse_line(path, lineno: int, raw: bytes, header: list[str], *, last_unterminated=False,
-               vocab: dict | None = None):
+               vocab: dict | None = None, schema=None):
     """One line after the header by the same rules as :func:`read_log`: ``None`` for a blank
     or comment line, else ``(epoch ns (int), kind, values (len(VALUE_COLUMNS),), reason)``
     with ``reason`` None; a bad line raises :class:`~fgnav.errors.InputFormatError` naming
-    ``path`` and ``lineno``, with the row-level reason key as its ``reason`` attribute."""
+    ``path`` and ``lineno``, with the row-level reason key as its ``reason`` attribute.
+    ``schema``: the kinds (:func:`read_log`)."""
     vocab = vocab or {"spacecraft": Vocabulary(()), "antenna": Vocabulary()}
     try:
-        row = _parse_row(raw, header, last_unterminated, vocab)
+        row = _parse_row(raw, header, last_unterminated, vocab, schema)
     except _RowError as err:
         exc = InputFormatError(path, lineno, err.column, err.expected, err.found)
         exc.reason = err.reason
