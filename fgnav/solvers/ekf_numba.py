@@ -354,15 +354,16 @@ def _filter_for(kernels):
         _KERNELS = table      # read only if _rows compiles now
         if _compiled_fingerprint() == fp:
             return ekf_kernel
-    if fp not in _FRESH:
+    key = tuple(id(getattr(k, "py_func", k)) for k in kernels)   # these very functions
+    if key not in _FRESH:
         import numba
 
         def fresh(dispatcher, **globs):
             f = dispatcher.py_func
             return numba.njit(types.FunctionType(f.__code__, {**f.__globals__, **globs},
                                                  f.__name__, f.__defaults__, f.__closure__))
-        _FRESH[fp] = fresh(ekf_kernel, _rows=fresh(_rows, _call_kernel=_dispatch_function(table)))
-    return _FRESH[fp]
+        _FRESH[key] = fresh(ekf_kernel, _rows=fresh(_rows, _call_kernel=_dispatch_function(table)))
+    return _FRESH[key]
 
 
 # ----------------------------------------------------------------------------- packing
