@@ -9,7 +9,7 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.io.log_csv import attitude_covariances
 from fgnav.models.model import MeasurementModel
 from fgnav.models.values import xyz_rows
-from fgnav.models.variables import Variable
+from fgnav.models.variables import ConstantRate, Variable
 
 __all__ = ["MEASUREMENT_MODELS", "ATTITUDE_VARIABLE", "ATTITUDE", "ATTITUDE_RATE"]
 
@@ -48,7 +48,7 @@ ATTITUDE = MeasurementModel(
 
 ATTITUDE_RATE = Variable(
     "attitude_rate", "w", 3, "rad/s", components=("rate_x", "rate_y", "rate_z"),
-    psd=1e-10, prior_sigma=0.1,
+    psd=1e-10, prior_sigma=0.1, process=ConstantRate(turns="attitude"),
     description="body angular rate (body frame) that turns the attitude, rad/s (constant-rate "
                 "motion: white angular acceleration of psd 1e-10 rad^2/s^3)")
 """The body rate of the constant-rate attitude motion (``fgnav smooth --attitude-motion
