@@ -28,7 +28,8 @@ from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas, fill_gaps,
                                 format_duration, spacecraft_pass, spacecraft_states,
                                 with_estimates)
-from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, VARIABLES, variable
+from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, LOG_SCHEMA, MODELS, VARIABLES,
+                                   variable)
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.results import (pairs, read_formation_truth, read_truth, relative_rows,
@@ -532,7 +533,7 @@ def read_measurements(path: str | Path, estimate=()):
         raise UserError(f"{path}: no such file")
     if path.suffix.lower() in (".tdm", ".kvn"):
         return read_tdm(path)
-    log = read_log(path)
+    log = read_log(path, schema=LOG_SCHEMA)
     if uses_scheme(log) and ATTITUDE_VARIABLE.name not in {variable(n).name for n in estimate}:
         # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
         # ECI.

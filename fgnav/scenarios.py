@@ -27,14 +27,15 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, CENTRES, HELIOCENTRIC_KINDS
 from fgnav.io.log_spacecraft import ID_EXPECTED, ID_RE
 from fgnav.io.text import parse_toml, read_utf8_text
-from fgnav.models.registry import MODELS, simulated_kinds
 from fgnav.orbit import elements_to_state, mean_to_true_anomaly
 from fgnav.paths import data_dir
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS
+from fgnav.simulate.simulators import SIMULATORS, simulated_kinds
 from fgnav.time import parse_utc, seconds_since
 
 SENSOR_KINDS = simulated_kinds()
-"""The kinds a ``[[sensor]]`` may simulate: every registered model with a simulator."""
+"""The kinds a ``[[sensor]]`` may simulate: every kind with a simulator
+(:data:`fgnav.simulate.simulators.SIMULATORS`)."""
 
 MAX_EPOCHS = 1_000_000
 """Default limit on the sensor epochs of a simulated pass (summed over the sensors): 1e6
@@ -262,9 +263,9 @@ RANGING_KEYS = {
 ``[ranging]`` (``sigma_m`` required; ``carrier_sigma_m`` > 0 adds carrier-phase rows)."""
 MAX_ANTENNA_ARM_M = 1000.0
 
-SENSOR_KIND_KEYS = {kind: MODELS[kind].scenario_keys for kind in SENSOR_KINDS}
-"""Keys each sensor kind takes besides ``kind`` and ``period_s`` (its model's
-``scenario_keys``, ``fgnav.models.registry``); ``sigma_deg`` and
+SENSOR_KIND_KEYS = {kind: SIMULATORS[kind].scenario_keys for kind in SENSOR_KINDS}
+"""Keys each sensor kind takes besides ``kind`` and ``period_s`` (its simulator's
+``scenario_keys``, ``fgnav.simulate.simulators``); ``sigma_deg`` and
 ``sigma_m`` are required where listed."""
 _SENSOR_REQUIRED = ("sigma_deg", "sigma_m")
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgnav.io import log_csv
+from fgnav.io import log_csv, tdm
 from fgnav.graph import initial_block
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import Pass, build_pass, with_estimates
@@ -26,16 +26,20 @@ from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
                                    BODY_STAR_ANGLE, EARTH_DIRECTION, GYRO_BIAS, LIMB_STAR_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
-                                   SUN_DIRECTION_BODY, simulated_kinds, solved_models)
+                                   SUN_DIRECTION_BODY, solved_models)
+from fgnav.iod import angles
 from fgnav.models import isl, registry
 from fgnav.models.variables import ORBIT, Layout
 from fgnav.scenarios import SENSOR_KEYS, SENSOR_KIND_KEYS, SensorSpec, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
+from fgnav.simulate.simulators import SIMULATORS, simulated_kinds
 from fgnav.solvers import ekf_numba
 from attitude_passes import with_gyro
 
 ROOT = Path(__file__).resolve().parents[1]
 REGISTRY = "fgnav/models/registry.py"
+# the modules that define the kinds (one module per family, assembled by the registry)
+MODEL_FILES = {f"fgnav/models/{m.__name__.rsplit('.', 1)[1]}.py" for m in registry.FAMILY_MODULES}
 LOG_FORMAT = "fgnav/io/log_csv.py"
 
 # Double-quoted kind strings outside the registry and the log format that do not choose
@@ -49,9 +53,6 @@ NOT_A_CHOICE = {
     # the log format's module for several spacecraft names its inter-satellite kinds (the
     # format's definition, as log_csv.py; it cannot import the registry, which imports it)
     "fgnav/io/log_spacecraft.py": {"isl_pseudorange", "isl_carrier_phase"},
-    # the links' lever arms turn with their spacecraft's attitude rows; the links' models
-    # cannot import the registry (the registry imports them; checked below)
-    "fgnav/models/isl.py": {"attitude"},
 }
 
 
@@ -60,32 +61,32 @@ def _sources():
         yield path.relative_to(ROOT).as_posix(), path.read_text(encoding="utf-8")
 
 
-def test_earth_direction_is_named_by_the_registry_and_the_log_format_only():
+def test_earth_direction_is_named_by_its_model_module_and_the_log_format_only():
     """The issue's acceptance check: ``git grep -l '"earth_direction"' -- fgnav``."""
     found = {name for name, text in _sources() if '"earth_direction"' in text}
-    assert REGISTRY in found
-    assert found <= {REGISTRY, LOG_FORMAT}, sorted(found - {REGISTRY, LOG_FORMAT})
+    assert "fgnav/models/directions.py" in found
+    assert found <= {"fgnav/models/directions.py", LOG_FORMAT}, sorted(found)
 
 
 def test_no_kind_string_outside_the_registry_and_the_log_format():
     pattern = re.compile(r'"(' + "|".join(map(re.escape, MODELS)) + r')"')
     offenders = {}
     for name, text in _sources():
-        if name in (REGISTRY, LOG_FORMAT):
+        if name in MODEL_FILES or name == LOG_FORMAT:
             continue
         kinds = set(pattern.findall(text)) - NOT_A_CHOICE.get(name, set())
         if kinds:
             offenders[name] = sorted(kinds)
-    assert not offenders, ("kind strings outside fgnav/models/registry.py (use the model "
+    assert not offenders, ("kind strings outside the models' modules (use the model "
                            f"constants or flags): {offenders}")
 
 
 def test_the_registry_and_the_log_format_know_the_same_kinds():
-    assert set(MODELS) == set(log_csv.KINDS)
+    assert set(MODELS) == set(log_csv.KINDS) == set(registry.LOG_SCHEMA)
     assert set(log_csv.SIGMA_RANGE) == set(log_csv.KINDS)
     # a kind drawn as a direction, or turned into one, is a unit vector in the log
-    directions = {k for k, m in MODELS.items() if m.eci_ray or m.geocentric_direction
-                  or m.body_frame_of}
+    directions = {k for k, m in MODELS.items() if m.eci_ray or m.body_frame_of} | set(
+        angles.DIRECTION_KINDS)
     assert directions and directions <= set(log_csv.DIRECTION_KINDS)
     assert MODELS[LIMB_RADIUS.kind].range_m is not None
     assert LIMB_RADIUS.kind not in log_csv.DIRECTION_KINDS
@@ -97,8 +98,13 @@ def test_isl_models_read_the_attitude_rows_of_the_registry_and_are_registered():
     assert all(MODELS[k] is getattr(registry, k.upper()) for k in ISL_KINDS)
 
 
-def test_every_scenario_key_of_a_model_is_validated_by_the_scenario_reader():
+def test_the_tdm_reader_writes_the_kind_of_the_earth_direction_model():
+    assert tdm.EARTH_DIRECTION_KIND == log_csv.EARTH_DIRECTION_KIND == EARTH_DIRECTION.kind
+
+
+def test_every_scenario_key_of_a_simulator_is_validated_by_the_scenario_reader():
     assert set(SENSOR_KIND_KEYS) == set(simulated_kinds())
+    assert set(SIMULATORS) <= set(MODELS), "a simulator of a kind no model reads"
     for kind, keys in SENSOR_KIND_KEYS.items():
         assert set(keys) <= set(SENSOR_KEYS), (kind, set(keys) - set(SENSOR_KEYS))
     assert "model_bias_drift_m_per_h" in SENSOR_KIND_KEYS[REFRACTION.kind]

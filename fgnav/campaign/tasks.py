@@ -24,7 +24,8 @@ from fgnav.diagnostics.observability import (analyze_observability, observabilit
 from fgnav.errors import UserError
 from fgnav.io.log_csv import log_from_arrays
 from fgnav.measurements import build_pass
-from fgnav.models.registry import MODELS, prior_kinds
+from fgnav.iod.angles import DIRECTION_KINDS
+from fgnav.models.registry import prior_kinds
 from fgnav.pipeline import accuracy_metrics, solve
 from fgnav.scenarios import check_size, load_scenario
 from fgnav.simulate.pass_sim import simulate_pass
@@ -125,7 +126,7 @@ def _scenario(name: str, *, step_s=None, duration_h=None, sigma_deg=None, prior_
                                            prior_mode=prior_mode)
     if sigma_deg is not None:
         sensors = tuple(replace(s, sigma_deg=float(sigma_deg))
-                        if MODELS[s.kind].geocentric_direction else s for s in scn.sensors)
+                        if s.kind in DIRECTION_KINDS else s for s in scn.sensors)
         scn = scn.with_options(sensors=sensors)
     return scn
 

@@ -132,8 +132,10 @@ def run(args) -> int:
             log = read_tdm(args.log, sigma_rad=sigma_rad)
         else:
             from fgnav.io.log_csv import read_log
+            from fgnav.models.registry import LOG_SCHEMA
 
-            log = read_log(args.log, on_bad_row="drop" if args.drop_bad_rows else "error")
+            log = read_log(args.log, on_bad_row="drop" if args.drop_bad_rows else "error",
+                           schema=LOG_SCHEMA)
     except UserError as exc:
         if not args.json:
             raise

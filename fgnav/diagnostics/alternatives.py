@@ -26,7 +26,7 @@ from fgnav.chi2 import chi2_isf
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import block_values
 from fgnav.measurements import Pass, with_estimates
-from fgnav.models.registry import ATTITUDE_VARIABLE, CAMERA_ALIGNMENT
+from fgnav.models.registry import ATTITUDE_VARIABLE, CAMERA_ALIGNMENT, STAR_DIRECTION_BODY
 
 __all__ = ["camera_mounting_test", "MOUNTING_FALSE_ALARM", "MOUNTING_MAX_ITERATIONS"]
 
@@ -36,7 +36,7 @@ frame (threshold: the chi-square(3) quantile, 16.3)."""
 MOUNTING_MAX_ITERATIONS = 10
 """Gauss-Newton iterations of each of the test's solves (from the solution)."""
 
-STAR_KIND = "star_direction_body"
+STAR_KIND = STAR_DIRECTION_BODY.kind
 
 
 def applies(p: Pass) -> bool:

@@ -42,6 +42,7 @@ from fgnav.chi2 import chi2_isf, chi2_logsf, norm_isf
 from fgnav.diagnostics.crb import CHUNK, rows_at_first_state
 from fgnav.graph import PRIOR_KINDS, block_values
 from fgnav.measurements import slice_pass
+from fgnav.models.attitude import ATTITUDE_VARIABLE
 from fgnav.time import j2000_seconds
 
 
@@ -314,7 +315,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                                    f"by {mounting['chi2_drop']:.3g} > {mounting['threshold']:.3g} "
                                    f"with it estimated): the star camera is not aligned with "
                                    f"the body frame", "mounting"))
-    if aberration_off(p) and any(v.name.startswith("attitude") for v in p.layout.extra):
+    if aberration_off(p) and any(v.name.startswith(ATTITUDE_VARIABLE.name) for v in p.layout.extra):
         notes.append("--no-aberration with the attitude estimated: the consider analysis moves "
                      "the orbit's own rows only, not the attitude the star rows fix, whose shift "
                      "turns every body-frame row (docs/integrity.md)")

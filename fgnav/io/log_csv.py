@@ -169,6 +169,7 @@ __all__ = [
     "read_log", "write_log", "log_from_arrays", "EPOCH_OUTLIER_DAYS", "UNIT_TOL", "SIGMA_RANGE",
     "PRIOR_MIN_RADIUS_M", "STAR_COLUMNS", "BODIES", "BODY_COLUMNS", "body_codes", "body_names",
     "ATT_COV_COLUMNS", "attitude_covariances", "CENTRES", "HELIOCENTRIC_KINDS",
+    "EARTH_DIRECTION_KIND", "KindSpec", "FORMAT_KINDS", "RowError", "fmt_found",
 ]
 
 BASE_COLUMNS = ("epoch", "kind", "x", "y", "z", "sigma")
@@ -188,9 +189,6 @@ BODIES = ("sun", "earth", "moon")
 _LIMB_BODIES = ("earth", "moon")
 CENTRES = ("earth", "sun")
 """The central bodies a log may declare (``# centre: NAME`` before the header)."""
-HELIOCENTRIC_KINDS = ("prior_position", "prior_velocity", "body_star_angle", "limb_star_angle",
-                      "body_body_angle")
-"""The kinds a heliocentric log (``# centre: sun``) may hold."""
 _CENTRE_LINE = re.compile(r"#\s*centre\s*:\s*(.*?)\s*$", re.IGNORECASE)
 _VALUE_COLUMNS = ("x", "y", "z", "sigma") + EXTRA_COLUMNS  # order of the value vector
 _USAGE_COLUMNS = ("x", "y", "z") + EXTRA_COLUMNS           # order of a kind's usage
@@ -340,8 +338,11 @@ def body_names(codes) -> list:
     return [None if math.isnan(c) else BODIES[int(c)] for c in np.asarray(codes, float).ravel()]
 
 
-class _Kind(NamedTuple):
-    """One kind of the format: how it uses the value columns, what its sigma may be.
+class KindSpec(NamedTuple):
+    """One kind of the format (its log schema row): how it uses the value columns, what its
+    sigma may be. A measurement model's module may define the row of a kind the format does
+    not list (:data:`FORMAT_KINDS`); the readers and writers take the schema,
+    ``{kind: KindSpec}``, as an argument (``schema=``, default :data:`FORMAT_KINDS`).
 
     usage : per column x, y, z, gamma, sigma_model_m (then star_x, star_y, star_z, empty
         when not given): ``"r"`` required, ``"o"`` optional, ``""`` must be empty.
@@ -352,6 +353,7 @@ class _Kind(NamedTuple):
     unit_columns : further columns that together are a unit vector (checked and
         renormalized like x, y, z).
     row_check : checks that need the extra columns, ``({column: value}) -> None``.
+    heliocentric : the kind may appear in a heliocentric log (``# centre: sun``).
     """
 
     usage: tuple[str, ...]
@@ -363,6 +365,10 @@ class _Kind(NamedTuple):
     check: Callable | None = None
     unit_columns: tuple[str, ...] = ()
     row_check: Callable | None = None
+    heliocentric: bool = False
+
+
+_Kind = KindSpec
 
 
 def _usage(spec) -> tuple[str, ...]:
@@ -390,9 +396,9 @@ _XY = ("r", "r", "", "", "")
 _ANGLE = (1e-9, 1.0, "rad")
 _KIND_SPEC: dict[str, _Kind] = {
     "prior_position": _Kind(_XYZ, "a priori position, m, EME2000", 1e-3, 1e9, "m",
-                            check=_check_prior_position),
+                            check=_check_prior_position, heliocentric=True),
     "prior_velocity": _Kind(_XYZ, "a priori velocity, m/s, EME2000", 1e-6, 1e5, "m/s",
-                            check=_check_prior_velocity),
+                            check=_check_prior_velocity, heliocentric=True),
     "earth_direction": _Kind(_XYZ, "unit vector to Earth centre, EME2000", *_ANGLE,
                              unit_vector=True),
     "limb_radius": _Kind(_XY, "x = limb angular radius, rad; y = limb radius, m", *_ANGLE,
@@ -420,15 +426,15 @@ _KIND_SPEC: dict[str, _Kind] = {
     "body_star_angle": _Kind(("r", "", "", "", "", "r", "r", "r", "r", ""),
                              "x = angle between the body's centre and a star, rad; star_x,"
                              "star_y,star_z = the star, EME2000; body", *_ANGLE,
-                             check=_check_angle, unit_columns=STAR_COLUMNS),
+                             check=_check_angle, unit_columns=STAR_COLUMNS, heliocentric=True),
     "limb_star_angle": _Kind(("r", "r", "", "", "", "r", "r", "r", "r", ""),
                              "x = angle between the body's near limb and a star, rad; y = limb "
                              "radius, m; star_x,star_y,star_z = the star, EME2000; body", *_ANGLE,
                              check=_check_limb_angle, unit_columns=STAR_COLUMNS,
-                             row_check=_check_limb_body),
+                             row_check=_check_limb_body, heliocentric=True),
     "body_body_angle": _Kind(("r", "", "", "", "", "", "", "", "r", "r"),
                              "x = angle between the centres of body and body2, rad", *_ANGLE,
-                             check=_check_angle, row_check=_check_two_bodies),
+                             check=_check_angle, row_check=_check_two_bodies, heliocentric=True),
     "isl_pseudorange": _Kind(("r",) + ("",) * (9 + len(ATT_COV_COLUMNS)) + ("r", "r", "o", "o"),
                              "x = pseudorange from tx_spacecraft's antenna tx_antenna to "
                              "spacecraft's antenna rx_antenna, m", 1e-6, 1e4, "m",
@@ -440,7 +446,14 @@ _KIND_SPEC: dict[str, _Kind] = {
 }
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""
+FORMAT_KINDS = _KIND_SPEC
+"""The format's own kinds (the default schema of every reader and writer here)."""
 KINDS = tuple(_KIND_SPEC)
+HELIOCENTRIC_KINDS = tuple(k for k, s in _KIND_SPEC.items() if s.heliocentric)
+"""The kinds a heliocentric log (``# centre: sun``) may hold."""
+EARTH_DIRECTION_KIND = "earth_direction"
+"""The kind of a geocentric direction row (the rows other formats' angles become,
+:mod:`fgnav.io.tdm`; its model is ``fgnav.models.registry.EARTH_DIRECTION``)."""
 SIGMA_RANGE: dict[str, tuple[float, float, str]] = {
     k: (s.sigma_min, s.sigma_max, s.unit) for k, s in _KIND_SPEC.items()}
 """Per kind: (lowest, highest 1-sigma, unit) accepted (see the module docstring)."""
@@ -535,14 +548,23 @@ def _fmt_found(v: float, column: str = "") -> str:
     return repr(float(v))
 
 
-def _check_values(kind: str, v: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Validate the value vector ``v`` = (x, y, z, sigma, *EXTRA_COLUMNS) of ``kind``.
+RowError = _RowError
+"""A row-level problem a kind's value check raises: ``RowError(reason, column, expected,
+found)`` (reason: a ``dropped`` key of the module docstring)."""
+fmt_found = _fmt_found
+"""How a value is quoted as "found" in a row error."""
+
+
+def _check_values(kind: str, v: np.ndarray, schema=None) -> tuple[np.ndarray, bool]:
+    """Validate the value vector ``v`` = (x, y, z, sigma, *EXTRA_COLUMNS) of ``kind`` by
+    its row of ``schema`` (default :data:`FORMAT_KINDS`).
 
     NaN means "empty". Returns (values, renormalized); raises :class:`_RowError`.
     """
-    spec = _KIND_SPEC.get(kind)
+    schema = _KIND_SPEC if schema is None else schema
+    spec = schema.get(kind)
     if spec is None:
-        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
+        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(schema)}", kind)
     what = spec.what
     v = np.asarray(v, dtype=float)
     x, y, z, sigma = (float(a) for a in v[:4])  # Python floats: no overflow warnings below
@@ -672,11 +694,14 @@ def _no_measurements(path, lineno, what):
                             f"(header '{_HEADER_TEXT}' then rows)", f"no measurements ({what})")
 
 
-def read_log(path, *, on_bad_row: str = "error") -> MeasurementLog:
+def read_log(path, *, on_bad_row: str = "error", schema=None) -> MeasurementLog:
     """Read and validate a measurement log (CSV v1, see the module docstring).
 
     ``on_bad_row="error"`` raises :class:`~fgnav.errors.InputFormatError` at the first bad
     row; ``"drop"`` drops bad rows (counts per reason in ``dropped``, a warning each).
+    ``schema``: the kinds read, ``{kind: KindSpec}`` (default :data:`FORMAT_KINDS`; the
+    measurement models' schema, with kinds the format does not list, is
+    ``fgnav.models.registry.LOG_SCHEMA``).
     """
     if on_bad_row not in ("error", "drop"):
         raise UserError(f"on_bad_row must be 'error' or 'drop', found {on_bad_row!r}")
@@ -686,10 +711,11 @@ def read_log(path, *, on_bad_row: str = "error") -> MeasurementLog:
     except OSError as exc:
         raise UserError(f"{path}: cannot read the measurement log: {exc.strerror or exc}") \
             from None
-    return _parse_log_bytes(path, data, on_bad_row)
+    return _parse_log_bytes(path, data, on_bad_row, schema)
 
 
-def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
+def _parse_log_bytes(path, data: bytes, on_bad_row: str, schema=None) -> MeasurementLog:
+    schema = _KIND_SPEC if schema is None else schema
     drop = on_bad_row == "drop"
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
@@ -755,7 +781,7 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     vocab = {"spacecraft": Vocabulary(decl.spacecraft or ()), "antenna": Vocabulary()}
     if n_lines - i_body >= COLUMN_WISE_MIN_ROWS:
         fast_i, ns_f, kind_f, V_f, renorm_f, slow_i = _fast_rows(raw_lines, i_body, header,
-                                                                 vocab)
+                                                                 vocab, schema)
     else:  # a short log: row by row is quicker than loading Arrow
         fast_i, ns_f, kind_f, V_f, renorm_f = (np.zeros(0, dtype=np.int64),
                                                np.zeros(0, dtype=np.int64),
@@ -770,7 +796,8 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     for i in slow_i:
         lineno = i + 1
         try:
-            row = _parse_row(raw_lines[i], header, (not terminated) and i == n_lines - 1, vocab)
+            row = _parse_row(raw_lines[i], header, (not terminated) and i == n_lines - 1, vocab,
+                             schema)
         except _RowError as err:
             bad(lineno, err)
             continue
@@ -842,7 +869,8 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
     t_s = seconds_since(ns.astype("datetime64[ns]"), epoch0)
     width = max(int(np.char.str_len(kind_arr.astype(str)).max()), 1)  # as wide as the kinds kept
     _check_centre_kinds(centre or "earth", kind_arr,
-                        lambda i, what: InputFormatError(path, int(line_arr[i]), "kind", *what))
+                        lambda i, what: InputFormatError(path, int(line_arr[i]), "kind", *what),
+                        schema)
     return MeasurementLog(
         path=path, epoch0=epoch0, t_s=t_s, kind=kind_arr.astype(f"<U{width}"), xyz=V[:, :3].copy(),
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
@@ -851,14 +879,16 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str) -> MeasurementLog:
         centre=centre or "earth")
 
 
-def _check_centre_kinds(centre, kind_arr, error):
+def _check_centre_kinds(centre, kind_arr, error, schema=None):
     """Refuse a kind a log of this centre cannot hold: raise ``error(row, (expected, found))``."""
     if centre == "earth":
         return
-    bad = np.flatnonzero(~np.isin(np.asarray(kind_arr).astype(str), HELIOCENTRIC_KINDS))
+    helio = tuple(k for k, s in (_KIND_SPEC if schema is None else schema).items()
+                  if s.heliocentric)
+    bad = np.flatnonzero(~np.isin(np.asarray(kind_arr).astype(str), helio))
     if len(bad):
         raise error(int(bad[0]), (f"a kind of a heliocentric log (centre: {centre}): "
-                                  f"{', '.join(HELIOCENTRIC_KINDS)}", str(kind_arr[bad[0]])))
+                                  f"{', '.join(helio)}", str(kind_arr[bad[0]])))
 
 
 def _spacecraft_codes(V, kind_arr, line_arr, vocab, decl, has_column, bad):
@@ -924,7 +954,8 @@ def _duplicates(ns, kind_arr, V, line_arr):
     return dup, (int(line_arr[j]), int(line_arr[first_of[np.searchsorted(idx, j)]]))
 
 
-def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool, vocab: dict):
+def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool, vocab: dict,
+               schema=None):
     """One line after the header, the reference reading: ``None`` for a blank or comment
     line, else ``(epoch, kind, values, renormalized)``; raises :class:`_RowError`."""
     ncol = len(header)
@@ -952,15 +983,16 @@ def _parse_row(raw: bytes, header: list[str], is_last_unterminated: bool, vocab:
                         f"({','.join(header)})", f"{len(fields)} fields")
     t = _parse_epoch(fields[0])
     kind = fields[1]
-    if kind not in _KIND_SPEC:
-        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(KINDS)}", kind)
+    schema = _KIND_SPEC if schema is None else schema
+    if kind not in schema:
+        raise _RowError("unknown_kind", "kind", f"a kind, one of {', '.join(schema)}", kind)
     col_index = {c: j for j, c in enumerate(header)}
     v = np.full(len(_VALUE_COLUMNS), np.nan)
     for j, col in enumerate(_VALUE_COLUMNS):
         k = col_index.get(col)
         if k is not None:
             v[j] = _parse_number(fields[k], col, vocab)
-    v, renorm = _check_values(kind, v)
+    v, renorm = _check_values(kind, v, schema)
     return t, kind, v, renorm
 
 
@@ -1010,7 +1042,8 @@ def _arrow_text_table(pa, pcsv, body: bytes, names: list[str]):
                                             strings_can_be_null=False))
 
 
-def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = None):
+def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = None,
+               schema=None):
     """The plainly well-formed rows among ``raw_lines[start:]``, read column-wise.
 
     The regular lines (:func:`_regular_lines`) are parsed by Arrow's CSV reader as text
@@ -1082,7 +1115,8 @@ def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = No
     del ep, digits
     ns = label + _era_shift_ns(label)
     kinds = np.asarray(text(1, ncol == 2).to_numpy(zero_copy_only=False)).astype(str)
-    good &= np.isin(kinds, KINDS)
+    schema = _KIND_SPEC if schema is None else schema
+    good &= np.isin(kinds, tuple(schema))
     col_at = {c: j for j, c in enumerate(header)}
     V = np.full((n, n_val), np.nan)
     for j, c in enumerate(_VALUE_COLUMNS):
@@ -1102,7 +1136,7 @@ def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = No
     renorm = np.zeros(n, dtype=bool)
     for kind in np.unique(kinds[good]):
         rows = np.flatnonzero((kinds == kind) & good)
-        spec = _KIND_SPEC[str(kind)]
+        spec = schema[str(kind)]
         Vk = V[rows]
         for col, use in zip(_USAGE_COLUMNS, _usage(spec)):
             nan = np.isnan(Vk[:, _VALUE_COLUMNS.index(col)])
@@ -1182,7 +1216,7 @@ def _sort_rows(ns, V, kind_arr, line_arr, path):
 
 def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
                     path="<arrays>", spacecraft=(), antennas=None,
-                    centre="earth") -> MeasurementLog:
+                    centre="earth", schema=None) -> MeasurementLog:
     """Build a validated :class:`MeasurementLog` from arrays (same rules as :func:`read_log`).
 
     ``epoch0`` datetime64 (UTC) or ISO string; ``t_s`` (M,) s from ``epoch0``; ``kind`` (M,)
@@ -1190,7 +1224,8 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     of (M,) arrays for the extra columns (``gamma``, ``sigma_model_m``, ``star_x``, ...). Rows are stably sorted by epoch and
     directions with tiny norm errors renormalized; ``epoch0`` is kept as given. A bad row
     raises :class:`~fgnav.errors.UserError` naming its index, column and the expectation.
-    ``centre``: the central body of the positions (:data:`CENTRES`).
+    ``centre``: the central body of the positions (:data:`CENTRES`); ``schema``: the kinds
+    (:func:`read_log`).
     Several spacecraft (:mod:`fgnav.io.log_spacecraft`): ``extra["spacecraft"]`` etc. as
     names (or codes into ``spacecraft``, the ids in order), ``antennas`` the lever arms by
     (spacecraft id, antenna name).
@@ -1247,14 +1282,15 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
     V = np.concatenate([xyz, sigma[:, None], E], axis=1)
     for i in range(M):
         try:
-            V[i], _ = _check_values(str(kind_arr[i]), V[i])
+            V[i], _ = _check_values(str(kind_arr[i]), V[i], schema)
         except _RowError as err:
             found = "" if err.found is None else f", found {err.found!r}"
             raise UserError(f"log_from_arrays: row {i}, column '{err.column}': expected "
                             f"{err.expected}{found}") from None
 
     _check_centre_kinds(centre, kind_arr, lambda i, what: UserError(
-        f"log_from_arrays: row {i}, column 'kind': expected {what[0]}, found {what[1]!r}"))
+        f"log_from_arrays: row {i}, column 'kind': expected {what[0]}, found {what[1]!r}"),
+        schema)
     antennas = {(str(a), str(b)): np.asarray(arm, dtype=float).reshape(3)
                 for (a, b), arm in (antennas or {}).items()}
     if any(c in extra for c in ID_COLUMNS):
@@ -1291,11 +1327,12 @@ def _fmt_epoch(ns: int) -> str:
     return format_utc(np.datetime64(int(ns), "ns"), "us" if ns % 1000 == 0 else "ns")
 
 
-def write_log(path, log: MeasurementLog, *, comments=()) -> None:
+def write_log(path, log: MeasurementLog, *, comments=(), schema=None) -> None:
     """Write ``log`` to ``path`` (CSV v1) atomically; rows in the log's order.
 
     The extra columns are written only when some row uses them. Each row is validated
-    first (a log that cannot be read back is never written).
+    first, by its kind's row of ``schema`` (:func:`read_log`): a log that cannot be read
+    back is never written.
     """
     M = len(log.t_s)
     kind = np.asarray(log.kind).astype(str)
@@ -1331,7 +1368,7 @@ def write_log(path, log: MeasurementLog, *, comments=()) -> None:
         v = np.array([*xyz[i], sigma[i]] + [extra[c][i] if c in extra else np.nan
                                             for c in EXTRA_COLUMNS])
         try:
-            _check_values(str(kind[i]), v)
+            _check_values(str(kind[i]), v, schema)
         except _RowError as err:
             raise UserError(f"write_log: row {i}, column '{err.column}': expected "
                             f"{err.expected}, found {err.found!r}") from None
@@ -1355,14 +1392,15 @@ def check_header(path, lineno: int, text: str) -> list[str]:
 
 
 def parse_line(path, lineno: int, raw: bytes, header: list[str], *, last_unterminated=False,
-               vocab: dict | None = None):
+               vocab: dict | None = None, schema=None):
     """One line after the header by the same rules as :func:`read_log`: ``None`` for a blank
     or comment line, else ``(epoch ns (int), kind, values (len(VALUE_COLUMNS),), reason)``
     with ``reason`` None; a bad line raises :class:`~fgnav.errors.InputFormatError` naming
-    ``path`` and ``lineno``, with the row-level reason key as its ``reason`` attribute."""
+    ``path`` and ``lineno``, with the row-level reason key as its ``reason`` attribute.
+    ``schema``: the kinds (:func:`read_log`)."""
     vocab = vocab or {"spacecraft": Vocabulary(()), "antenna": Vocabulary()}
     try:
-        row = _parse_row(raw, header, last_unterminated, vocab)
+        row = _parse_row(raw, header, last_unterminated, vocab, schema)
     except _RowError as err:
         exc = InputFormatError(path, lineno, err.column, err.expected, err.found)
         exc.reason = err.reason

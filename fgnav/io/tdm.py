@@ -70,8 +70,8 @@ from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.io.kvn import (KVN_RE, ccsds_epochs, check_meta_value, epoch_value, header_line,
                           kvn_header, number_value, read_kvn_lines, version_line)
-from fgnav.io.log_csv import EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE, _sort_rows
-from fgnav.models.registry import EARTH_DIRECTION
+from fgnav.io.log_csv import (EARTH_DIRECTION_KIND, EXTRA_COLUMNS, MeasurementLog, SIGMA_RANGE,
+                              _sort_rows)
 from fgnav.time import add_seconds, parse_utc, seconds_since
 
 __all__ = ["read_tdm", "write_tdm"]
@@ -110,10 +110,10 @@ def _sigma_from_comment(path, lineno, comment):
         raise InputFormatError(path, lineno, "sigma_deg", "COMMENT sigma_deg=<1-sigma in deg, "
                                "a number > 0>", m.group(1)) from None
 
-    lo, hi, _ = SIGMA_RANGE[EARTH_DIRECTION.kind]
+    lo, hi, _ = SIGMA_RANGE[EARTH_DIRECTION_KIND]
     if not lo <= math.radians(s) <= hi:
         raise InputFormatError(path, lineno, "sigma_deg", f"a 1-sigma within {math.degrees(lo):.3g}.."
-                               f"{math.degrees(hi):.3g} deg (the range of an {EARTH_DIRECTION.kind})",
+                               f"{math.degrees(hi):.3g} deg (the range of an {EARTH_DIRECTION_KIND})",
                                m.group(1))
     return math.radians(s)
 
@@ -358,7 +358,7 @@ def read_tdm(path, sigma_rad: float | None = None):
     V = np.full((len(ns), 6), np.nan)
     V[:, :3] = np.array(rows_u)
     V[:, 3] = rows_sigma
-    kind = np.array([EARTH_DIRECTION.kind] * len(ns), dtype=object)
+    kind = np.array([EARTH_DIRECTION_KIND] * len(ns), dtype=object)
     ns, V, kind, line, w = _sort_rows(ns, V, kind, np.array(rows_line, dtype=np.int64), path)
     if w:
         warnings.append(w)

@@ -87,7 +87,7 @@ from factors.dynamics import MotionModel, propagate
 from fgnav.errors import UserError
 from fgnav.iod.fit import InitialOrbit, fit_covariance, fit_orbit
 from fgnav.measurements import Family, Pass
-from fgnav.models.registry import MODELS, PRIOR_POSITION, PRIOR_VELOCITY
+from fgnav.models.registry import EARTH_DIRECTION, MODELS, PRIOR_POSITION, PRIOR_VELOCITY
 
 __all__ = ["angles_initial_orbit", "geocentric_directions", "gibbs", "herrick_gibbs",
            "velocity_from_three_positions", "DIRECTION_KINDS", "RANGE_KINDS",
@@ -95,8 +95,10 @@ __all__ = ["angles_initial_orbit", "geocentric_directions", "gibbs", "herrick_gi
 
 MAX_EPOCHS = 240          # epochs of the subsample the refinement uses
 MIN_DIRECTION_EPOCHS = 4  # 6 unknowns, 2 rows per direction: 3 epochs, plus one to check
-DIRECTION_KINDS = tuple(k for k, m in MODELS.items() if m.geocentric_direction)
-"""Kinds whose rows are the unit vector spacecraft -> Earth centre in ECI (values ``u_eci``)."""
+DIRECTION_KINDS = (EARTH_DIRECTION.kind,)
+"""Kinds whose rows are the unit vector spacecraft -> Earth centre in ECI (values ``u_eci``):
+the initial orbit's own table of the kinds it reads as geocentric directions (a capability of
+this consumer, not a field of every model)."""
 RANGE_KINDS = tuple(k for k, m in MODELS.items() if m.range_m is not None)
 """Kinds whose rows give the geocentric distance |r| (the model's ``range_m``)."""
 _FIT_KINDS = DIRECTION_KINDS + RANGE_KINDS

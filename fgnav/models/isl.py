@@ -25,15 +25,16 @@ from factors.isl import (isl_carrier_residual, isl_range_residual, make_isl_carr
                          make_isl_range_factor)
 from fgnav.errors import UserError
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
+from fgnav.models.attitude import ATTITUDE
 from fgnav.models.model import MeasurementModel
 from fgnav.models.variables import orbit_variable
 
-__all__ = ["ISL_PSEUDORANGE", "ISL_CARRIER_PHASE", "isl_values", "clock_pair", "pair_ids",
+__all__ = ["MEASUREMENT_MODELS", "ISL_PSEUDORANGE", "ISL_CARRIER_PHASE", "isl_values", "clock_pair", "pair_ids",
            "ATTITUDE_KIND"]
 
-ATTITUDE_KIND = "attitude"
-"""The log kind whose rows give a spacecraft's ``R_eci_from_body`` (the registry's
-``ATTITUDE`` model; ``tests/test_registry.py`` checks they agree)."""
+ATTITUDE_KIND = ATTITUDE.kind
+"""The log kind whose rows give a spacecraft's ``R_eci_from_body`` (:data:`fgnav.models.
+attitude.ATTITUDE`)."""
 
 
 def clock_pair(a: int, b: int) -> tuple[int, int, float]:
@@ -141,3 +142,6 @@ ISL_PSEUDORANGE = _isl_model(ISL_KINDS[0], "one-way inter-satellite pseudorange 
                              "two spacecraft's antennas, with the pair's clock", carrier=False)
 ISL_CARRIER_PHASE = _isl_model(ISL_KINDS[1], "inter-satellite carrier phase times the "
                                "wavelength (m), with the link's float ambiguity", carrier=True)
+
+MEASUREMENT_MODELS = (ISL_PSEUDORANGE, ISL_CARRIER_PHASE)
+"""This module's measurement models (assembled by :mod:`fgnav.models.registry`)."""

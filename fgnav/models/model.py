@@ -12,9 +12,9 @@ gives:
 * ``factor(fam, j, keys, noise)``: its GTSAM factor (``factors/`` adapter) for row ``j``;
 * ``numba_kernel``/``numba_data``: the per-row numba kernel the compiled EKF dispatches on
   (``fgnav.solvers.ekf_numba``) and the packed data it reads;
-* ``simulate``: the sensor simulator (``fgnav.simulate`` protocol: chunks of rows);
-* flags for the consumers: ``prior``, ``observes_orbit``, ``geocentric_direction``,
-  ``eci_ray``, ``range_m``; ``requires`` (a variable without which the rows stay out of the
+* flags for the consumers: ``prior``, ``observes_orbit``, ``eci_ray``, ``range_m`` (a
+  consumer's own capability lives with it: the initial orbit's geocentric directions are
+  ``fgnav.iod.angles.DIRECTION_KINDS``, the simulators ``fgnav.simulate.simulators``); ``requires`` (a variable without which the rows stay out of the
   graphs: an attitude row is a prior on the attitude variable) and ``body_frame_of`` (the
   ECI kind its rows become, with the measured attitude, until then);
 * ``initial(fam)``: first guesses of further variables from the rows (variable name ->
@@ -101,10 +101,7 @@ class MeasurementModel:
     observes_orbit: bool = False
     numba_kernel: Callable | None = None
     numba_data: Callable | None = None
-    simulate: Callable | None = None
-    scenario_keys: tuple[str, ...] = ()
     eci_ray: bool = False
-    geocentric_direction: bool = False
     range_m: Callable | None = None
     body_frame_of: str | None = None
     requires: str | None = None

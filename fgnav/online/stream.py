@@ -25,6 +25,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import CENTRE_LINE, CENTRES, check_header, parse_line
+from fgnav.models.registry import LOG_SCHEMA
 from fgnav.time import format_utc
 
 MAX_REPORTS = 100
@@ -173,7 +174,7 @@ class StreamReader:
                        "without a newline (a torn write)")
             return []
         try:
-            row = parse_line(self.name, self.lineno, text, self.header)
+            row = parse_line(self.name, self.lineno, text, self.header, schema=LOG_SCHEMA)
         except InputFormatError as exc:
             self._skip(getattr(exc, "reason", "invalid"), str(exc))
             return []

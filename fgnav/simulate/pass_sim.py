@@ -1,8 +1,8 @@
 """Simulate a pass: truth from the independent integrator, measurements with seeded noise.
 
 Truth comes from ``fgnav.orbit.integrate_truth`` (scipy DOP853, its own force model), never
-from the estimator's propagator. Each ``[[sensor]]`` is simulated by its measurement model's
-simulator (``fgnav.models.registry.MODELS[kind].simulate``, called in the scenario's sensor
+from the estimator's propagator. Each ``[[sensor]]`` is simulated by its kind's simulator
+(``fgnav.simulate.simulators.SIMULATORS[kind].simulate``, called in the scenario's sensor
 order with one shared seeded Generator, so a seed gives the same log). Noise:
 
 * direction, limb angular radius, altimeter: :mod:`fgnav.simulate.sensors`;
@@ -32,12 +32,13 @@ from fgnav.io.log_spacecraft import ID_COLUMNS
 from fgnav.io.oem import oem_frame, write_oem
 from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
                                    TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv)
-from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, MODELS, PRIOR_POSITION,
+from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LOG_SCHEMA, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, SensorSpec, check_size
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.refraction_sim import has_model_bias, refraction_bias_path_m
+from fgnav.simulate.simulators import SIMULATORS
 from fgnav.simulate.star_camera import draw_mounting_rotvec
 from fgnav.time import j2000_seconds, parse_utc
 
@@ -178,7 +179,7 @@ def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
                 mount = {"mounting_rotvec": w}
                 truth_params.update({c: np.full(len(t_all), w[i])
                                      for i, c in enumerate(CAMERA_ALIGNMENT.components)})
-        got = MODELS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount,
+        got = SIMULATORS[spec.kind].simulate(spec, t, x_true[idx], epoch0, rng, **bias, **mount,
                                           **centre)
         if bias and any(c[0] == spec.kind for c in got):
             truth_params[REFRACTION_BIAS.components[0]] = b_all
@@ -216,7 +217,8 @@ def chunks_to_log(epoch0, chunks, *, spacecraft=(), antennas=None,
                                        else np.asarray(e[c], dtype=float) for n, e in extras])[order]
     return log_from_arrays(epoch0, t_cat[order], np.array(kinds, dtype=object)[order],
                            np.concatenate(xyz)[order], np.concatenate(sig)[order], extra,
-                           spacecraft=spacecraft, antennas=antennas, centre=centre)
+                           spacecraft=spacecraft, antennas=antennas, centre=centre,
+                           schema=LOG_SCHEMA)
 
 
 def write_pass_files(out_dir, sim: SimulatedPass) -> list:
@@ -230,7 +232,7 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
 
     out, scn = Path(out_dir), sim.scenario
     try:
-        write_log(out / "measurements.csv", sim.log)
+        write_log(out / "measurements.csv", sim.log, schema=LOG_SCHEMA)
         write_oem(out / "truth.oem", sim.epoch0, sim.t_s, sim.x_true, None,
                   object_name=scn.name.upper(), **oem_frame(scn.centre),
                   comments=(f"fgnav truth for scenario {scn.name}, seed {sim.seed}",

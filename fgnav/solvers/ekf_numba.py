@@ -13,10 +13,11 @@ Same math, step for step (SI, ECI, state ``x = [r_eci_m; v_eci_mps]``):
   ``P <- (I - K A) P (I - K A)^T + K K^T`` (Joseph form).
 
 Residuals ``e`` and Jacobians ``H`` come from the models' row kernels in ``factors/``
-(:data:`ROW_KERNELS`: the priors, the geocentric direction, the limb radius, the altimeter,
-the attitude-free celestial angles),
-the same compiled functions their numpy residuals call. A model registers its kernel in
-``fgnav.models.registry`` (``numba_kernel``); a pass with any other family, or with
+(today the priors, the geocentric direction, the limb radius, the altimeter and the
+attitude-free celestial angles), the same compiled functions their numpy residuals call. A
+model declares its kernel (``numba_kernel``, ``numba_data``) in its own module; the dispatch
+table is generated from the registered models (:func:`row_kernels`), and so is the compiled
+chain that calls them (:func:`_call_kernel_impl`): no kind is named here. A pass with any other family, or with
 graph variables beyond the orbit state, is not handled here: :func:`numba_supports` says so
 and :func:`run_ekf_numba` raises ``ValueError`` naming the families, so the caller can fall
 back to the numpy EKF (``fgnav.solvers.ekf``). Priors at epoch 0 are skipped (the initial
@@ -30,16 +31,13 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
-from factors.jit import njit
+import types
 
-from factors.altimeter import altitude_kernel
-from factors.celestial_angles import celestial_angle_kernel
-from factors.direction import earth_direction_row_kernel
+import numpy as np
+from factors.jit import load_numba, njit, when_numba_loads
+
 from factors.dynamics import process_noise_terms, propagate_nb
 from factors.errors import ModelDomainError
-from factors.limb import limb_radius_kernel
-from factors.prior import prior_position_kernel, prior_velocity_kernel
 from fgnav.graph import layout_of, prior_block_covariance
 from fgnav.measurements import prior_covariance
 from fgnav.models.registry import MODELS
@@ -48,26 +46,43 @@ from fgnav.iod.prior import first_state
 from fgnav.solvers.options import SmootherOptions
 from fgnav.time import j2000_seconds
 
-__all__ = ["ROW_KERNELS", "numba_supports", "run_ekf_numba", "pack_pass", "first_state",
+__all__ = ["ROW_KERNELS", "row_kernels", "numba_supports", "run_ekf_numba", "pack_pass", "first_state",
            "prior_covariance"]
 
-ROW_KERNELS = (prior_position_kernel, prior_velocity_kernel, earth_direction_row_kernel,
-               limb_radius_kernel, altitude_kernel, celestial_angle_kernel)
-"""The row kernels :func:`_rows` dispatches on (a model's code = index of its ``numba_kernel``).
-Each is ``kernel(x (6,), data (>= 3,), B (>= 2, 3), e (m,), H (m, 6)) -> rows written, or -1``
-(the pass's rows are packed to the widest kernel's; each reads its own leading entries)."""
-_K0, _K1, _K2, _K3, _K4, _K5 = ROW_KERNELS
+def row_kernels(models) -> tuple:
+    """The distinct row kernels of ``models``, in their order: the compiled EKF's dispatch
+    table, generated from the models' ``numba_kernel`` (a model's code is the index of its
+    kernel here). Each is ``kernel(x (6,), data (>= 3,), B (>= 2, 3), e (m,), H (m, 6)) ->
+    rows written, or -1`` (the pass's rows are packed to the widest kernel's; each reads its
+    own leading entries). Kernels are told apart by their Python function (``py_func``: a
+    model built before numba was loaded holds the lazy kernel of :mod:`factors.jit`, a later
+    one its numba dispatcher, both wrapping the same function)."""
+    out, seen = [], set()
+    for mdl in models:
+        py = getattr(mdl.numba_kernel, "py_func", None)
+        if py is not None and py not in seen:
+            seen.add(py)
+            out.append(mdl.numba_kernel)
+    return tuple(out)
+
+
+def _fingerprint(kernels) -> str:
+    return ";".join(f"{k.__module__}.{k.__qualname__}" for k in kernels)
+
+
+ROW_KERNELS = row_kernels(MODELS.values())
+"""The row kernels of the registered models when this module was imported (the dispatch
+table :func:`_rows` compiles in; :func:`row_kernels`)."""
+_KERNELS = ROW_KERNELS       # the table _rows reads (numba dispatchers once numba is loaded)
+_FINGERPRINT = _fingerprint(ROW_KERNELS)
 _MAX_ROWS = 3             # rows of one measurement (the widest model's dim) in one update
 
 
-def _code(mdl) -> int | None:
-    """The kernel code of a model, or None if the compiled EKF has no kernel for it.
-
-    Kernels are compared by their Python function (``py_func``): a model built before numba
-    was loaded holds the lazy kernel (:mod:`factors.jit`), this module's table may hold its
-    numba dispatcher, and both wrap the same function."""
+def _code(mdl, kernels=None) -> int | None:
+    """The kernel code of a model (its kernel's index in ``kernels``, default the registered
+    models' table), or None if the compiled EKF has no kernel for it."""
     py = getattr(mdl.numba_kernel, "py_func", None)
-    for i, kern in enumerate(ROW_KERNELS):
+    for i, kern in enumerate(row_kernels(MODELS.values()) if kernels is None else kernels):
         if py is not None and getattr(kern, "py_func", None) is py:
             return i
     return None
@@ -120,25 +135,55 @@ def _chol_solve_inplace(S, Y, m, ncol):
     return True
 
 
+def _kernel_chain(kernels):
+    """A function ``(code, x, data, B, e, H) -> kernels[code](x, data, B, e, H)`` (-1 for a
+    code out of range) for numba to compile: one branch per kernel of the table, each a
+    direct call of the kernel (a global of the generated function), generated from the
+    table rather than written per kind."""
+    lines = ["def chain(code, x, data, B, e, H):"]
+    for i in range(len(kernels)):
+        lines.append(f"    {'if' if i == 0 else 'elif'} code == {i}:\n"
+                     f"        return _k{i}(x, data, B, e, H)")
+    lines.append("    return -1")
+    scope = {f"_k{i}": k for i, k in enumerate(kernels)}
+    exec("\n".join(lines), scope)
+    return scope["chain"]
+
+
+def _dispatch_function(kernels=None):
+    """A Python stub whose compiled form (a numba ``overload``) is :func:`_kernel_chain` of
+    ``kernels`` (None: :data:`_KERNELS` as it is when numba compiles the caller)."""
+    def call_kernel(code, x, data, B, e, H):
+        raise NotImplementedError("compiled only (numba)")
+
+    def register():
+        from numba.extending import overload
+
+        def typed(code, x, data, B, e, H):
+            return _kernel_chain(_KERNELS if kernels is None else kernels)
+        overload(call_kernel)(typed)
+    when_numba_loads(register)
+    return call_kernel
+
+
+_call_kernel = _dispatch_function()
+
+
+@njit(cache=True)
+def _compiled_fingerprint():
+    """The kernel table's fingerprint as compiled (numba's on-disk cache does not see a
+    change of :data:`_KERNELS`, only of this file: :func:`_filter_for` compares)."""
+    return _FINGERPRINT
+
+
 @njit(cache=True)
 def _rows(code, x, data, B, sigma, A, b, r0):
     """Whitened rows (A, b) of one measurement starting at row r0, by its model's row kernel
-    (:data:`ROW_KERNELS`); returns the rows written, or -1 where the residual is undefined
+    (:data:`_KERNELS`, through the generated :func:`_kernel_chain`); returns the rows written, or -1 where the residual is undefined
     (limb: |r| <= R_limb)."""
     e = b[r0:]
     H = A[r0:]
-    if code == 0:
-        m = _K0(x, data, B, e, H)
-    elif code == 1:
-        m = _K1(x, data, B, e, H)
-    elif code == 2:
-        m = _K2(x, data, B, e, H)
-    elif code == 3:
-        m = _K3(x, data, B, e, H)
-    elif code == 4:
-        m = _K4(x, data, B, e, H)
-    else:
-        m = _K5(x, data, B, e, H)
+    m = _call_kernel(code, x, data, B, e, H)
     if m < 0:
         return -1
     for i in range(m):
@@ -293,6 +338,35 @@ def ekf_kernel(k_begin, k_end, t_s, t0_j2000, mu, j2, re, third, max_step, mu_su
     return -1
 
 
+_FRESH: dict = {}
+
+
+def _filter_for(kernels):
+    """The compiled filter (:func:`ekf_kernel`) for the kernel table ``kernels``: the one
+    compiled (and cached on disk) with this module when the table is the one it was compiled
+    with, else one compiled now for ``kernels`` (a model registered at run time, or an on-disk
+    cache older than the models), not cached on disk."""
+    global _KERNELS
+    load_numba()
+    table = tuple(k.dispatcher if hasattr(k, "py_func") and getattr(k, "dispatcher", None)
+                  is not None else k for k in kernels)
+    fp = _fingerprint(kernels)
+    if fp == _FINGERPRINT:
+        _KERNELS = table      # read only if _rows compiles now
+        if _compiled_fingerprint() == fp:
+            return ekf_kernel
+    key = tuple(id(getattr(k, "py_func", k)) for k in kernels)   # these very functions
+    if key not in _FRESH:
+        import numba
+
+        def fresh(dispatcher, **globs):
+            f = dispatcher.py_func
+            return numba.njit(types.FunctionType(f.__code__, {**f.__globals__, **globs},
+                                                 f.__name__, f.__defaults__, f.__closure__))
+        _FRESH[key] = fresh(ekf_kernel, _rows=fresh(_rows, _call_kernel=_dispatch_function(table)))
+    return _FRESH[key]
+
+
 # ----------------------------------------------------------------------------- packing
 
 class Packed:
@@ -305,9 +379,13 @@ class Packed:
         self.spans = spans  # kind -> (first packed row, family row order (M_kind,))
 
 
-def pack_pass(p) -> Packed:
+def pack_pass(p, kernels=None) -> Packed:
     """Flatten the families of a pass into (epoch, family) groups, in the order the numpy
-    EKF updates (epoch, then family order in ``p.families``, rows by family order)."""
+    EKF updates (epoch, then family order in ``p.families``, rows by family order); a
+    family's kernel code indexes ``kernels`` (default: :func:`row_kernels` of the registered
+    models)."""
+    if kernels is None:
+        kernels = row_kernels(MODELS.values())
     unsupported = _unsupported(p)
     if unsupported or p.layout.n != 6:
         raise ValueError(f"the numba EKF has no kernel for {', '.join(unsupported) or 'the pass'}"
@@ -324,7 +402,7 @@ def pack_pass(p) -> Packed:
     n_data = max([3] + [np.asarray(d).reshape(len(fam), -1).shape[1] for *_, fam, _, (d, _) in used])
     n_B = max([2] + [np.asarray(b).shape[1] for *_, (_, b) in used if b is not None])
     for fi, kind, fam, mdl, (d, b) in used:
-        code = _code(mdl)
+        code = _code(mdl, kernels)
         M = len(fam)
         order = np.argsort(fam.k, kind="stable")
         ks = fam.k[order]
@@ -389,7 +467,9 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
     N = p.n_epochs
-    pk = pack_pass(p)
+    kernels = row_kernels(MODELS.values())
+    kern = _filter_for(kernels)
+    pk = pack_pass(p, kernels)
     x = np.array(first_state(p, model, t0_j2000), dtype=float)
     P = prior_block_covariance(layout_of(p), [prior_covariance(p)])   # the orbit alone
     xs = np.empty((N, 6))
@@ -408,7 +488,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
             innov_norm, np.zeros((0, 6)) if x_lin is None else np.ascontiguousarray(x_lin[:, :6], dtype=float))
     latency = np.empty(N)
     t_load = time.perf_counter()
-    ekf_kernel(0, 0, *args)   # an empty range: loads (or compiles) the kernel outside the timing
+    kern(0, 0, *args)   # an empty range: loads (or compiles) the kernel outside the timing
     load_s = time.perf_counter() - t_load
     if step_latency:
         bounds = np.arange(N + 1)
@@ -419,7 +499,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
     t_run = time.perf_counter()
     for a, bnd in zip(bounds[:-1], bounds[1:]):
         t_a = time.perf_counter()
-        bad = ekf_kernel(int(a), int(bnd), *args)
+        bad = kern(int(a), int(bnd), *args)
         if bad >= 0:
             kind = next(kd for kd, (r0, order) in pk.spans.items() if r0 <= bad < r0 + len(order))
             r0, order = pk.spans[kind]
