@@ -39,7 +39,7 @@ import numpy as np
 
 __all__ = [
     "TT_MINUS_UTC_S", "J2000_TT", "LEAP_SECONDS", "UtcRangeError", "parse_utc", "format_utc",
-    "seconds_since", "add_seconds", "j2000_seconds", "tai_minus_utc_s",
+    "seconds_since", "add_seconds", "j2000_seconds", "tai_minus_utc_s", "era_shift_ns",
 ]
 
 TT_MINUS_UTC_S = 69.184
@@ -192,3 +192,11 @@ def j2000_seconds(t64):
     t = np.asarray(t64).astype("datetime64[ns]")
     out = (t - J2000_TT).astype(np.int64) / 1e9 + TT_MINUS_UTC_S
     return float(out) if out.ndim == 0 else out
+
+
+def era_shift_ns(label_ns: np.ndarray) -> np.ndarray:
+    """(TAI - UTC in force at each naive UTC label - 37 s) in ns, as :func:`parse_utc` adds it
+    (outside a leap second): the vectorised form the log reader uses for many rows at once."""
+    k = np.searchsorted(np.array(_LABEL_NS, dtype=np.int64), label_ns, side="right") - 1
+    off = np.where(k >= 0, np.array(_OFFSET_S, dtype=np.int64)[np.maximum(k, 0)], _PRE_1972_S)
+    return (off - _SCALE_OFFSET_S) * 10**9

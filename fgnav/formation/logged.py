@@ -30,13 +30,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.pseudorange import ANTENNA_RX_BODY_M, ANTENNA_TX_BODY_M
 from fgnav.errors import UserError
 from fgnav.iod.links import N_LINKS_LOGGED, LoggedEpoch, far_field_guess, logged_epoch  # noqa: F401
 from fgnav.iod.single_epoch import PARAMS, conditioning, solve_single_epoch
 from fgnav.formation.study import FORMATION_REFERENCE, range_coverage, reference_ranges
-from fgnav.io.log_csv import MeasurementLog, log_from_arrays
+from fgnav.io.log_csv import MeasurementLog, log_from_arrays, write_log
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.models.registry import ATTITUDE
+from fgnav.paths import data_dir
 
 __all__ = ["LoggedEpoch", "logged_epoch", "far_field_guess", "logged_conditioning",
            "xing_single_epoch_log", "XING_LOG_NAME", "XING_EPOCH", "N_LINKS_LOGGED"]
@@ -111,8 +113,6 @@ def xing_single_epoch_log(seed: int = 0, sigma_m: float = 0.01) -> MeasurementLo
     (:func:`fgnav.formation.study.reference_ranges`), so a logged epoch and the built-in
     geometry give the same estimate. Link order: sat 1's receive antennas rx1-rx3 from sat
     2's tx0, then sat 2's from sat 1's (``factors.pseudorange.link_offsets``)."""
-    from factors.pseudorange import ANTENNA_RX_BODY_M, ANTENNA_TX_BODY_M
-
     ids = ("sat1", "sat2")
     antennas = {}
     for s in ids:
@@ -147,8 +147,6 @@ def xing_single_epoch_log(seed: int = 0, sigma_m: float = 0.01) -> MeasurementLo
 def write_xing_single_epoch_log(path) -> None:
     """Write :func:`xing_single_epoch_log` (the shipped ``fgnav/data/`` + :data:`XING_LOG_NAME`
     is this function's output: ``python -m fgnav.formation.logged``)."""
-    from fgnav.io.log_csv import write_log
-
     write_log(path, xing_single_epoch_log(), comments=(
         "Xing et al., ST-3 Autonomous Formation Flyer pseudorange positioning: Table 1 "
         "geometry (sat 2 on sat 1's body +x, R = 999.922 m then 999.891 m, az = el = 0, "
@@ -157,8 +155,6 @@ def write_xing_single_epoch_log(path) -> None:
 
 
 if __name__ == "__main__":   # regenerate the shipped log
-    from fgnav.paths import data_dir
-
     target = data_dir() / XING_LOG_NAME
     target.parent.mkdir(parents=True, exist_ok=True)
     write_xing_single_epoch_log(target)

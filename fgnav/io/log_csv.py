@@ -159,10 +159,11 @@ import numpy as np
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.atomic import atomic_writer
 from fgnav.io.log_spacecraft import (
-    ANTENNA_COLUMNS, ID_COLUMNS, ID_EXPECTED, ID_RE, ISL_KINDS, SPACECRAFT_COLUMNS, Declarations,
+    ANTENNA_COLUMNS, ID_COLUMNS, ID_EXPECTED, ID_RE, SPACECRAFT_COLUMNS, Declarations,
     Vocabulary, check_rows, declaration_lines, first_appearance, id_codes, parse_declaration,
 )
-from fgnav.time import UtcRangeError, add_seconds, format_utc, parse_utc, seconds_since
+from fgnav.time import (UtcRangeError, add_seconds, era_shift_ns, format_utc, parse_utc,
+                        seconds_since)
 
 __all__ = [
     "BASE_COLUMNS", "EXTRA_COLUMNS", "KINDS", "DIRECTION_KINDS", "MeasurementLog",
@@ -1113,7 +1114,7 @@ def _fast_rows(raw_lines, start: int, header: list[str], vocab: dict | None = No
             except ValueError:
                 good[i] = False
     del ep, digits
-    ns = label + _era_shift_ns(label)
+    ns = label + era_shift_ns(label)
     kinds = np.asarray(text(1, ncol == 2).to_numpy(zero_copy_only=False)).astype(str)
     schema = _KIND_SPEC if schema is None else schema
     good &= np.isin(kinds, tuple(schema))
@@ -1188,16 +1189,6 @@ def _fast_ids(t, filled, column, vocab, good):
     out[filled] = codes[inv.reshape(-1)]
     good &= ~(filled & np.isnan(out))
     return out
-
-
-def _era_shift_ns(label_ns: np.ndarray) -> np.ndarray:
-    """(TAI - UTC in force at each naive UTC label - 37 s) in ns, as :func:`fgnav.time.parse_utc`
-    adds it (outside a leap second)."""
-    from fgnav.time import _LABEL_NS, _OFFSET_S, _PRE_1972_S, _SCALE_OFFSET_S
-
-    k = np.searchsorted(np.array(_LABEL_NS, dtype=np.int64), label_ns, side="right") - 1
-    off = np.where(k >= 0, np.array(_OFFSET_S, dtype=np.int64)[np.maximum(k, 0)], _PRE_1972_S)
-    return (off - _SCALE_OFFSET_S) * 10**9
 
 
 def _sort_rows(ns, V, kind_arr, line_arr, path):

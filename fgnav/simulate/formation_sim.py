@@ -43,8 +43,10 @@ import numpy as np
 from factors.constants import C_LIGHT_M_S
 from factors.geometry import so3_exp, so3_log
 from fgnav.errors import UserError
-from fgnav.io.log_csv import MeasurementLog
+from fgnav.io.log_csv import MeasurementLog, write_log
 from fgnav.io.log_spacecraft import ISL_KINDS
+from fgnav.io.oem import write_oem
+from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, write_truth_params_csv
 from fgnav.models.registry import ATTITUDE, MODELS
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
@@ -251,10 +253,6 @@ def write_formation_files(out_dir, sim: FormationPass) -> list:
     also ``clock_<a>_<b>_m`` per pair) and, when attitude rows are written (or body-frame
     rows exist), ``truth_attitude-<id>.csv`` (the true ``R_eci_from_body`` as a rotation
     vector). Returns the paths written; an unwritable directory is a :class:`UserError`."""
-    from fgnav.io.log_csv import write_log
-    from fgnav.io.oem import write_oem
-    from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, write_truth_params_csv
-
     out, scn = Path(out_dir), sim.scenario
     written = [out / "measurements.csv"]
     try:
