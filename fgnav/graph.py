@@ -9,7 +9,20 @@ Two routes share the models' residuals:
 * incremental (iSAM2, fixed-lag): :func:`factors_for_rows` returns the GTSAM factors of the
   given rows (the models' ``factors/`` adapters) on the epoch's variable keys.
 
-Neither route names a measurement kind: each asks the family's model.
+Neither route names a measurement kind: each asks the family's model. The other factor
+families are built here too, each with both adapters (``tests/test_routes_agree.py`` holds
+them equal):
+
+* orbit motion (``factors.motion``): :func:`motion_rows` / :func:`motion_factors`;
+* the further variables' process (``Variable.process``: random walk, constant rate):
+  :func:`process_rows` / :func:`process_factors` (:func:`step_rows`: both families' rows of
+  every step, as the batch solver stacks them);
+* the further variables' priors at the first epoch (``Variable.prior_rows``):
+  :func:`prior_rows` / :func:`prior_factors`, and a filter's initial covariance
+  :func:`prior_block_covariance`.
+
+None of them names a variable or a manifold: each asks the variable's objects
+(:mod:`fgnav.models.variables`).
 """
 
 from __future__ import annotations
@@ -18,8 +31,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.attitude import attitude_residual
-from factors.geometry import so3_exp
+from factors.dynamics import MotionModel, process_noise_sqrt_information, propagate_many
+from factors.motion import make_motion_factor
 from fgnav.models.registry import model, prior_kinds
 from fgnav.models.variables import Layout
 
@@ -104,29 +117,196 @@ class Rows:
     steps: tuple | None = None
 
 
-def variable_prior_rows(p, X):
+def prior_rows(p, X):
     """Priors of the variables after the orbit state at the first epoch,
     ``b_0 ~ N(prior_mean, prior_sigma^2)`` (a rotation: ``Log(R_0) ~ N(0, prior_sigma^2 I)``
-    about the identity, ``factors.random_walk.make_rot3_prior_factor``):
-    ``(k (R,), A (R, n), b (R,), tags (R,))``."""
+    about the identity, ``factors.random_walk.make_rot3_prior_factor``; each variable's
+    :meth:`Variable.prior_rows`): ``(k (R,), A (R, n), b (R,), tags (R,))``."""
     lay = layout_of(p)
     ks, As, bs, tags = [], [], [], []
     for v in lay.parameters:   # an orbit's prior is the log's prior rows
         sl = lay.slices[v.name]
         A = np.zeros((v.dim, lay.n))
-        if v.manifold == "rot3":
-            e, H = attitude_residual(so3_exp(X[0, sl])[None], np.eye(3)[None])
-            A[:, sl] = H[0] / v.prior_sigma
-            bs.append(-e[0] / v.prior_sigma)
-        else:
-            A[:, sl] = np.eye(v.dim) / v.prior_sigma
-            bs.append(-(X[0, sl] - v.prior_mean) / v.prior_sigma)
+        A[:, sl], b = v.prior_rows(X[0, sl])
         As.append(A)
+        bs.append(b)
         ks.append(np.zeros(v.dim, dtype=int))
         tags.append(np.full(v.dim, f"prior_{v.name}", dtype=object))
     if not As:
         return np.zeros(0, int), np.zeros((0, lay.n)), np.zeros(0), np.zeros(0, object)
     return np.concatenate(ks), np.concatenate(As), np.concatenate(bs), np.concatenate(tags)
+
+
+variable_prior_rows = prior_rows   # (its earlier name)
+
+
+def prior_factors(lay) -> list:
+    """The GTSAM factors of the same priors (:meth:`Variable.prior_factor`) on epoch 0's keys."""
+    return [v.prior_factor() for v in lay.parameters]
+
+
+def prior_block_covariance(lay, orbit_covariances=()) -> np.ndarray:
+    """A filter's first covariance of the block (n, n): the orbits' (6, 6) prior covariances
+    ``orbit_covariances`` (from the log's prior rows, in the layout's order of the orbits),
+    every other variable its prior's, ``prior_sigma^2 I`` (:meth:`Variable.prior_covariance`),
+    uncorrelated."""
+    P = np.zeros((lay.n, lay.n))
+    given = dict(zip((v.name for v in lay.orbits), orbit_covariances))
+    for v in lay.variables:
+        sl = lay.slices[v.name]
+        P[sl, sl] = given[v.name] if v.name in given else v.prior_covariance()
+    return P
+
+
+def process_rows(lay, X0: np.ndarray, X1: np.ndarray, dt_s: np.ndarray):
+    """Whitened process rows of the further variables over the steps ``X0 -> X1``.
+
+    ``X0``, ``X1`` (S, n): block values of the layout ``lay`` at the start and end of each
+    step; ``dt_s`` (S,) the steps, s. Returns ``A0, A1`` (S, n, n) and ``b`` (S, n): step s's
+    rows are ``|A0[s] dx_0 + A1[s] dx_1 - b[s]|^2`` with the orbits' rows zero (their motion:
+    :func:`motion_rows`), each process's rows in its variables' slices: ``W H0``, ``W H1``,
+    ``b = -W e`` of the process's residual (``Variable.process``): a vector's random walk
+    ``w [-I, I]``, ``b = -w (b_1 - b_0)``; a rotation's ``w [H_0, H_1]``,
+    ``b = -w Log(R_0^T R_1)`` (``factors.random_walk``), ``w = 1/sqrt(psd dt)``; a rate and
+    the rotation it turns ``W e`` together (``factors.attitude_motion``).
+    """
+    X0 = np.asarray(X0, dtype=float)
+    X1 = np.asarray(X1, dtype=float)
+    S, n = X0.shape
+    A0 = np.zeros((S, n, n))
+    A1 = np.zeros_like(A0)
+    b = np.zeros((S, n))
+    dt = np.asarray(dt_s, dtype=float)
+    for owner, names in lay.groups:
+        e, H0, H1, W = owner.process.residual(lay, names, X0, X1, dt)
+        if len(names) == 1:
+            sl = lay.slices[names[0]]
+            A0[:, sl, sl] = W[:, None, None] * H0
+            A1[:, sl, sl] = W[:, None, None] * H1
+            b[:, sl] = -W[:, None] * e
+            continue
+        cols = np.concatenate([np.arange(n)[lay.slices[m]] for m in names])
+        A0[:, cols[:, None], cols] = W @ H0
+        A1[:, cols[:, None], cols] = W @ H1
+        b[:, cols] = -np.einsum("kij,kj->ki", W, e)
+    return A0, A1, b
+
+
+def process_factors(lay, k: int, dt: float) -> list:
+    """The GTSAM factors of the same processes over the step ``k - 1 -> k`` of ``dt`` s."""
+    return [owner.process.factor(lay, names, k, dt) for owner, names in lay.groups]
+
+
+def process_predict(lay, x_prev: np.ndarray, guess: np.ndarray, dt: float) -> np.ndarray:
+    """``guess`` (n,) with the further variables' means carried ``dt`` s on from ``x_prev``
+    by their processes (a random walk holds; a rate turns its rotation), in place."""
+    for owner, names in lay.groups:
+        owner.process.predict(lay, names, x_prev, guess, dt)
+    return guess
+
+
+PROCESS_CHUNK = 65_536
+"""Steps whose motion rows :func:`motion_rows` forms at a time: the state transition matrices
+and the products with them live per chunk (30 MB), not for the whole pass (3 x 288 MB at
+1,000,000 epochs). Each step's rows depend on that step alone: any chunk gives the same bits."""
+
+
+def motion_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
+                chunked: bool = False):
+    """The whitened motion rows of every orbit (a formation's: each spacecraft's, the same
+    motion model) over every step k -> k + 1 on the block ``(X_k, X_{k+1})``: ``A0, A1``
+    (N-1, n, n) and ``b`` (N-1, n), step k's rows ``|A0 dx_k + A1 dx_{k+1} - b|^2``, the
+    further variables' rows zero (theirs: :func:`process_rows`).
+
+    Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
+    motion factor, ``factors.motion``). With the orbit alone and steps of one length, ``A1``
+    is that step's ``W`` broadcast (read-only, no memory per step).
+
+    ``chunked``: ``A0`` as a list of arrays of ``2 * PROCESS_CHUNK`` steps each (the same
+    chunks of the computation, so the same values), so that its parts can be freed as they
+    are used (the batch solver's ``_Factors``); with further variables than one orbit, a list
+    of the one array. A part (37.7 MB) is above the size from which the C allocator (glibc)
+    always maps memory of its own, so that a freed part goes back to the system at once
+    (parts of one chunk, 19 MB, were placed in the heap and, freed, kept by the process).
+    """
+    lay = layout_of(p)
+    N, n = p.n_epochs, lay.n
+    b = np.zeros((max(N - 1, 0), n))
+    if N < 2:
+        A0 = np.zeros((0, n, n))
+        return ([A0] if chunked else A0), np.zeros_like(A0), b
+    dt = np.diff(p.t_s)
+    W = _step_sqrt_information(dt, q)
+    if chunked and n == 6:   # the orbit alone
+        A0, part = [], 2 * PROCESS_CHUNK
+        for c0 in range(0, N - 1, part):
+            c1 = min(N - 1, c0 + part)
+            A0.append(np.zeros((c1 - c0, n, n)))
+            _orbit_rows(Xs[c0:c1, :6], Xs[c0 + 1:c1 + 1, :6], dt[c0:c1],
+                        t0_j2000_s + p.t_s[c0:c1], W[c0:c1], model, A0[-1], b[c0:c1])
+        return A0, W, b
+    A0 = np.zeros((N - 1, n, n))
+    _orbit_rows(Xs[:-1, :6], Xs[1:, :6], dt, t0_j2000_s + p.t_s[:-1], W, model,
+                A0[:, :6, :6], b[:, :6])
+    if n == 6:
+        A1 = W   # the orbit alone: its rows on X_{k+1} are W itself
+    else:
+        A1 = np.zeros_like(A0)
+        A1[:, :6, :6] = W
+    for v in lay.orbits[1:]:   # a formation's further spacecraft: the same motion model
+        sl = lay.slices[v.name]
+        _orbit_rows(Xs[:-1, sl], Xs[1:, sl], dt, t0_j2000_s + p.t_s[:-1], W, model,
+                    A0[:, sl, sl], b[:, sl])
+        A1[:, sl, sl] = W
+    return ([A0] if chunked else A0), A1, b
+
+
+def motion_factors(lay, k: int, dt: float, q: float, model: MotionModel,
+                   t0_j2000_s: float) -> list:
+    """The GTSAM motion factors of every orbit over the step ``k - 1 -> k`` of ``dt`` s from
+    ``t0_j2000_s`` (``factors.motion.make_motion_factor``)."""
+    return [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s)
+            for v in lay.orbits]
+
+
+def step_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
+              chunked: bool = False):
+    """Every step's rows as the batch solver stacks them: :func:`motion_rows` with the
+    further variables' :func:`process_rows` in their columns (same shapes and ``chunked``)."""
+    A0, A1, b = motion_rows(p, Xs, q, model, t0_j2000_s, chunked)
+    lay = layout_of(p)
+    if lay.extra and p.n_epochs >= 2:
+        V0, V1, bv = process_rows(lay, Xs[:-1], Xs[1:], np.diff(p.t_s))
+        extra = np.concatenate([np.arange(lay.slices[v.name].start, lay.slices[v.name].stop)
+                                for v in lay.parameters] or [np.zeros(0, int)])
+        A0_ = A0[0] if chunked else A0
+        A0_[:, extra], A1[:, extra], b[:, extra] = V0[:, extra], V1[:, extra], bv[:, extra]
+    return A0, A1, b
+
+
+def _step_sqrt_information(dt: np.ndarray, q: float) -> np.ndarray:
+    """``process_noise_sqrt_information(dt, q)`` (K, 6, 6); when every step has the same length,
+    that one block broadcast to (K, 6, 6) (read-only; 288 MB less at 1,000,000 epochs)."""
+    if len(dt) and np.all(dt == dt[0]):
+        return np.broadcast_to(process_noise_sqrt_information(dt[:1], q), (len(dt), 6, 6))
+    return process_noise_sqrt_information(dt, q)
+
+
+def _orbit_rows(x_from: np.ndarray, x_to: np.ndarray, dt: np.ndarray, t_j2000_s: np.ndarray,
+                W: np.ndarray, model: MotionModel, A0_out: np.ndarray, b_out: np.ndarray) -> None:
+    """The whitened motion rows of the orbit steps ``x_from[k] -> x_to[k]`` (K, 6) of ``dt[k]``
+    seconds from ``t_j2000_s[k]``: ``A0_out[k] = -W_k Phi_k`` (K, 6, 6) and
+    ``b_out[k] = -W_k (x_to[k] - f(x_from[k]))`` (K, 6), written in place,
+    :data:`PROCESS_CHUNK` steps at a time into one reused STM buffer."""
+    K = len(dt)
+    Phi = np.empty((min(PROCESS_CHUNK, K), 6, 6))
+    for c0 in range(0, K, PROCESS_CHUNK):
+        c1 = min(K, c0 + PROCESS_CHUNK)
+        F, Ph = propagate_many(x_from[c0:c1], dt[c0:c1], model, t_j2000_s[c0:c1],
+                               stm_out=Phi[:c1 - c0])
+        Wc = np.ascontiguousarray(W[c0:c1])   # the layout einsum had before: the same sums
+        A0_out[c0:c1] = -np.einsum("kij,kjl->kil", Wc, Ph)
+        b_out[c0:c1] = -np.einsum("kij,kj->ki", Wc, x_to[c0:c1] - F)
 
 
 def linearize_all(p, X, robust=None, rejected=None) -> Rows:
@@ -179,7 +359,7 @@ def linearize_all(p, X, robust=None, rejected=None) -> Rows:
         As.append(A.reshape(-1, n))
         bs.append(b.reshape(-1))
         tags.append(np.full(len(fam) * m, kind, dtype=object))
-    kv, Av, bv, tv = variable_prior_rows(p, X)
+    kv, Av, bv, tv = prior_rows(p, X)
     ks.append(kv)
     As.append(Av)
     bs.append(bv)

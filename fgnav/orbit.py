@@ -1,4 +1,5 @@
-"""Orbit utilities: classical elements <-> ECI state, the independent truth integrator, RTN frame.
+"""Orbit utilities: classical elements <-> ECI state, the independent truth integrator (the RTN
+frame: :func:`fgnav.frames.rtn_frame`).
 
 Frames/units: ECI = EME2000, SI (m, s, rad). State ``x = [r_eci_m; v_eci_mps]``.
 
@@ -53,6 +54,7 @@ from fgnav.constants import (
     AU_M, J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, OMEGA_EARTH_RAD_S, R_EARTH_M,
 )
 from fgnav.errors import UserError
+from fgnav.frames import rtn_frame  # (the RTN frame lives in fgnav.frames; kept here by name)
 
 __all__ = [
     "Elements", "Drag", "Srp", "elements_to_state", "state_to_elements",
@@ -200,21 +202,6 @@ def state_to_elements(x, mu=MU_EARTH_M3_S2, tol=1e-11) -> Elements:
         argp = angle(n_hat, e_vec)
         nu = angle(e_vec, r)
     return Elements(float(a), e, float(i), float(raan), float(argp), float(nu))
-
-
-def rtn_frame(x):
-    """Radial/along-track/cross-track frame of ECI state(s): rows R, T, N.
-
-    R = r/|r|, N = (r x v)/|r x v|, T = N x R. ``x`` (6,) -> (3,3) ``R_rtn_from_eci``
-    (so ``d_rtn = rtn_frame(x) @ d_eci``); (N,6) -> (N,3,3).
-    """
-    x = np.asarray(x, dtype=float)
-    r, v = x[..., :3], x[..., 3:6]
-    R = r / np.linalg.norm(r, axis=-1, keepdims=True)
-    h = np.cross(r, v)
-    N = h / np.linalg.norm(h, axis=-1, keepdims=True)
-    T = np.cross(N, R)
-    return np.stack([R, T, N], axis=-2)
 
 
 # ----------------------------------------------------------------------------- truth forces

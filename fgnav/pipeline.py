@@ -17,20 +17,11 @@ from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
 from fgnav.formation.joint import link_fixes, solve_formation
-from fgnav.formation.outputs import (formation_integrity, relative_csv_text, relative_rows,
-                                     sigma_rms, spherical_position_nees, spherical_summary,
-                                     truth_path_of)
-from fgnav.formation.relative_state import relative_state_lvlh
+from fgnav.frames import relative_state_lvlh
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
-from fgnav.io.atomic import atomic_write_text, atomic_writer
 from fgnav.io.log_csv import read_log
-from fgnav.io.oem import oem_frame, read_oem, write_oem
-from fgnav.io.outputs import (
-    check_readable_file, commit_outputs, staged,
-)
-from fgnav.io.summary import write_summary
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
@@ -39,6 +30,9 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
+from fgnav.results import (pairs, read_formation_truth, read_truth, relative_rows,
+                           sigma_rms, spherical_position_nees, spherical_summary)
+from fgnav.results import write_outputs  # noqa: F401  (the route's last stage, by its old name)
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
 from fgnav.start import START_INFLATION, Start, batch_first_guess, start_point
@@ -507,42 +501,6 @@ def truth_variables(truth: dict, sol: Solution) -> dict:
             for name, (t, x) in truth.items() if name in sol.variables}
 
 
-def read_truth(path: str | Path, p: Pass, centre: str = "earth") -> tuple[np.ndarray, np.ndarray]:
-    """A truth OEM as ``(t_s, x_eci)`` on the pass's time axis (s from ``p.epoch0``, SI),
-    validated before any solving: readable, finite states, epochs covering the pass, about
-    the log's ``centre``."""
-    check_readable_file(path, "--truth")
-    oem = read_oem(path)
-    if str(oem.meta.get("CENTER_NAME", "EARTH")).lower() != centre:
-        raise UserError(f"--truth {path}: CENTER_NAME = {oem.meta.get('CENTER_NAME')}, but the "
-                        f"log's positions are about the {centre} (its '# centre:' line)")
-    t_truth = np.asarray(seconds_since(np.asarray(oem.epoch0 + (oem.t_s * 1e9).astype(
-        "timedelta64[ns]")), p.epoch0), dtype=float)
-    x = np.asarray(oem.x_eci, dtype=float)
-    if len(t_truth) == 0 or not np.all(np.isfinite(x)):
-        raise UserError(f"--truth {path}: expected finite states, found "
-                        f"{'none' if len(t_truth) == 0 else 'NaN or infinite values'}")
-    if t_truth[0] > p.t_s[0] + 1e-6 or t_truth[-1] < p.t_s[-1] - 1e-6:
-        raise UserError(f"--truth {path}: the truth does not cover the log's epochs "
-                        f"({t_truth[0]:.1f}..{t_truth[-1]:.1f} s vs {p.t_s[0]:.1f}.."
-                        f"{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
-    return t_truth, x
-
-
-def read_formation_truth(truth: str | Path, p: Pass) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Each spacecraft's truth ``(t_s, x_eci)`` from ``truth-<id>.oem`` (``fgnav simulate``
-    writes them; :func:`fgnav.formation.outputs.truth_path_of`), checked against the pass's
-    epochs before any solving."""
-    out = []
-    for sc in p.spacecraft:
-        path = truth_path_of(truth, sc)
-        if not path.exists():
-            raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
-                            f"'{sc}') in {path.parent}")
-        out.append(read_truth(path, p))
-    return out
-
-
 def read_measurements(path: str | Path, estimate=()):
     """A measurement log from a CSV v1 file, or a CCSDS TDM (``.tdm`` / ``.kvn``).
 
@@ -565,19 +523,25 @@ def read_measurements(path: str | Path, estimate=()):
 
 def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
               relative: str = "cartesian") -> dict:
-    """The summary.json keys every method shares (``p`` is given the solution's further
-    variables if it lacks them, so the integrity tests evaluate the rows with them); a
-    formation's (several spacecraft): :func:`formation_summary` with ``truths`` and
-    ``relative``."""
-    if p.spacecraft:
-        return formation_summary(sol, p, options, truths, relative)
+    """summary.json of a solution of S >= 1 spacecraft: the keys every method shares, the
+    Cramer-Rao bound and the integrity verdict (:func:`fgnav.diagnostics.integrity.assess`;
+    ``p`` is given the solution's further variables if it lacks them, so the integrity
+    tests evaluate the rows with them). Several spacecraft: per spacecraft its sigmas (and
+    errors against ``truths``: per spacecraft ``(t_s, x_eci)`` or None) and the relative
+    states of :func:`relative_summary`, instead of the one orbit's bound."""
+    formation = len(p.spacecraft) > 1
     missing = [name for name in sol.variables if not p.layout.has(name)]
-    if missing:
+    if missing and not formation:
         p = with_estimates(p, tuple(v.name for v in p.layout.extra) + tuple(missing))
     s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
          "wall_s": float(sol.wall_s), "chi2": float(sol.chi2),
          "measurements": p.counts(), "process_noise_m2_s3": options.q_m2_s3,
          "third_body": options.third_body, "gravity": options.gravity, "source": p.source}
+    if formation:
+        s["converged"] = sol.extras.get("converged")
+        s.update(relative_summary(sol, p, truths, relative))
+        s["integrity"] = assess(sol, p, options.motion_model())
+        return s
     if options.state != "cartesian":
         s["state"] = options.state   # the orbit's coordinates in the solver (--state)
     with mapping_shared():   # the bound and the integrity tests map the same rows
@@ -597,18 +561,16 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
     return s
 
 
-def formation_summary(sol: Solution, p: Pass, options: SmootherOptions, truths=None,
-                      relative: str = "cartesian") -> dict:
-    """summary.json of a formation's solution (:mod:`fgnav.formation.outputs`): per spacecraft
-    its sigmas (and errors against ``truths``: per spacecraft ``(t_s, x_eci)`` or None), the
-    relative state in the reference's LVLH frame, the joint verdict;
-    ``relative="spherical"`` adds the relative position's range, azimuth and elevation
-    sigmas (and errors)."""
-    s = {"method": sol.method, "epochs": int(len(sol.t_s)), "iterations": int(sol.iterations),
-         "wall_s": float(sol.wall_s), "chi2": float(sol.chi2), "measurements": p.counts(),
-         "process_noise_m2_s3": options.q_m2_s3, "third_body": options.third_body,
-         "gravity": options.gravity, "source": p.source, "converged": sol.extras.get("converged"),
-         "reference_spacecraft": p.spacecraft[0], "spacecraft": {}}
+def relative_summary(sol: Solution, p: Pass, truths=None, relative: str = "cartesian") -> dict:
+    """The formation keys of summary.json: ``reference_spacecraft``; ``spacecraft`` (per id
+    its sigmas, and its errors against ``truths``); ``relative``, the second spacecraft's
+    state relative to the first in the first's LVLH frame (sigmas, and errors and NEES
+    against truth, :mod:`fgnav.results`); with three or more spacecraft
+    ``relative_by_spacecraft`` (each further spacecraft relative to the first) and
+    ``relative_pairs`` (every pair of :func:`fgnav.results.pairs`, named by ``reference``
+    and ``spacecraft``). ``relative="spherical"`` adds the relative position's range,
+    azimuth and elevation sigmas (and errors)."""
+    s = {"reference_spacecraft": p.spacecraft[0], "spacecraft": {}}
     states = spacecraft_states(sol, p.layout)
     x_true = [None] * len(states) if truths is None else [truth_at(*t, sol.t_s) for t in truths]
     for sc, (x, P), xt in zip(p.spacecraft, states, x_true):
@@ -616,23 +578,27 @@ def formation_summary(sol: Solution, p: Pass, options: SmootherOptions, truths=N
         if xt is not None:
             d.update(state_errors(x, P, xt))
         s["spacecraft"][sc] = d
-    rel_all = {}
-    for j in range(1, len(states)):
-        rel, C, _ = relative_rows(sol, p, j)
+    by_pair = {}
+    for c, j in pairs(len(states)):
+        rel, C, _ = relative_rows(sol, p, j, c)
         d = sigma_rms(C)
-        rel_true = None if x_true[0] is None else relative_state_lvlh(x_true[0], x_true[j])[0]
+        rel_true = None if x_true[c] is None else relative_state_lvlh(x_true[c], x_true[j])[0]
         if rel_true is not None:
             d.update(state_errors(rel, C, rel_true))
             d["nees_position_spherical_mean"] = spherical_position_nees(rel[:, :3], C[:, :3, :3],
                                                                         rel_true[:, :3])
         if relative == "spherical":
             d.update(spherical_summary(rel, C, rel_true))
-        rel_all[p.spacecraft[j]] = d
-    s["relative"] = rel_all[p.spacecraft[1]]
+        by_pair[c, j] = d
+    s["relative"] = by_pair[0, 1]
     s["relative"]["frame"] = f"LVLH of spacecraft {p.spacecraft[0]}"
-    if len(rel_all) > 1:
-        s["relative_by_spacecraft"] = rel_all
-    s["integrity"] = formation_integrity(sol, p)
+    if len(states) > 2:
+        s["relative_by_spacecraft"] = {p.spacecraft[j]: by_pair[0, j]
+                                       for j in range(1, len(states))}
+        s["relative_pairs"] = [{"reference": p.spacecraft[c], "spacecraft": p.spacecraft[j],
+                                "frame": f"LVLH of spacecraft {p.spacecraft[c]}",
+                                **{k: v for k, v in d.items() if k != "frame"}}
+                               for (c, j), d in by_pair.items()]
     return s
 
 
@@ -670,131 +636,3 @@ def _is_plain(v) -> bool:
     if isinstance(v, list):
         return all(_is_plain(x) for x in v)
     return isinstance(v, (int, float, str, bool)) or v is None
-
-
-def residual_times(res: SmoothResult, p: Pass) -> dict:
-    """kind -> (M,) seconds from epoch0 of each row of ``solution.residuals``."""
-    return {kind: p.t_s[p.families[kind].k] for kind in res.solution.residuals if kind in p.families}
-
-
-def write_variables_csv(path: Path, sol: Solution, variables=None) -> None:
-    """``variables.csv``: the estimated variables beside the orbit at every epoch, columns
-    ``epoch,t_s`` then per component ``<component>`` and ``<component>_sigma`` (its marginal
-    1-sigma), e.g. ``refraction_bias_m,refraction_bias_m_sigma``. ``variables``: the
-    :class:`~fgnav.models.variables.Variable` of each name to write (default every one of
-    ``sol.variables``, from the registry)."""
-    cols, data = ["epoch", "t_s"], []
-    for name, (x, P) in sol.variables.items():
-        if variables is not None and name not in variables:
-            continue
-        v = variable(name) if variables is None else variables[name]
-        sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
-        for i, c in enumerate(v.components):
-            cols += [c, f"{c}_sigma"]
-            data += [x[:, i], sig[:, i]]
-    epochs = add_seconds(sol.epoch0, sol.t_s)
-    lines = [",".join(cols)]
-    for k in range(len(sol.t_s)):
-        lines.append(",".join([format_utc(epochs[k]), f"{sol.t_s[k]:.6f}"]
-                              + [f"{d[k]:.9g}" for d in data]))
-    atomic_write_text(path, "\n".join(lines) + "\n")
-
-
-def write_attitude_outputs(out: Path, sol: Solution) -> list[str]:
-    """``attitude.aem`` (CCSDS AEM 2.0, the estimated R_eci_from_body as quaternions from
-    EME2000 to SC_BODY_1, :mod:`fgnav.io.aem`) and ``attitude_covariance.csv`` (its 3x3
-    body-frame covariance per epoch, :mod:`fgnav.io.attitude_covariance`) in ``out``."""
-    from factors.geometry import so3_exp
-    from fgnav.io.aem import write_aem
-    from fgnav.io.attitude_covariance import write_attitude_covariance
-
-    w, P = sol.variables[ATTITUDE_VARIABLE.name]
-    write_aem(out / "attitude.aem", sol.epoch0, sol.t_s, so3_exp(w),
-              comments=(f"fgnav {sol.method} solution: attitude at every epoch",
-                        "its 3x3 covariance (body frame, rad^2) is in attitude_covariance.csv"))
-    write_attitude_covariance(out / "attitude_covariance.csv", sol.epoch0, sol.t_s, P,
-                              comments=(f"fgnav {sol.method} solution: attitude covariance, "
-                                        "right perturbation in the body frame, rad^2",))
-    return ["attitude.aem", "attitude_covariance.csv"]
-
-
-def write_residuals_csv(path: Path, residuals: dict, times: dict, chunk: int = 65536) -> None:
-    """residuals.csv: one line ``t_s,kind,component,whitened`` per finite whitened residual
-    component (``residuals``: kind -> (M, m); ``times``: kind -> (M,) s from the pass epoch),
-    by kind, row and component. Streamed in chunks of rows: a 1,000,000-epoch pass would
-    otherwise hold its ~2,000,000 lines as Python strings at once."""
-    from fgnav.io.number_text import render_rows
-
-    with atomic_writer(path, "wb") as f:
-        f.write(b"t_s,kind,component,whitened\n")
-        for kind, r in residuals.items():
-            t = np.asarray(times[kind], dtype=float)
-            middle = [f",{kind},{c}," for c in range(np.shape(r)[1])]
-            for a in range(0, len(r), chunk):
-                rc = np.asarray(r[a:a + chunk], dtype=float)
-                i, j = np.nonzero(np.isfinite(rc))
-                f.write(render_rows(["", (middle, j), "\n"],
-                                    np.column_stack([t[a + i], rc[i, j]]), [("f", 6), ("g", 6)]))
-
-
-def write_outputs(out_dir: str | Path, res: SmoothResult, p: Pass) -> list[Path]:
-    """Write trajectory.oem, summary.json, residuals.csv (+ online.oem, latency.csv; with an
-    estimated attitude attitude.aem and attitude_covariance.csv); for a formation's pass
-    trajectory-<id>.oem per spacecraft, relative.csv and the clocks' and ambiguities'
-    variables.csv instead (:mod:`fgnav.formation.outputs`).
-
-    Nothing lost: every file is first written into a staging directory inside ``out_dir``
-    and the set replaces the previous outputs only once all are complete (``os.replace``
-    per file, microseconds apart). An error or interrupt before that leaves the previous
-    outputs untouched and removes the staging directory.
-
-    One set: files of ours from an earlier run that this one did not rewrite (online.oem
-    and latency.csv of an online method, a report's plots) are removed, and so are staging
-    folders left by a killed run (:mod:`fgnav.io.outputs`); other files are left alone.
-    """
-    with staged(out_dir) as (out, stage):
-        sol = res.solution
-        if p.spacecraft:   # a formation: trajectory-<id>.oem per spacecraft, relative.csv
-            names = []
-            for sc, (x, P) in zip(p.spacecraft, spacecraft_states(sol, p.layout)):
-                name = f"trajectory-{sc}.oem"
-                write_oem(stage / name, sol.epoch0, sol.t_s, x, P,
-                          comments=(f"fgnav {sol.method} solution of a formation: "
-                                    f"spacecraft {sc}",
-                                    "states and marginal covariances at every epoch"),
-                          object_name=sc)
-                names.append(name)
-            atomic_write_text(stage / "relative.csv", relative_csv_text(sol, p))
-            names.append("relative.csv")
-        else:
-            names = ["trajectory.oem"]
-            frame = oem_frame(sol.extras.get("centre", "earth"))
-            write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
-                      **frame, comments=(f"fgnav {sol.method} solution",
-                                         "states and marginal covariances at every epoch"))
-            if sol.online_x_eci is not None and sol.method != "ekf":
-                write_oem(stage / "online.oem", sol.epoch0, sol.t_s, sol.online_x_eci,
-                          sol.online_P_eci, **frame,
-                          comments=(f"fgnav {sol.method}: each epoch's state as estimated when "
-                                    "it arrived",))
-                names.append("online.oem")
-        write_residuals_csv(stage / "residuals.csv", sol.residuals, residual_times(res, p))
-        names.append("residuals.csv")
-        if p.spacecraft:
-            params = {v.name: v for v in p.layout.parameters}
-            if params:   # the clocks and ambiguities
-                write_variables_csv(stage / "variables.csv", sol, params)
-                names.append("variables.csv")
-        else:
-            if sol.latency_s is not None:
-                atomic_write_text(stage / "latency.csv", "t_s,latency_s\n" + "".join(
-                    f"{t:.6f},{lat:.9f}\n" for t, lat in zip(sol.t_s, sol.latency_s)))
-                names.append("latency.csv")
-            if sol.variables:
-                write_variables_csv(stage / "variables.csv", sol)
-                names.append("variables.csv")
-            if ATTITUDE_VARIABLE.name in sol.variables:
-                names += write_attitude_outputs(stage, sol)
-        write_summary(stage / "summary.json", res.summary)
-        names.append("summary.json")
-        return commit_outputs(out, stage, names, "smooth", replaces=("smooth", "report"))

@@ -40,7 +40,8 @@ from fgnav.io.opm import OPM_FRAMES, OpmData, read_opm
 from fgnav.io.tle import looks_like_tle, read_tle
 from fgnav.measurements import covering_sigmas
 from fgnav.models.registry import PRIOR_POSITION, PRIOR_VELOCITY
-from fgnav.orbit import integrate_truth, rtn_frame, truth_at
+from fgnav.frames import rtn_frame
+from fgnav.orbit import integrate_truth, truth_at
 from fgnav.time import add_seconds, format_utc, j2000_seconds, seconds_since
 
 __all__ = ["PriorState", "DEFAULT_SIGMAS", "SOURCES", "prior_from_file", "source_kind",

@@ -32,7 +32,7 @@ ratio of the two, so a disagreement is visible.
 Relative state (the second spacecraft in the first's LVLH frame, from the joint marginals):
 RMS position error, the RMS of its range component, the mean NEES (6 dof, Cartesian
 position and velocity) and the mean spherical position NEES (3 dof, range/azimuth/
-elevation: :func:`fgnav.formation.outputs.spherical_position_nees`), with the 95 % band of
+elevation: :func:`fgnav.results.spherical_position_nees`), with the 95 % band of
 the mean over the seeds taking each pass's mean as one chi-square sample (its epochs are
 strongly correlated; the band is then chi2(S d) / S for S seeds, d dof -- the widest
 plausible one: outside it the covariance is inconsistent whatever the correlation).
@@ -61,11 +61,11 @@ from scipy.stats import chi2
 
 from factors.pseudorange import cartesian_to_spherical
 from fgnav.formation.dense_bound import dense_bound
-from fgnav.formation.outputs import relative_rows
-from fgnav.formation.relative_state import relative_covariance, relative_state_lvlh
+from fgnav.results import relative_rows
+from fgnav.frames import relative_covariance, relative_state_lvlh
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import build_pass
-from fgnav.pipeline import formation_summary, smooth_log
+from fgnav.pipeline import smooth_log, summarize
 from fgnav.scenarios import load_scenario
 from fgnav.simulate.formation_sim import simulate_formation_pass
 from fgnav.solvers.options import SmootherOptions
@@ -173,7 +173,7 @@ def run_seed(name, scn, seed, methods, options) -> dict:
             t = time.perf_counter()
             res, p = smooth_log(log, method, options)
             wall = time.perf_counter() - t
-            s = formation_summary(res.solution, p, options, truths)
+            s = summarize(res.solution, p, options, truths=truths)
             d = {"wall_s": wall, "iterations": s["iterations"],
                  "integrity": s["integrity"]["status"], "reasons": s["integrity"]["reasons"],
                  "spacecraft": {i: {k: s["spacecraft"][i][k] for k in

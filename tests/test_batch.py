@@ -170,6 +170,7 @@ def test_elimination_releasing_motion_rows_is_the_whole_chain_bit_for_bit(monkey
     """The motion rows formed in parts and freed as their epochs are eliminated (the memory
     of a long pass) give the conditionals of the one-graph elimination exactly, with
     elimination chunks that straddle the parts; every part is freed by the end."""
+    from fgnav import graph as graph_module
     from fgnav.solvers import batch
     from fgnav.solvers.batch import _Factors, eliminate_in_chunks
 
@@ -181,6 +182,7 @@ def test_elimination_releasing_motion_rows_is_the_whole_chain_bit_for_bit(monkey
     graph, *_ = build_linear_graph(p, Xs, opt.q_m2_s3, model, t0)
     R, S, d = eliminate_chain(graph, p.n_epochs)
     monkeypatch.setattr(batch, "PROCESS_CHUNK", 3)   # parts of 6 steps
+    monkeypatch.setattr(graph_module, "PROCESS_CHUNK", 3)
     fs = _Factors(p, Xs, opt.q_m2_s3, model, t0)
     assert len(fs.A0_parts) == -(-(p.n_epochs - 1) // 6) > 2
     R2, S2, d2 = eliminate_in_chunks(fs, chunk=5, release=True)
@@ -195,6 +197,7 @@ def test_motion_rows_in_chunks_are_the_whole_pass_bit_for_bit(monkeypatch, uneve
     formed at once, for any chunk length; with steps of one length the rows on X_{k+1} are one
     shared W, with uneven steps each step's own."""
     from factors.dynamics import process_noise_sqrt_information
+    from fgnav import graph as graph_module
     from fgnav.solvers import batch
     from fgnav.solvers.batch import _Factors, process_blocks
 
@@ -211,12 +214,14 @@ def test_motion_rows_in_chunks_are_the_whole_pass_bit_for_bit(monkeypatch, uneve
     t0 = float(j2000_seconds(p.epoch0))
     Xs = sim.x_true[np.searchsorted(sim.t_s, p.t_s)] + np.array([300.0, -200.0, 100.0, 0.1, 0.05, -0.02])
     monkeypatch.setattr(batch, "PROCESS_CHUNK", 10 * p.n_epochs)
+    monkeypatch.setattr(graph_module, "PROCESS_CHUNK", 10 * p.n_epochs)
     whole = process_blocks(p, Xs, opt.q_m2_s3, model, t0)
     fs = _Factors(p, Xs, opt.q_m2_s3, model, t0)
     np.testing.assert_array_equal(whole[1], process_noise_sqrt_information(np.diff(p.t_s), opt.q_m2_s3))
     assert (len(np.unique(np.diff(p.t_s))) > 1) == uneven
     for chunk in (1, 7, p.n_epochs - 2):
         monkeypatch.setattr(batch, "PROCESS_CHUNK", chunk)
+        monkeypatch.setattr(graph_module, "PROCESS_CHUNK", chunk)
         for a, b in zip(whole, process_blocks(p, Xs, opt.q_m2_s3, model, t0)):
             np.testing.assert_array_equal(a.view(np.int64), b.view(np.int64))
         fs2 = _Factors(p, Xs, opt.q_m2_s3, model, t0)

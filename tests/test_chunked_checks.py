@@ -13,7 +13,8 @@ import pytest
 import fgnav.diagnostics.crb as crb
 import fgnav.diagnostics.integrity as integrity
 from fgnav.measurements import build_pass
-from fgnav.pipeline import crb_metrics, prepare_pass, solve, summarize, write_residuals_csv
+from fgnav.pipeline import crb_metrics, prepare_pass, solve, summarize
+from fgnav.results import write_residuals_csv
 from fgnav.simulate import faults as F
 from fgnav.solvers.options import SmootherOptions
 

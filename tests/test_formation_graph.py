@@ -14,8 +14,8 @@ import pytest
 from formation_data import formation_log
 from fgnav.cli import main
 from fgnav.errors import UserError
-from fgnav.formation.outputs import relative_rows, spherical_position_nees
-from fgnav.formation.relative_state import relative_state_lvlh
+from fgnav.results import relative_rows, spherical_position_nees
+from fgnav.frames import relative_state_lvlh
 from fgnav.io.log_csv import write_log
 from fgnav.io.oem import read_oem, write_oem
 from fgnav.measurements import build_pass, spacecraft_pass, spacecraft_states
@@ -53,7 +53,7 @@ def test_links_give_the_relative_state_consistently_over_seeds():
     to metres, with a relative position NEES in range, azimuth and elevation (3 dof, the pass
     and 10 seeds averaged) no larger than its 95 % band allows (measured 1.4: conservative;
     in Cartesian coordinates the chord error of a metre along the range sphere makes it ~20,
-    see fgnav.formation.outputs.spherical_position_nees); carrier phase (10 um) to
+    see fgnav.results.spherical_position_nees); carrier phase (10 um) to
     centimetres."""
     rms_alone, rms_links, nees = [], [], []
     for seed in range(10):

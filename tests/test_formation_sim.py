@@ -18,6 +18,7 @@ from fgnav.cli import main
 from fgnav.constants import MU_EARTH_M3_S2
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import read_log
+from fgnav.io.log_spacecraft import spacecraft_index
 from fgnav.io.oem import read_oem
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.paths import data_dir
@@ -73,9 +74,35 @@ def _predict(out, light_time=True):
         tau = np.linalg.norm(p_r - p_t) / C_LIGHT_M_S
         for _ in range(4 if light_time else 0):
             tau = np.linalg.norm(p_r - (p_t - v_t * tau + 0.5 * a_t * tau ** 2)) / C_LIGHT_M_S
-        sign = 1.0 if sc[i] == ids[0] else -1.0
-        pred[n] = C_LIGHT_M_S * tau + sign * clk["clock_m"][kc]
+        a, b = sorted((sc[i], tx[i]), key=ids.index)   # the pair's clock, c (dt_a - dt_b)
+        col = f"clock_{a}_{b}_m" if f"clock_{a}_{b}_m" in clk else "clock_m"
+        sign = 1.0 if sc[i] == a else -1.0
+        pred[n] = C_LIGHT_M_S * tau + sign * clk[col][kc]
     return meas, pred, log.sigma[rows]
+
+
+def test_three_spacecraft_fly_with_a_clock_per_linked_pair(tmp_path):
+    """formation-gto-3: every pair linked both ways, centre of mass to centre of mass; each
+    link row agrees with the independent prediction from the written truth, each pair's own
+    clock column of truth_clock.csv signed by its receiver (chi-square of the whitened
+    differences within 5 sigma of its dimension)."""
+    out = _simulate(tmp_path, "formation-gto-3", "--duration-h", "0.25")
+    names = sorted(p.name for p in out.iterdir())
+    assert names == ["measurements.csv", "truth-sat1.oem", "truth-sat2.oem", "truth-sat3.oem",
+                     "truth_clock.csv"]
+    log = read_log(out / "measurements.csv")
+    assert log.spacecraft == ("sat1", "sat2", "sat3")
+    _, clk = read_truth_params_csv(out / "truth_clock.csv")
+    assert set(clk) == {"clock_m", "clock_sat1_sat2_m", "clock_sat1_sat3_m", "clock_sat2_sat3_m"}
+    np.testing.assert_array_equal(clk["clock_m"], clk["clock_sat1_sat2_m"])
+    assert np.ptp(clk["clock_sat1_sat3_m"] - clk["clock_sat2_sat3_m"]) > 0   # own random walks
+    isl = log.kind == "isl_pseudorange"
+    assert isl.sum() == 6 * np.unique(log.t_s[isl]).size
+    pairs = {tuple(sorted(p)) for p in zip(_names(log, "spacecraft"), _names(log, "tx_spacecraft"))
+             if None not in p}
+    assert pairs == {("sat1", "sat2"), ("sat1", "sat3"), ("sat2", "sat3")}
+    ok, chi2 = _chi2_ok(*_predict(out))
+    assert ok, chi2
 
 
 def _chi2_ok(meas, pred, sigma):
@@ -203,9 +230,10 @@ def test_formation_options_and_limits(tmp_path, capsys):
     three = FORMATION.replace("[[antenna]]", '[[spacecraft]]\nid = "sat3"\nlead_s = 0.2\n\n'
                               "[[antenna]]", 1)
     path = tmp_path / "three.toml"
-    path.write_text(three)
-    with pytest.raises(UserError, match="exactly two"):
-        simulate_formation_pass(load_scenario(str(path)))
+    path.write_text(three)   # a third spacecraft flies, with its own rows and no links
+    sim = simulate_formation_pass(load_scenario(str(path)))
+    assert sim.ids == ("sat1", "sat2", "sat3") and list(sim.clocks) == [("sat1", "sat2")]
+    assert sim.log.spacecraft == sim.ids and np.sum(spacecraft_index(sim.log) == 2) > 0
     path.write_text(_bad("sigma_m = 0.01", "sigma_m = nan"))
     with pytest.raises(InputFormatError):
         load_scenario(str(path))

@@ -16,11 +16,11 @@ rr = pytest.importorskip("rerun")
 from formation_data import EPOCH, formation_log  # noqa: E402
 from test_viz_rerun import blueprint_views, read_back, scalars, time_points  # noqa: E402
 from fgnav.errors import UserError  # noqa: E402
-from fgnav.formation.relative_state import relative_state_lvlh  # noqa: E402
+from fgnav.frames import relative_state_lvlh  # noqa: E402
 from fgnav.io.log_csv import log_from_arrays, write_log  # noqa: E402
 from fgnav.io.oem import read_oem, write_oem  # noqa: E402
 from fgnav.time import parse_utc  # noqa: E402
-from fgnav.viz.formation_rerun import residual_color  # noqa: E402
+from fgnav.viz.rerun_log import residual_color  # noqa: E402
 
 
 def _smooth(tmp_path, log, truth, *extra):

@@ -19,7 +19,7 @@ from factors.pseudorange import (
 from factors.testing import (
     check_jacobians, check_linearization, random_positions_m, random_rotations,
 )
-from fgnav.formation.relative_state import deputy_from_relative_lvlh, relative_position_body
+from fgnav.frames import deputy_from_relative_lvlh, relative_position_body
 from fgnav.orbit import elements_to_state, integrate_truth, rtn_frame, truth_acceleration
 
 LEVER_1_M = np.array([0.6, -0.5, 0.4])

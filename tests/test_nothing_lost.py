@@ -32,13 +32,13 @@ def test_an_interrupt_while_writing_leaves_the_previous_outputs_untouched(tmp_pa
     out = tmp_path / "result"
     assert main(["smooth", str(small_pass / "measurements.csv"), "--out", str(out), "--quiet"]) == 0
     before = _snapshot(out)
-    import fgnav.pipeline
+    import fgnav.results
 
     def interrupted(*a, **k):  # the last file of the set: everything else is already staged
         raise KeyboardInterrupt
 
-    # patched where write_outputs looks it up (fgnav.pipeline imports it at module level)
-    monkeypatch.setattr(fgnav.pipeline, "write_summary", interrupted)
+    # patched where write_outputs looks it up (fgnav.results imports it at module level)
+    monkeypatch.setattr(fgnav.results, "write_summary", interrupted)
     rc = main(["smooth", str(small_pass / "measurements.csv"), "--out", str(out), "--quiet",
                "--method", "ekf"])
     assert rc == 130

@@ -1,4 +1,4 @@
-"""The deputy's state relative to the chief (fgnav.formation.relative_state): Jacobians, the
+"""The deputy's state relative to the chief (fgnav.frames): Jacobians, the
 LVLH convention of relative_motion, covariance propagation, and two integrated orbits
 against the Clohessy-Wiltshire solution."""
 
@@ -10,7 +10,7 @@ from fgnav.formation.relative_motion import (
     chief_circular_state, circular_relative_orbit, cw_matrices, lvlh_from_eci, mean_motion,
     two_body_relative_truth,
 )
-from fgnav.formation.relative_state import (
+from fgnav.frames import (
     deputy_from_relative_lvlh, lvlh_axes, relative_covariance_body, relative_covariance_lvlh,
     relative_position_body, relative_state_body, relative_state_lvlh,
 )

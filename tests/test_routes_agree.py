@@ -276,3 +276,150 @@ def test_batch_and_isam2_routes_agree_on_a_formations_links(kind):
         assert col == A_i.shape[1]
         np.testing.assert_allclose(A_layout, A_b[j], rtol=1e-9, atol=1e-12 * np.abs(A_b[j]).max())
         np.testing.assert_allclose(b_i, b_b[j], rtol=1e-9, atol=1e-9)
+
+
+# -- the other factor families: orbit motion, the further variables' process, their priors --
+
+def _values(lay, X, epochs):
+    """A ``gtsam.Values`` of the block values ``X`` (N, n) at ``epochs`` (each variable's
+    manifold turns its stored numbers into its GTSAM value)."""
+    values = gtsam.Values()
+    for kk in epochs:
+        for v in lay.variables:
+            values.insert(v.key(kk), v.manifold.to_gtsam(X[kk, lay.slices[v.name]]))
+    return values
+
+
+def _assert_rows(A0, A1, b, A0_b, A1_b, b_b, what):
+    for got, want, name in ((A0, A0_b, "A0"), (A1, A1_b, "A1")):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * max(np.abs(want).max(), 1.0),
+                                   err_msg=f"{what}: {name}")
+    np.testing.assert_allclose(b, b_b, rtol=1e-9, atol=1e-9, err_msg=f"{what}: b")
+
+
+def _family_pass(case):
+    """``(pass, block values off the truth)`` of a pass whose graph holds the variables of
+    ``case``: a formation's two orbits with clock and ambiguities (vector random walks),
+    the refraction bias (a scalar random walk), the attitude and the gyro bias (a random
+    walk on SO(3) beside a vector one), the attitude with its rate (the constant-rate
+    motion, one joint process) and the attitude with the camera alignment (two rotations)."""
+    from attitude_passes import with_gyro
+    from formation_data import formation_log
+
+    rng = np.random.default_rng(11)
+    if case == "formation":
+        log, truth = formation_log(2, carrier=True, lever_arms=True)
+        p = build_pass(log)
+        X = p.layout.initial(truth["A"][1])
+        X[:, p.layout.slices["orbit_B"]] = truth["B"][1]
+    else:
+        if case == "refraction-bias":
+            log, t, x = F.clean("refraction-leo", duration_h=0.1)
+            estimate = ("refraction-bias",)
+        elif case == "camera-alignment":
+            log, t, x = _raw_stars("geo-limb", duration_h=0.2)
+            estimate = ("attitude", "camera-alignment")
+        else:
+            log, t, x = F.clean("refraction-leo", duration_h=0.1, **CASES["attitude"][1])
+            if case == "gyro-bias":
+                log, _ = with_gyro(log, t, x, np.array([1e-4, -5e-5, 8e-5]), 1e-6,
+                                   np.random.default_rng(3))
+            estimate = ("attitude", case)
+        p = with_estimates(build_pass(log), estimate)
+        X = initial_block(p, x[np.searchsorted(t, p.t_s)])[0]
+    lay = p.layout
+    scale = np.concatenate([[2e3] * 3, [1.0] * 3] + [
+        np.r_[[2e3] * 3, [1.0] * 3] if v.orbit else np.full(v.dim, 50.0 if v.manifold.additive
+                                                          else 0.01) for v in lay.extra])
+    if lay.has("gyro_bias"):
+        scale[lay.slices["gyro_bias"]] = 1e-4
+    if lay.has("attitude_rate"):
+        scale[lay.slices["attitude_rate"]] = 0.01
+    return p, X + rng.normal(0, 1, X.shape) * scale
+
+
+FAMILY_CASES = ("formation", "refraction-bias", "gyro-bias", "attitude-rate", "camera-alignment")
+
+
+@pytest.mark.parametrize("case", FAMILY_CASES)
+def test_motion_and_process_rows_and_factors_agree(case):
+    """Every step's rows of the orbit motion (``graph.motion_rows``) and of the further
+    variables' processes (``graph.process_rows``) are those of the GTSAM factors of the same
+    step (``graph.motion_factors``, ``graph.process_factors``), variable by variable, at a
+    block off the truth; and the two families together cover every row of the step."""
+    from fgnav.graph import motion_factors, motion_rows, process_factors, process_rows, step_rows
+    from fgnav.solvers.options import SmootherOptions
+
+    p, X = _family_pass(case)
+    lay = p.layout
+    opts = SmootherOptions()
+    model = opts.motion_model()
+    t0 = 123.0
+    M0, M1, mb = motion_rows(p, X, opts.q_m2_s3, model, t0)
+    V0, V1, vb = process_rows(lay, X[:-1], X[1:], np.diff(p.t_s))
+    A0, A1, b = step_rows(p, X, opts.q_m2_s3, model, t0)
+    np.testing.assert_array_equal(A0, M0 + V0)       # disjoint rows: the sum is the stack
+    np.testing.assert_array_equal(A1, M1 + V1)
+    np.testing.assert_array_equal(b, mb + vb)
+    covered = np.zeros(lay.n, bool)
+    for k in (1, p.n_epochs // 2, p.n_epochs - 1):
+        values = _values(lay, X, (k - 1, k))
+        dt = p.t_s[k] - p.t_s[k - 1]
+        facs = motion_factors(lay, k, dt, opts.q_m2_s3, model, t0 + p.t_s[k - 1])
+        assert len(facs) == len(lay.orbits)
+        for v, f in zip(lay.orbits, facs):
+            F0, F1, fb = _two_epoch_blocks(f.linearize(values), lay, k)
+            rows = lay.slices[v.name]
+            _assert_rows(F0, F1, fb, M0[k - 1][rows], M1[k - 1][rows], mb[k - 1][rows],
+                         f"motion of {v.name}, step {k}")
+            covered[rows] = True
+        facs = process_factors(lay, k, dt)
+        assert len(facs) == len(lay.groups)
+        for (owner, names), f in zip(lay.groups, facs):
+            F0, F1, fb = _two_epoch_blocks(f.linearize(values), lay, k)
+            rows = np.concatenate([np.arange(lay.n)[lay.slices[m]] for m in names])
+            _assert_rows(F0, F1, fb, V0[k - 1][rows], V1[k - 1][rows], vb[k - 1][rows],
+                         f"process of {names}, step {k}")
+            assert not np.any(V0[k - 1][np.setdiff1d(np.arange(lay.n), rows)][:, rows])
+            covered[rows] = True
+    assert covered.all(), "a variable has no process"
+    if case == "attitude-rate":   # one joint 6-row process (attitude and rate)
+        assert [names for _, names in lay.groups] == [("attitude", "attitude_rate")]
+
+
+@pytest.mark.parametrize("case", FAMILY_CASES)
+def test_prior_rows_and_factors_agree(case):
+    """The further variables' priors at the first epoch: the bulk rows (``graph.prior_rows``,
+    in ``linearize_all``) and the GTSAM prior factors (``graph.prior_factors``) give the same
+    whitened rows at a block off the prior mean; the filter's first covariance
+    (``graph.prior_block_covariance``) is the inverse of their information at the mean."""
+    from fgnav.graph import prior_block_covariance, prior_factors, prior_rows
+
+    p, X = _family_pass(case)
+    lay = p.layout
+    k, A, b, tags = prior_rows(p, X)
+    assert np.all(k == 0)
+    facs = prior_factors(lay)
+    assert len(facs) == len(lay.parameters) > 0
+    values = _values(lay, X, (0,))
+    for v, f in zip(lay.parameters, facs):
+        lin = f.linearize(values)
+        A_i, b_i = lin.jacobian()
+        assert list(lin.keys()) == [v.key(0)]
+        mine = tags == f"prior_{v.name}"
+        assert mine.sum() == v.dim
+        A_layout = np.zeros((v.dim, lay.n))
+        A_layout[:, lay.slices[v.name]] = A_i
+        np.testing.assert_allclose(A_layout, A[mine], rtol=1e-9, atol=1e-12 * np.abs(A[mine]).max())
+        np.testing.assert_allclose(b_i, b[mine], rtol=1e-9, atol=1e-9)
+        assert np.abs(b[mine]).max() > 1e-6          # off the mean: a residual to compare
+    # at the prior mean the rows' information is the covariance's inverse
+    X_mean = lay.initial(X[:, :6])
+    _, A_m, _, tags_m = prior_rows(p, X_mean)
+    P0 = prior_block_covariance(lay, [np.eye(6) * 4.0] * len(lay.orbits))
+    for v in lay.parameters:
+        sl = lay.slices[v.name]
+        rows = A_m[tags_m == f"prior_{v.name}"][:, sl]
+        np.testing.assert_allclose(np.linalg.inv(rows.T @ rows), P0[sl, sl], rtol=1e-12)
+    for v in lay.orbits:
+        np.testing.assert_array_equal(P0[lay.slices[v.name], lay.slices[v.name]], np.eye(6) * 4.0)

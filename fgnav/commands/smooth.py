@@ -314,7 +314,8 @@ def run(args) -> int:
     import json
 
     from fgnav.io.outputs import check_output_paths
-    from fgnav.pipeline import read_measurements, residual_times, smooth_file, write_outputs
+    from fgnav.pipeline import read_measurements, smooth_file
+    from fgnav.results import residual_times, write_outputs
 
     # Every option and output path before any solving (the truth in smooth_file).
     resolve_attitude_option(args)
@@ -351,7 +352,7 @@ def run(args) -> int:
             if "gap" in note:
                 print(f"fgnav: note: {note}", file=sys.stderr)
     if args.rerun and p.spacecraft:   # a formation: every orbit, the links, LVLH
-        from fgnav.viz.formation_rerun import log_formation_result
+        from fgnav.viz.rerun_log import log_formation_result
         log_formation_result(args.rerun, res, p, truth=args.truth)
     elif args.rerun:
         from fgnav.models.registry import ATTITUDE_VARIABLE

@@ -155,7 +155,10 @@ def weakest_direction(x_eci: np.ndarray, P_eci: np.ndarray) -> dict:
 
 
 def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> dict:
-    """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring).
+    """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring); a
+    formation's pass (several spacecraft) gets the joint solution's tests (:func:`_joint_assess`:
+    each family's chi-square, every orbit's and clock's process rows, convergence, the mirror
+    test of its relative geometry, finite numbers).
 
     ``model``: the :class:`factors.dynamics.MotionModel` of the solve (enables the
     manoeuvre and omitted-force tests; an EKF solution brings its own normalized innovations).
@@ -163,6 +166,8 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     right, where they differ from ``sol.residuals``. Returns the ``"integrity"`` object of
     summary.json.
     """
+    if len(getattr(p, "spacecraft", ())) > 1:
+        return _joint_assess(sol, p)
     reasons: list[tuple[str, str, str]] = []  # (severity, text, advice key)
     notes: list[str] = []
     res = normalized_residuals
@@ -335,6 +340,54 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
     if aberration is not None:
         out["aberration_omitted"] = aberration
     return out
+
+
+def _joint_assess(sol, p) -> dict:
+    """The verdict of a formation's joint solution (several spacecraft) from its data alone
+    (the chi-square tests above): each family's whitened residuals, the process rows (every orbit's
+    motion and the clocks' random walks), convergence and finite numbers."""
+    tests, reasons, advice, status = {}, [], [], "ok"
+    rank = {"ok": 0, "suspect": 1, "failed": 2}
+
+    def worse(s, why, adv):
+        nonlocal status
+        if rank[s] > rank[status]:
+            status = s
+        if s != "ok":
+            reasons.append(why)
+            if adv and ADVICE[adv] not in advice:
+                advice.append(ADVICE[adv])
+
+    weights = sol.extras.get("row_weights") or {}
+    # a filter's innovations are tested normalized by their own covariance A P A^T + I
+    residuals = sol.extras.get("normalized_innovations") or sol.residuals
+    for kind, r in residuals.items():
+        test, _ = _family_test(r, weights.get(kind))
+        test["status"] = _severity(test)
+        tests[kind] = test
+        worse(test["status"], f"{kind}: chi2/dof {test['normalized']:.3g} over {test['dof']} "
+              f"components (p = 1e{test['log10_p']:.0f})", "outliers")
+    if "chi2_motion" in sol.extras:   # (a filter has no process residuals)
+        motion = _chi2_test(float(sol.extras["chi2_motion"]), max(p.n_epochs - 1, 1) * p.layout.n)
+        motion["status"] = _severity(motion)
+        tests["motion"] = motion
+        worse(motion["status"], f"motion: chi2/dof {motion['normalized']:.3g}", "force")
+    if not sol.extras.get("converged", True):
+        worse("failed", "the solver did not converge", "converge")
+    mirror = sol.extras.get("mirror_test")
+    if mirror is not None:
+        tests["mirror"] = mirror
+        if mirror["status"] != "ok":
+            better = mirror["chi2_mirrored"] < mirror["chi2"]
+            worse("failed", f"the relative geometry mirrored through the first spacecraft "
+                  f"{'fits the data better' if better else 'fits the data as well'} "
+                  f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
+                  f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
+                  f"relative position from its mirror image", "mirror")
+    if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
+        worse("failed", "non-finite states or covariances", None)
+    return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
+            "false_alarm_probability": FALSE_ALARM_PROBABILITY}
 
 
 def _family_test(r: np.ndarray, w) -> tuple[dict, np.ndarray]:

@@ -16,7 +16,7 @@ import numpy as np
 
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import block_values
+from fgnav.graph import block_values, prior_block_covariance
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.measurements import (Pass, build_pass, orbit_columns, spacecraft_pass,  # noqa: F401
                                 spacecraft_states)
@@ -229,16 +229,14 @@ def start_covariance(p: Pass) -> np.ndarray:
     from fgnav.measurements import prior_covariance
 
     lay = p.layout
-    P = np.zeros((lay.n, lay.n))
+    orbit_covariances = []
     for s, v in enumerate(lay.orbits):
         sub = spacecraft_pass(p, s)
         if not has_prior(sub):
             raise UserError(f"--method ekf: spacecraft '{p.spacecraft[s]}' has no prior rows "
                             "(prior_position, prior_velocity); the filter starts from them")
-        P[lay.slices[v.name], lay.slices[v.name]] = prior_covariance(sub)
-    for v in lay.parameters:
-        P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
-    return P
+        orbit_covariances.append(prior_covariance(sub))
+    return prior_block_covariance(lay, orbit_covariances)
 
 
 def relinearizing_links(p: Pass):

@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from factors.constants import MU_EARTH_M3_S2, R_EARTH_M
+from fgnav.frames import rtn_frame
 
 __all__ = ["mean_motion", "cw_system", "cw_matrices", "circular_relative_orbit",
            "lvlh_from_eci", "chief_circular_state", "two_body_relative_truth"]
@@ -82,12 +83,8 @@ def lvlh_from_eci(r_eci_m, v_eci_mps):
     """``R_lvlh_from_eci`` (3, 3) and the frame's angular velocity ``omega`` (rad/s, LVLH)."""
     r = np.asarray(r_eci_m, dtype=float)
     v = np.asarray(v_eci_mps, dtype=float)
-    h = np.cross(r, v)
-    x = r / np.linalg.norm(r)
-    z = h / np.linalg.norm(h)
-    y = np.cross(z, x)
-    C = np.stack([x, y, z])
-    w = np.array([0.0, 0.0, np.linalg.norm(h) / np.dot(r, r)])
+    C = rtn_frame(np.concatenate([r, v]))   # (the one writing of the frame: fgnav.frames)
+    w = np.array([0.0, 0.0, np.linalg.norm(np.cross(r, v)) / np.dot(r, r)])
     return C, w
 
 

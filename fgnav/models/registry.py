@@ -43,7 +43,7 @@ from fgnav.errors import UserError
 from fgnav.io.log_csv import BODIES, STAR_COLUMNS, attitude_covariances
 from fgnav.models.isl import ISL_CARRIER_PHASE, ISL_PSEUDORANGE
 from fgnav.models.model import MeasurementModel
-from fgnav.models.variables import ORBIT, Variable
+from fgnav.models.variables import ORBIT, ConstantRate, Variable
 from fgnav.simulate.celestial_angles import (body_position_eci_m, body_velocity_mps,
                                              frame_velocity_bcrs_mps, simulate_angle_rows)
 from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
@@ -622,7 +622,7 @@ BODY_BODY_ANGLE = _angle_model(
 
 ATTITUDE_RATE = Variable(
     "attitude_rate", "w", 3, "rad/s", components=("rate_x", "rate_y", "rate_z"),
-    psd=1e-10, prior_sigma=0.1,
+    psd=1e-10, prior_sigma=0.1, process=ConstantRate(turns="attitude"),
     description="body angular rate (body frame) that turns the attitude, rad/s (constant-rate "
                 "motion: white angular acceleration of psd 1e-10 rad^2/s^3)")
 """The body rate of the constant-rate attitude motion (``fgnav smooth --attitude-motion

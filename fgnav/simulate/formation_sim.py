@@ -12,11 +12,13 @@ the declared antenna; none = the centre of mass) and the exact light time ``tau`
 fixed-point iteration on the truth: the transmitter's orbit is integrated again to the
 emission epochs ``t - tau`` each iteration (the map contracts by |v|/c ~ 3e-5, so three
 iterations leave < 1e-7 m; Montenbruck & Gill, "Satellite Orbits", 2000, section 6.2.2).
-``C_A - C_B = clock_m`` is the relative clock ``c (dt_A - dt_B)`` of the pair (A, B) = (first,
-second spacecraft): a random walk (:class:`fgnav.scenarios.RangingSpec`), so a row carries
+``C_A - C_B = clock_m`` is the relative clock ``c (dt_A - dt_B)`` of a linked pair (A, B), A
+the one declared first: a random walk per pair (:class:`fgnav.scenarios.RangingSpec`; the
+estimator's ``clock_<A>_<B>``, :func:`fgnav.models.isl.clock_pair`), so a row carries
 ``+clock_m`` when A receives and ``-clock_m`` when B receives (Xing et al., eq. (1), the sign
 of c dt on the links received by satellite 1 and 2). Carrier phase: the same plus a constant
-float ambiguity per link, m.
+float ambiguity per link, m. Any number of spacecraft (two or more) fly, each pair linked
+only where a ``[[link]]`` says so.
 
 Attitude: each spacecraft's body frame is the Earth-pointing LVLH frame of its own orbit
 turned by its ``yaw_deg`` about the body z axis (nadir); when a link uses an antenna, the
@@ -26,7 +28,9 @@ attitude at every link epoch is written as ``attitude`` rows (rotation vector of
 Random streams (one seed, independent draws): the first spacecraft's celestial rows draw
 from ``default_rng(seed)`` exactly as a one-spacecraft pass of the same scenario would (so its
 rows equal that pass's), spacecraft k >= 1 from ``default_rng([seed, FORMATION_STREAM, k])``,
-the links (clock, noise, ambiguities, attitude noise) from ``[seed, FORMATION_STREAM, 0]``.
+the links (the first pair's clock, noise, ambiguities, attitude noise) from
+``[seed, FORMATION_STREAM, 0]``, the clock of each further pair q >= 1 (in the order of
+:func:`linked_pairs`) from ``[seed, FORMATION_STREAM, 0, q]``.
 """
 
 from __future__ import annotations
@@ -51,7 +55,7 @@ from fgnav.time import parse_utc
 
 __all__ = ["FORMATION_STREAM", "FormationPass", "initial_states", "attitude_law",
            "light_time_range", "simulate_formation_pass", "write_formation_files",
-           "TRUTH_CLOCK_CSV"]
+           "TRUTH_CLOCK_CSV", "linked_pairs"]
 
 FORMATION_STREAM = 3
 """Second entropy word of a formation's streams (module docstring)."""
@@ -64,7 +68,8 @@ LIGHT_TIME_TOL_M = 1e-7
 @dataclass
 class FormationPass:
     """A simulated formation pass (SI). ``x_true[id]`` (N, 6) at ``t_s``; ``t_link`` (K,)
-    the link epochs with the relative clock ``clock_m`` (K,); ``R_eci_from_body[id]`` (N, 3, 3)
+    the link epochs with the relative clock ``clock_m`` (K,) of the first pair of
+    :func:`linked_pairs` and ``clocks[(a, b)]`` (K,) of every linked pair; ``R_eci_from_body[id]`` (N, 3, 3)
     the true attitudes at ``t_s``; ``ambiguity_m`` one float per ``[[link]]`` (carrier);
     ``light_time_s`` (rows,) per link row of ``log`` in ``isl_rows``."""
 
@@ -82,6 +87,17 @@ class FormationPass:
     attitude_rows: bool
     light_time_s: dict = field(default_factory=dict)
     """Link index -> (K,) light times, s."""
+    clocks: dict = field(default_factory=dict)
+    """(id a, id b) -> (K,) relative clock c (dt_a - dt_b), m, per linked pair."""
+
+
+def linked_pairs(scn: Scenario) -> list:
+    """The spacecraft pairs (a, b) its ``[[link]]`` tables link, ``a`` declared before ``b``
+    (the estimator's clock pairs), the pair of the first two spacecraft first, then in
+    declaration order."""
+    order = {sc.id: i for i, sc in enumerate(scn.formation.spacecraft)}
+    got = {tuple(sorted((ln.rx, ln.tx), key=order.get)) for ln in scn.formation.links}
+    return sorted(got, key=lambda ab: (order[ab[0]], order[ab[1]]))
 
 
 def _rz(yaw_rad: float) -> np.ndarray:
@@ -138,9 +154,6 @@ def light_time_range(scn: Scenario, p_rx_eci_m, t_rx_s, x0_tx, yaw_tx_deg, arm_t
 
 def _check_formation_sensors(scn: Scenario) -> None:
     f = scn.formation
-    if len(f.spacecraft) != 2:
-        raise UserError(f"scenario {scn.name}: {len(f.spacecraft)} [[spacecraft]]; a formation "
-                        "is simulated with exactly two (the relative clock is one pair's)")
     for i, s in enumerate(scn.sensors):
         if has_model_bias(s) or (s.mounting_sigma_arcsec or 0.0) > 0.0:
             raise UserError(f"scenario {scn.name}: sensor[{i + 1}] ({s.kind}): an atmosphere-"
@@ -180,9 +193,18 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     rng = np.random.default_rng([seed, FORMATION_STREAM, 0])
     K = len(t_link)
     idx = np.searchsorted(t_all, t_link)
-    clock = rs.clock_sigma0_m * rng.standard_normal() + np.concatenate(
-        [[0.0], np.cumsum(rs.clock_random_walk_m_per_sqrt_s * np.sqrt(np.diff(t_link))
-                          * rng.standard_normal(K - 1))])
+
+    def random_walk(g):
+        return rs.clock_sigma0_m * g.standard_normal() + np.concatenate(
+            [[0.0], np.cumsum(rs.clock_random_walk_m_per_sqrt_s * np.sqrt(np.diff(t_link))
+                              * g.standard_normal(K - 1))])
+
+    linked = linked_pairs(scn)
+    clocks = {ab: random_walk(rng if q == 0 else
+                              np.random.default_rng([seed, FORMATION_STREAM, 0, q]))
+              for q, ab in enumerate(linked)}
+    clock = clocks[linked[0]]
+    order = {i: k for k, i in enumerate(ids)}
     arms = {(a, n): np.array(arm) for a, n, arm in f.antennas}
     zero = np.zeros(3)
     attitude_rows = any(ln.rx_antenna or ln.tx_antenna for ln in f.links)
@@ -199,7 +221,9 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
         p_rx = x_true[ln.rx][idx, :3] + R[ln.rx][idx] @ arms.get((ln.rx, ln.rx_antenna), zero)
         geo, light[j] = light_time_range(scn, p_rx, t_link, x0[ln.tx], yaw[ln.tx],
                                          arms.get((ln.tx, ln.tx_antenna), zero))
-        clean.append(geo + (1.0 if ln.rx == ids[0] else -1.0) * clock)
+        first = order[ln.rx] < order[ln.tx]   # the pair (a, b) in the declared order
+        pair = (ln.rx, ln.tx) if first else (ln.tx, ln.rx)
+        clean.append(geo + (1.0 if first else -1.0) * clocks[pair])
         extras.append({"spacecraft": np.full(K, ln.rx, dtype=object),
                        "tx_spacecraft": np.full(K, ln.tx, dtype=object),
                        "rx_antenna": np.full(K, ln.rx_antenna or None, dtype=object),
@@ -216,13 +240,15 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
                         antennas={(a, n): arm for (a, n), arm in arms.items()})
     return FormationPass(scenario=scn, seed=seed, epoch0=epoch0, ids=ids, t_s=t_all,
                          x_true=x_true, R_eci_from_body=R, t_link=t_link, clock_m=clock, log=log,
-                         ambiguity_m=amb, attitude_rows=attitude_rows, light_time_s=light)
+                         ambiguity_m=amb, attitude_rows=attitude_rows, light_time_s=light,
+                         clocks=clocks)
 
 
 def write_formation_files(out_dir, sim: FormationPass) -> list:
     """Write a formation pass as ``fgnav simulate`` does: ``measurements.csv`` (all
     spacecraft, ``spacecraft`` column and declarations), ``truth-<id>.oem`` per spacecraft,
-    ``truth_clock.csv`` (epoch, clock_m) and, when attitude rows are written (or body-frame
+    ``truth_clock.csv`` (epoch, clock_m: the first pair's; with more than one linked pair
+    also ``clock_<a>_<b>_m`` per pair) and, when attitude rows are written (or body-frame
     rows exist), ``truth_attitude-<id>.csv`` (the true ``R_eci_from_body`` as a rotation
     vector). Returns the paths written; an unwritable directory is a :class:`UserError`."""
     from fgnav.io.log_csv import write_log
@@ -243,11 +269,16 @@ def write_formation_files(out_dir, sim: FormationPass) -> list:
                                 "scipy DOP853 rtol 1e-12 (independent of the estimator's "
                                 "propagator)"))
         written.append(out / TRUTH_CLOCK_CSV)
+        (a, b), more = next(iter(sim.clocks)), len(sim.clocks) > 1
+        cols = {"clock_m": sim.clock_m}
+        if more:
+            cols.update({f"clock_{x}_{y}_m": c for (x, y), c in sim.clocks.items()})
         write_truth_params_csv(
-            written[-1], sim.epoch0, sim.t_link, {"clock_m": sim.clock_m},
-            comments=(f"scenario {scn.name}, seed {sim.seed}: relative clock c (dt_{sim.ids[0]}"
-                      f" - dt_{sim.ids[1]}), m, at the link epochs (a row received by "
-                      f"{sim.ids[0]} carries +clock_m, by {sim.ids[1]} -clock_m)",))
+            written[-1], sim.epoch0, sim.t_link, cols,
+            comments=(f"scenario {scn.name}, seed {sim.seed}: relative clock c (dt_{a}"
+                      f" - dt_{b}), m, at the link epochs (a row received by "
+                      f"{a} carries +clock_m, by {b} -clock_m)"
+                      + ("; clock_<a>_<b>_m the same of every linked pair" if more else ""),))
         body_rows = any(str(k).endswith("_body") and MODELS.get(str(k)) is not None
                         for k in set(sim.log.kind))
         if sim.attitude_rows or body_rows:

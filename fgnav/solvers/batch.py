@@ -24,10 +24,11 @@ from dataclasses import dataclass, field, replace
 import gtsam
 import numpy as np
 
-from factors.dynamics import MotionModel, propagate_many, process_noise_sqrt_information
+from factors.dynamics import MotionModel
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from fgnav.graph import PRIOR_KINDS, initial_block, layout_of, linearize_all
+from fgnav.graph import (PRIOR_KINDS, PROCESS_CHUNK, initial_block, layout_of,
+                         linearize_all, step_rows)
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
 from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
@@ -37,7 +38,6 @@ from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
 from fgnav.solvers.rts import rts_smooth
 from fgnav.iod.prior import initial_guess
 from fgnav.solvers.options import SmootherOptions
-from fgnav.solvers.process import variable_step_rows
 from fgnav.solvers.state_elements import chart_of
 from fgnav.solution import Solution
 from fgnav.solvers.chain import back_substitute, chain_marginals
@@ -78,91 +78,8 @@ class Linearization:
         return self._marginals
 
 
-PROCESS_CHUNK = 65_536
-"""Steps whose motion rows :func:`process_blocks` forms at a time: the state transition matrices
-and the products with them live per chunk (30 MB), not for the whole pass (3 x 288 MB at
-1,000,000 epochs). Each step's rows depend on that step alone: any chunk gives the same bits."""
-
-
-def process_blocks(p: Pass, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,
-                   chunked: bool = False):
-    """The whitened process rows of every step k -> k + 1 on the block ``(X_k, X_{k+1})``:
-    ``A0, A1`` (N-1, n, n) and ``b`` (N-1, n), so that step k's rows are
-    ``|A0 dx_k + A1 dx_{k+1} - b|^2``.
-
-    Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
-    motion factor, ``factors.motion``); each further variable its random walk
-    (:func:`fgnav.solvers.process.variable_step_rows`). With the orbit alone and steps of one
-    length, ``A1`` is that step's ``W`` broadcast (read-only, no memory per step).
-
-    ``chunked``: ``A0`` as a list of arrays of ``2 * PROCESS_CHUNK`` steps each (the same
-    chunks of the computation, so the same values), so that its parts can be freed as they
-    are used (:class:`_Factors`); with further variables than one orbit, a list of the one
-    array. A part (37.7 MB) is above the size from which the C allocator (glibc) always maps
-    memory of its own, so that a freed part goes back to the system at once (parts of one
-    chunk, 19 MB, were placed in the heap and, freed, kept by the process).
-    """
-    lay = layout_of(p)
-    N, n = p.n_epochs, lay.n
-    b = np.zeros((max(N - 1, 0), n))
-    if N < 2:
-        A0 = np.zeros((0, n, n))
-        return ([A0] if chunked else A0), np.zeros_like(A0), b
-    dt = np.diff(p.t_s)
-    W = _step_sqrt_information(dt, q)
-    if chunked and n == 6:   # the orbit alone
-        A0, part = [], 2 * PROCESS_CHUNK
-        for c0 in range(0, N - 1, part):
-            c1 = min(N - 1, c0 + part)
-            A0.append(np.zeros((c1 - c0, n, n)))
-            _orbit_rows(Xs[c0:c1, :6], Xs[c0 + 1:c1 + 1, :6], dt[c0:c1],
-                        t0_j2000_s + p.t_s[c0:c1], W[c0:c1], model, A0[-1], b[c0:c1])
-        return A0, W, b
-    A0 = np.zeros((N - 1, n, n))
-    _orbit_rows(Xs[:-1, :6], Xs[1:, :6], dt, t0_j2000_s + p.t_s[:-1], W, model,
-                A0[:, :6, :6], b[:, :6])
-    if n == 6:
-        A1 = W   # the orbit alone: its rows on X_{k+1} are W itself
-    else:
-        A1 = np.zeros_like(A0)
-        A1[:, :6, :6] = W
-    for v in lay.orbits[1:]:   # a formation's further spacecraft: the same motion model
-        sl = lay.slices[v.name]
-        _orbit_rows(Xs[:-1, sl], Xs[1:, sl], dt, t0_j2000_s + p.t_s[:-1], W, model,
-                    A0[:, sl, sl], b[:, sl])
-        A1[:, sl, sl] = W
-    del W
-    if lay.extra:
-        V0, V1, bv = variable_step_rows(lay, Xs[:-1], Xs[1:], dt)
-        extra = np.concatenate([np.arange(lay.slices[v.name].start, lay.slices[v.name].stop)
-                                for v in lay.parameters] or [np.zeros(0, int)])
-        A0[:, extra], A1[:, extra], b[:, extra] = V0[:, extra], V1[:, extra], bv[:, extra]
-    return ([A0] if chunked else A0), A1, b
-
-
-def _step_sqrt_information(dt: np.ndarray, q: float) -> np.ndarray:
-    """``process_noise_sqrt_information(dt, q)`` (K, 6, 6); when every step has the same length,
-    that one block broadcast to (K, 6, 6) (read-only; 288 MB less at 1,000,000 epochs)."""
-    if len(dt) and np.all(dt == dt[0]):
-        return np.broadcast_to(process_noise_sqrt_information(dt[:1], q), (len(dt), 6, 6))
-    return process_noise_sqrt_information(dt, q)
-
-
-def _orbit_rows(x_from: np.ndarray, x_to: np.ndarray, dt: np.ndarray, t_j2000_s: np.ndarray,
-                W: np.ndarray, model: MotionModel, A0_out: np.ndarray, b_out: np.ndarray) -> None:
-    """The whitened motion rows of the orbit steps ``x_from[k] -> x_to[k]`` (K, 6) of ``dt[k]``
-    seconds from ``t_j2000_s[k]``: ``A0_out[k] = -W_k Phi_k`` (K, 6, 6) and
-    ``b_out[k] = -W_k (x_to[k] - f(x_from[k]))`` (K, 6), written in place,
-    :data:`PROCESS_CHUNK` steps at a time into one reused STM buffer."""
-    K = len(dt)
-    Phi = np.empty((min(PROCESS_CHUNK, K), 6, 6))
-    for c0 in range(0, K, PROCESS_CHUNK):
-        c1 = min(K, c0 + PROCESS_CHUNK)
-        F, Ph = propagate_many(x_from[c0:c1], dt[c0:c1], model, t_j2000_s[c0:c1],
-                               stm_out=Phi[:c1 - c0])
-        Wc = np.ascontiguousarray(W[c0:c1])   # the layout einsum had before: the same sums
-        A0_out[c0:c1] = -np.einsum("kij,kjl->kil", Wc, Ph)
-        b_out[c0:c1] = -np.einsum("kij,kj->ki", Wc, x_to[c0:c1] - F)
+process_blocks = step_rows
+"""Every step's whitened motion and process rows (:func:`fgnav.graph.step_rows`)."""
 
 
 class _Factors:

@@ -23,14 +23,14 @@ import numpy as np
 from factors.dynamics import process_noise, propagate
 from factors.errors import ModelDomainError
 from fgnav.errors import UserError
-from fgnav.graph import enters, initial_block, layout_of, linearize_family
+from fgnav.graph import (enters, initial_block, layout_of, linearize_family,
+                         prior_block_covariance, process_rows)
 from fgnav.measurements import Pass, prior_covariance, rows_by_epoch
 from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
 from fgnav.solution import Solution
 from fgnav.iod.prior import first_state
 from fgnav.solvers.options import SmootherOptions
-from fgnav.solvers.process import variable_step_rows
 from fgnav.solvers.state_elements import chart_of
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
@@ -59,10 +59,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     else:
         x0 = first_state(p, model, t0_j2000)
         x = initial_block(p, np.broadcast_to(x0, (N, 6)))[0][0]
-        P = np.zeros((n, n))
-        P[:6, :6] = prior_covariance(p)
-        for v in lay.extra:
-            P[lay.slices[v.name], lay.slices[v.name]] = np.eye(v.dim) * v.prior_sigma ** 2
+        P = prior_block_covariance(lay, [prior_covariance(p)])
     chart = chart_of(options)   # the orbit's coordinates when not Cartesian (--state elements)
     if chart is not None:
         chart.check_filter_start(x)
@@ -168,7 +165,7 @@ def _propagate_formation(lay, x, P, Phi6, Q6, dt, model, t_j2000_s):
         Q[sl, sl] = Q6
     for v in lay.parameters:
         sl = lay.slices[v.name]
-        Q[sl, sl] = np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
+        Q[sl, sl] = v.process.step_covariance(v, dt)
     return x, F @ P @ F.T + Q
 
 
@@ -181,7 +178,7 @@ def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iteratio
     at ``k`` (a gyro interval). Returns ``(x1, P1, residuals)``, ``residuals`` a list of
     ``(kind, rows, whitened residual (M, m))`` at the propagated block.
 
-    The further variables' process rows (:func:`fgnav.solvers.process.variable_step_rows`,
+    The further variables' process rows (:func:`fgnav.graph.process_rows`,
     the same as the smoothers') and the between rows, whitened as ``A0 d0 + A1 d1 - b ~
     N(0, I)`` in the tangent errors ``d0`` (epoch ``k - 1``) and ``d1`` (the further
     variables at ``k``), are first solved for the variables' mean at ``k`` (Gauss-Newton,
@@ -205,7 +202,7 @@ def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iteratio
 
     def stacked(x0, x1):
         X2 = np.stack([x0, x1])
-        V0, V1, bv = variable_step_rows(lay, X2[:1], X2[1:], t2[1:])
+        V0, V1, bv = process_rows(lay, X2[:1], X2[1:], t2[1:])
         A0s, A1s, bs, res = [V0[0, 6:]], [V1[0, 6:]], [bv[0, 6:]], []
         for kind, rows, fam in fams:
             A0, A1, b, _ = model_of(kind).linearize_between(fam, X2, lay, t2)

@@ -52,16 +52,12 @@ import time
 import gtsam
 import numpy as np
 
-from factors.attitude_motion import make_constant_rate_factor
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
-from factors.geometry import so3_exp, so3_log
 from factors.motion import make_motion_factor, motion_residual
-from factors.random_walk import (make_random_walk_factor, make_rot3_prior_factor,
-                                 make_rot3_random_walk_factor, make_vector_prior_factor)
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import enters, factors_for_rows, initial_block, layout_of, linearize_family
-from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, model as model_of
-from fgnav.models.variables import CONSTANT_PSD_FLOOR
+from fgnav.graph import (enters, factors_for_rows, initial_block, layout_of, linearize_family,
+                         motion_factors, prior_factors, process_factors, process_predict)
+from fgnav.models.registry import model as model_of
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.measurements import Pass, rows_by_epoch
@@ -72,7 +68,6 @@ from fgnav.solvers.batch import outlier_mask
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.iod.prior import first_state
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
-from fgnav.solvers.process import constant_rate
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
 
@@ -85,20 +80,19 @@ def _insert_block(values, lay, k, block):
     values.insert(X(k), np.asarray(block[:6], dtype=float))
     for v in lay.extra:
         w = np.asarray(block[lay.slices[v.name]], dtype=float)
-        values.insert(v.key(k), gtsam.Rot3.Expmap(w) if v.manifold == "rot3" else w)
+        values.insert(v.key(k), v.manifold.to_gtsam(w))
 
 
 def _read_block(source, lay, k):
     """Epoch ``k``'s block values (n,) from an estimate (``gtsam.Values``) or from iSAM2 / the
     fixed-lag smoother (``calculateEstimate*``); rotations as rotation vectors."""
-    if isinstance(source, gtsam.Values):
-        vec, rot = source.atVector, source.atRot3
-    else:
-        vec, rot = source.calculateEstimateVector, source.calculateEstimateRot3
+    get = "at" if isinstance(source, gtsam.Values) else "calculateEstimate"
+    vec = getattr(source, get + "Vector")
     if not lay.extra:
         return np.asarray(vec(X(k)), dtype=float)
-    return np.concatenate([vec(X(k))] + [gtsam.Rot3.Logmap(rot(v.key(k))) if v.manifold == "rot3"
-                                         else vec(v.key(k)) for v in lay.extra])
+    return np.concatenate([vec(X(k))] + [
+        v.manifold.from_gtsam(getattr(source, get + v.manifold.gtsam_type)(v.key(k)))
+        for v in lay.extra])
 
 
 def _timestamps(lay, k, t):
@@ -107,29 +101,13 @@ def _timestamps(lay, k, t):
 
 
 def _process_factors(lay, k, dt, q, model, t0_j2000_s):
-    """The factors from epoch ``k - 1`` to ``k``: the orbit's motion factor and each further
-    variable's random walk, or the attitude's constant-rate motion with its rate
-    (:mod:`fgnav.solvers.process`; at ``k = 0``: the further variables' priors)."""
+    """The factors from epoch ``k - 1`` to ``k``: every orbit's motion factor and the further
+    variables' processes (:func:`fgnav.graph.motion_factors`,
+    :func:`fgnav.graph.process_factors`); at ``k = 0`` the further variables' priors
+    (:func:`fgnav.graph.prior_factors`)."""
     if k == 0:
-        return [make_rot3_prior_factor(v.key(0), np.eye(3), v.prior_sigma) if v.manifold == "rot3"
-                else make_vector_prior_factor(v.key(0), np.full(v.dim, v.prior_mean), v.prior_sigma)
-                for v in lay.parameters]
-    # every orbit its motion factor (a formation's further spacecraft too)
-    out = [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s)
-           for v in lay.orbits]
-    coupled = constant_rate(lay)
-    if coupled:   # the attitude turns at its estimated body rate (factors.attitude_motion)
-        out.append(make_constant_rate_factor(
-            ATTITUDE_VARIABLE.key(k - 1), ATTITUDE_RATE.key(k - 1), ATTITUDE_VARIABLE.key(k),
-            ATTITUDE_RATE.key(k), dt, max(ATTITUDE_RATE.psd, CONSTANT_PSD_FLOOR)))
-    for v in lay.extra:
-        if v.orbit or (coupled and v in (ATTITUDE_VARIABLE, ATTITUDE_RATE)):
-            continue
-        sigma = float(v.step_sigma(dt))
-        out.append(make_rot3_random_walk_factor(v.key(k - 1), v.key(k), sigma)
-                   if v.manifold == "rot3" else
-                   make_random_walk_factor(v.key(k - 1), v.key(k), sigma, v.dim))
-    return out
+        return prior_factors(lay)
+    return motion_factors(lay, k, dt, q, model, t0_j2000_s) + process_factors(lay, k, dt)
 
 
 def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
@@ -150,8 +128,8 @@ def _isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
     tmap = gtsam.ISAM2ThresholdMap()
     tmap.insert(("x", thresholds))
     for v in (lay.parameters if lay is not None else ()):   # (a formation's orbits: 'x')
-        tmap.insert((v.symbol, np.full(v.dim, opt.relinearize_rotation_rad
-                                       if v.manifold == "rot3" else v.prior_sigma)))
+        tmap.insert((v.symbol, np.full(v.dim, v.prior_sigma if v.manifold.additive
+                                       else opt.relinearize_rotation_rad)))
     params.setRelinearizeThreshold(tmap)
     params.relinearizeSkip = opt.relinearize_skip
     params.enablePartialRelinearizationCheck = opt.partial_relinearization_check
@@ -193,9 +171,6 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         for v in lay.orbits[1:]:
             V0[:, lay.slices[v.name]] = x_start[lay.slices[v.name]]
     x_prev = V0[0].copy()
-    turning = constant_rate(lay)
-    if turning:
-        sa, sw = lay.slices[ATTITUDE_VARIABLE.name], lay.slices[ATTITUDE_RATE.name]
     fixed_lag = method == "fixed-lag"
     if fixed_lag:
         # The window holds lag_s + harvest_s: the smoothed output is read out a block of
@@ -285,8 +260,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     sl = lay.slices[v.name]
                     guess[sl] = propagate(x_prev[sl], dt, model, t0_j2000 + p.t_s[k - 1],
                                           with_stm=False)[0]
-            if k > 0 and turning:   # the attitude turned at its rate since k - 1
-                guess[sa] = so3_log(so3_exp(x_prev[sa]) @ so3_exp(x_prev[sw] * dt))
+            if k > 0:   # the further variables' means carried on (a rate turns the attitude)
+                process_predict(lay, x_prev, guess, dt)
             for i, v in enumerate(lay.extra):
                 if measured[k, i]:
                     guess[lay.slices[v.name]] = V0[k, lay.slices[v.name]]

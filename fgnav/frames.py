@@ -1,10 +1,12 @@
-"""The deputy's state relative to the chief, from two absolute ECI states, with Jacobians.
+"""Orbit frames, written once: RTN of a state, the chief's LVLH frame and a deputy's state
+relative to the chief in it (or in the chief's body frame), with Jacobians and covariances.
 
-LVLH frame of the chief: the same axes as :mod:`fgnav.formation.relative_motion` (the
-Clohessy-Wiltshire / Hill frame, x radial) and as ``fgnav.orbit.rtn_frame`` (R, T, N):
-``x = r/|r|`` (radial), ``z = h/|h|`` with ``h = r x v`` (orbit normal), ``y = z x x``
-(along-track, along the velocity for a circular orbit). ``C = R_lvlh_from_eci`` has the rows
-``x, y, z``. The relative state is position and the rate seen in the rotating frame
+RTN / LVLH of a state ``x = [r; v]`` (Vallado 2013, *Fundamentals of Astrodynamics and
+Applications*, sec. 3.3, the RSW frame; the Clohessy-Wiltshire / Hill frame, x radial):
+``x = r/|r|`` (radial, R), ``z = h/|h|`` with ``h = r x v`` (orbit normal, N), ``y = z x x``
+(along-track T, along the velocity for a circular orbit). ``C = R_lvlh_from_eci`` has the rows
+``x, y, z`` (:func:`rtn_frame`, :func:`lvlh_axes`). The relative state is position and the
+rate seen in the rotating frame
 (the Hill frame of Clohessy & Wiltshire 1960, "Terminal guidance system for satellite
 rendezvous", *J. Aerospace Sciences* 27(9); the rotating-frame derivative by the transport
 theorem, Schaub & Junkins 2018, *Analytical Mechanics of Space Systems*, 4th ed., ch. 14)::
@@ -44,7 +46,7 @@ import numpy as np
 from factors.geometry import skew
 
 __all__ = [
-    "lvlh_axes", "relative_state_lvlh", "deputy_from_relative_lvlh", "relative_position_body",
+    "rtn_frame", "lvlh_axes", "relative_state_lvlh", "deputy_from_relative_lvlh", "relative_position_body",
     "relative_state_body", "relative_covariance", "relative_covariance_lvlh", "relative_covariance_body",
 ]
 
@@ -58,18 +60,27 @@ def _states(x):
     return x
 
 
+def rtn_frame(x):
+    """Radial/along-track/cross-track frame of ECI state(s): rows R, T, N.
+
+    R = r/|r|, N = (r x v)/|r x v|, T = N x R. ``x`` (6,) -> (3,3) ``R_rtn_from_eci``
+    (so ``d_rtn = rtn_frame(x) @ d_eci``); (N,6) -> (N,3,3).
+    """
+    x = np.asarray(x, dtype=float)
+    r, v = x[..., :3], x[..., 3:6]
+    R = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    h = np.cross(r, v)
+    N = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    T = np.cross(N, R)
+    return np.stack([R, T, N], axis=-2)
+
+
 def lvlh_axes(x_chief):
     """``C = R_lvlh_from_eci`` (N, 3, 3) (rows x radial, y along-track, z normal) and the
     Keplerian frame rate ``omega_z = |h|/|r|^2`` (N,), rad/s, of chief states (N, 6)."""
     x = _states(x_chief)
-    r, v = x[:, :3], x[:, 3:]
-    h = np.cross(r, v)
-    rn = np.linalg.norm(r, axis=1)
-    hn = np.linalg.norm(h, axis=1)
-    ex = r / rn[:, None]
-    ez = h / hn[:, None]
-    ey = np.cross(ez, ex)
-    return np.stack([ex, ey, ez], axis=1), hn / rn ** 2
+    hn = np.linalg.norm(np.cross(x[:, :3], x[:, 3:]), axis=1)
+    return rtn_frame(x), hn / np.linalg.norm(x[:, :3], axis=1) ** 2
 
 
 def relative_state_lvlh(x_chief, x_deputy):
