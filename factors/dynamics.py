@@ -62,15 +62,18 @@ from factors.jit import njit, prange
 
 from factors.constants import (
     J2_EARTH, J2_MOON, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, R_EARTH_M, R_MOON_J2_M,
+    R_MOON_M,
 )
 from factors.ephemeris import moon_position_eci_m_nb, sun_position_eci_m_nb
 from factors.interpret import active, python_body, run
-from factors.jpl_ephemeris import de421_table, moon_pole_eci, moon_pole_nb, sun_moon_nb, sun_moon_np
+from factors.jpl_ephemeris import (
+    de421_table, moon_pole_eci, moon_pole_nb, moon_position_de421_m, sun_moon_nb, sun_moon_np,
+)
 from factors.planets import NO_TABLE, table_positions_nb, third_body_table
 
 __all__ = [
     "MotionModel", "CENTRES", "EPHEMERIDES", "accel_j2", "accel_j2_gradient", "accel_third_body",
-    "accel_zonal_j2", "accel_zonal_j2_gradient",
+    "accel_zonal_j2", "accel_zonal_j2_gradient", "MOON_J2_WITHIN_M", "moon_j2_needed",
     "accel_third_body_gradient", "propagate", "propagate_many", "propagate_nb", "propagate_through",
     "process_noise", "process_noise_sqrt_information",
 ]
@@ -596,6 +599,21 @@ def accel_zonal_j2_gradient(d, pole, mu=MU_MOON_M3_S2, j2=J2_MOON, re=R_MOON_J2_
     P = np.ascontiguousarray(np.broadcast_to(np.asarray(pole, dtype=float), D.shape))
     _, G = run(_zonal_many, D, P, float(mu), float(j2), float(re), True)
     return G[0] if single else G
+
+
+MOON_J2_WITHIN_M = 1.0e6
+"""Altitude above the Moon's mean radius below which a pass takes the Moon's J2 (issue 31:
+at 1,000 km its acceleration is 8e-5 m/s^2, 0.3 km of position in an hour)."""
+
+
+def moon_j2_needed(t_j2000_s, r_m, centre: str = "earth", within_m: float = MOON_J2_WITHIN_M) -> bool:
+    """Whether positions ``r_m`` (N, 3) at ``t_j2000_s`` (N,) about ``centre`` (``"earth"``
+    or ``"moon"``) come within ``within_m`` of the Moon's surface (mean radius,
+    ``factors.constants.R_MOON_M``; the Moon from DE421)."""
+    r = np.asarray(r_m, dtype=float).reshape(-1, 3)
+    if centre == "earth":
+        r = r - moon_position_de421_m(np.asarray(t_j2000_s, dtype=float).reshape(-1))
+    return bool(len(r) and np.linalg.norm(r, axis=1).min() < R_MOON_M + within_m)
 
 
 _DEFAULT_MODEL = MotionModel()

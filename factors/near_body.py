@@ -41,6 +41,7 @@ import math
 import numpy as np
 
 from factors.aberration import SPEED_OF_LIGHT_MPS, aberrate_row_kernel
+from factors.adapters import noise_model
 from factors.direction import sphere_log_kernel, tangent_basis_kernel
 from factors.errors import ModelDomainError
 from factors.interpret import run
@@ -49,6 +50,7 @@ from factors.jit import njit
 __all__ = [
     "near_body_limb_kernel", "near_body_direction_kernel", "near_body_limb_residual",
     "near_body_direction_residual", "near_body_direction_body_residual",
+    "make_near_body_limb_factor", "make_near_body_direction_factor",
 ]
 
 _C = SPEED_OF_LIGHT_MPS
@@ -234,3 +236,67 @@ def near_body_direction_body_residual(x, R_eci_from_body, u_meas_body, p_body_m,
     ``H_R (N, 2, 3)`` (right perturbation of ``R_eci_from_body``)."""
     return _direction(x, R_eci_from_body, True, u_meas_body, p_body_m, v_body_mps, light_time,
                       aberration)
+
+
+def _row_data(p_body_m, v_body_mps, light_time, aberration, value=0.0, radius=0.0):
+    P = np.ascontiguousarray(np.stack([np.asarray(p_body_m, dtype=float).reshape(3),
+                                       np.asarray(v_body_mps, dtype=float).reshape(3)]))
+    D = np.array([float(value), float(radius), 1.0 if light_time else 0.0,
+                  1.0 if aberration else 0.0])
+    return P, D
+
+
+def make_near_body_limb_factor(key_x, rho_meas_rad, radius_m, p_body_m, v_body_mps, sigma_rad,
+                               light_time=True, aberration=True):
+    """CustomFactor on a state key ``[r; v]``: the limb radius row of
+    :func:`near_body_limb_kernel` (error (1,) rad, Jacobian (1, 6)); the body's position and
+    velocity (3,) in the pass's frame at the row's epoch."""
+    import gtsam
+
+    P, D = _row_data(p_body_m, v_body_mps, light_time, aberration, rho_meas_rad, radius_m)
+    k = int(key_x)
+
+    def error(this, values, H):
+        x = np.asarray(values.atVector(k), dtype=float)
+        e = np.empty(1)
+        Hx = np.empty((1, x.shape[0]))
+        if near_body_limb_kernel(x, D, P, e, Hx) < 0:
+            raise ModelDomainError(f"near-body limb radius: r = {x[:3].tolist()} m is inside "
+                                   f"the limb sphere of radius {radius_m:.1f} m")
+        if H is not None:
+            H[0] = Hx
+        return e
+
+    return gtsam.CustomFactor(noise_model(sigma_rad, 1), [k], error)
+
+
+def make_near_body_direction_factor(key_x, u_meas, p_body_m, v_body_mps, sigma_rad, key_R=None,
+                                    light_time=True, aberration=True):
+    """CustomFactor for a body's centre direction: on the state key alone (``u_meas`` in
+    EME2000) or, with ``key_R``, on (state, ``Rot3`` R_eci_from_body) for ``u_meas`` in the
+    body frame. Error (2,) rad; Jacobians (2, 6) and (2, 3)."""
+    import gtsam
+
+    P, D = _row_data(p_body_m, v_body_mps, light_time, aberration)
+    B = np.empty((2, 3))
+    tangent_basis_kernel(np.asarray(u_meas, dtype=float).reshape(3), B)
+    kx = int(key_x)
+    body = key_R is not None
+    eye = np.eye(3)
+
+    def error(this, values, H):
+        x = np.asarray(values.atVector(kx), dtype=float)
+        R = values.atRot3(int(key_R)).matrix() if body else eye
+        e = np.empty(2)
+        Hx = np.empty((2, x.shape[0]))
+        HR = np.empty((2, 3))
+        if near_body_direction_kernel(x, R, body, D, P, B, e, Hx, HR) < 0:
+            raise ModelDomainError(f"near-body direction undefined at r = {x[:3].tolist()} m")
+        if H is not None:
+            H[0] = Hx
+            if body:
+                H[1] = HR
+        return e
+
+    keys = [kx, int(key_R)] if body else [kx]
+    return gtsam.CustomFactor(noise_model(sigma_rad, 2), keys, error)

@@ -8,8 +8,8 @@ import pytest
 
 from factors.constants import J2_EARTH, MU_EARTH_M3_S2, R_EARTH_M, R_MOON_M
 from factors.dynamics import (
-    NO_TABLE, MotionModel, accel_j2, accel_zonal_j2, accel_zonal_j2_gradient, propagate,
-    propagate_many, propagate_through,
+    NO_TABLE, MotionModel, accel_j2, accel_zonal_j2, accel_zonal_j2_gradient, moon_j2_needed,
+    propagate, propagate_many, propagate_through,
 )
 from factors.interpret import interpreted
 from factors.jpl_ephemeris import moon_pole_eci, moon_state_de421
@@ -137,3 +137,14 @@ def test_interpreted_route_equals_compiled():
         with interpreted():
             d = propagate_through(x0, t, 0, model, T0)
         assert np.allclose(c, d, rtol=1e-14, atol=1e-9)
+
+
+def test_moon_j2_needed_within_1000_km():
+    """The pass-level switch: a pass that comes within 1,000 km of the Moon's surface."""
+    t = T0 + np.arange(3) * 600.0
+    rm, _ = moon_state_de421(t)
+    up = np.array([0.0, 0.0, 1.0])
+    assert moon_j2_needed(t, rm + (R_MOON_M + 900e3) * up)
+    assert not moon_j2_needed(t, rm + (R_MOON_M + 1100e3) * up)
+    assert moon_j2_needed(t, np.array([[0.0, 0.0, R_MOON_M + 999e3]]) * np.ones((3, 1)), centre="moon")
+    assert not moon_j2_needed(t[:2], _tli()[None, :3] * np.ones((2, 1)))

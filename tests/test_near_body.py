@@ -11,6 +11,7 @@ from factors.constants import R_EARTH_M, R_MOON_M, R_SUN_M
 from factors.jpl_ephemeris import moon_state_de421, sun_state_de421
 from factors.limb import limb_radius_residual
 from factors.near_body import (
+    make_near_body_direction_factor, make_near_body_limb_factor,
     near_body_direction_body_residual, near_body_direction_residual, near_body_limb_residual,
 )
 from factors.testing import check_jacobians, random_rotations
@@ -162,3 +163,33 @@ def test_what_each_correction_is_worth():
     rel = np.abs(np.sum((x[:, 3:] - v) * u, axis=1)) / 299792458.0
     assert np.allclose(none / rho_sim, rel, rtol=0.02, atol=1e-9)
     assert full.max() < 0.01 * none.max()
+
+
+def test_gtsam_factors_are_the_residuals():
+    """The GTSAM adapters linearize to the numpy residuals' rows (whitened by sigma)."""
+    gtsam = pytest.importorskip("gtsam")
+    rng = np.random.default_rng(4)
+    t, x = _translunar(rng, 3)
+    p, v = _body_in_frame("moon", t, "earth")
+    w = p - x[:, :3]
+    u = w / np.linalg.norm(w, axis=1)[:, None] + 1e-5
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    R = random_rotations(rng, 3)
+    ub = np.einsum("nji,nj->ni", R, u)
+    rho = np.arcsin(R_MOON_M / np.linalg.norm(w, axis=1)) + 2e-6
+    sig = 1e-5
+    for k in range(3):
+        vals = gtsam.Values()
+        vals.insert(0, x[k])
+        vals.insert(1, gtsam.Rot3(R[k]))
+        e, H = near_body_limb_residual(x[k:k + 1], rho[k], R_MOON_M, p[k], v[k])
+        lf = make_near_body_limb_factor(0, rho[k], R_MOON_M, p[k], v[k], sig).linearize(vals)
+        A, b = lf.jacobian()
+        assert np.allclose(A, H[0] / sig, rtol=1e-12) and np.allclose(-b, e[0] / sig, rtol=1e-12)
+        e, Hx = near_body_direction_residual(x[k:k + 1], u[k], p[k], v[k])
+        A, b = make_near_body_direction_factor(0, u[k], p[k], v[k], sig).linearize(vals).jacobian()
+        assert np.allclose(A, Hx[0] / sig, rtol=1e-12) and np.allclose(-b, e[0] / sig, rtol=1e-12)
+        e, Hx, HR = near_body_direction_body_residual(x[k:k + 1], R[k:k + 1], ub[k], p[k], v[k])
+        A, b = make_near_body_direction_factor(0, ub[k], p[k], v[k], sig, key_R=1).linearize(vals).jacobian()
+        assert np.allclose(A, np.hstack([Hx[0], HR[0]]) / sig, rtol=1e-9, atol=1e-12)
+        assert np.allclose(-b, e[0] / sig, rtol=1e-9)
