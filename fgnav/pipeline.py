@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fgnav.diagnostics.alternatives import applies as mounting_applies, camera_mounting_test
 from fgnav.diagnostics.crb import check_observability, cramer_rao_bound, mapping_shared
 from fgnav.apparent import without_aberration
 from factors.errors import ModelDomainError
@@ -26,7 +27,6 @@ from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas,
                                 format_duration, spacecraft_states, with_estimates)
-from factors.geometry import so3_exp, so3_log
 from fgnav.models.registry import ATTITUDE, ATTITUDE_VARIABLE, MODELS, variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
@@ -458,6 +458,9 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         sol.extras["centre"] = centre
     sol.wall_s = time.perf_counter() - t0
     with stage("checking the solution (Cramer-Rao bound, integrity tests)", p.n_epochs):
+        if mounting_applies(p) and not p.breaks:   # do the stars ask for a mounting rotation?
+            sol.extras["camera_mounting_test"] = camera_mounting_test(p, sol, options,
+                                                                      smooth_batch)
         summary = summarize(sol, p, options)
     x_true = None
     if truth is not None:
@@ -618,9 +621,7 @@ def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
              "sigma_rms": np.sqrt(np.mean(sig * sig, axis=0)).tolist(),
              "sigma_final": sig[-1].tolist()}
         if truth is not None and name in truth:
-            err = x - truth[name]
-            if v.manifold == "rot3":
-                err = so3_log(np.swapaxes(so3_exp(truth[name]), -1, -2) @ so3_exp(x))
+            err = v.manifold.local(truth[name], x)
             d["error_rms"] = np.sqrt(np.mean(err * err, axis=0)).tolist()
             d["max_abs_error_over_sigma"] = np.max(np.abs(err) / sig, axis=0).tolist()
             d["nees_mean"] = float(np.mean(np.sum(err * err / (sig * sig), axis=1)) / x.shape[1])

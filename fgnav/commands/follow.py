@@ -44,6 +44,15 @@ def register(sub):
                         "measurements give")
     p.add_argument("--quiet", action="store_true",
                    help="no notes on stderr (the JSON lines and errors stay)")
+    p.add_argument("--rerun-serve", action="store_true",
+                   help="serve the recording to Rerun's web viewer while it runs (the online "
+                        "state, its sigma, latency and verdict per epoch; at the end the smoothed "
+                        "history with its covariance and residuals); the address is printed on "
+                        "stderr; the server ends with the process")
+    p.add_argument("--rerun-web-port", type=int, default=None, metavar="PORT",
+                   help="with --rerun-serve: the web viewer's port (default 9090)")
+    p.add_argument("--rerun-grpc-port", type=int, default=None, metavar="PORT",
+                   help="with --rerun-serve: the recording's gRPC port (default 9876)")
     add_solver_options(p)
     p.set_defaults(func=run)
 
@@ -70,6 +79,12 @@ def check_args(args) -> None:
                         f"{args.method}")
     if (args.resume or args.checkpoint_every is not None) and not args.checkpoint:
         raise UserError("--resume/--checkpoint-every need --checkpoint FILE.npz")
+    for name, port in (("--rerun-web-port", args.rerun_web_port),
+                       ("--rerun-grpc-port", args.rerun_grpc_port)):
+        if port is not None and not args.rerun_serve:
+            raise UserError(f"{name} is a port of --rerun-serve; give --rerun-serve with it")
+        if port is not None and not 1 <= port <= 65535:
+            raise UserError(f"{name} must be a port number in 1..65535, got {port}")
     if args.checkpoint_every is not None and args.checkpoint_every < 1:
         raise UserError(f"--checkpoint-every must be an epoch count >= 1, got "
                         f"{args.checkpoint_every}")
@@ -94,7 +109,7 @@ def run(args) -> int:
                                          save_checkpoint)
     from fgnav.online.navigator import Navigator
     from fgnav.online.stream import LineSource, StreamReader
-    from fgnav.pipeline import write_outputs
+    from fgnav.results import write_outputs
 
     check_args(args)
     options = solver_options(args)
@@ -110,6 +125,12 @@ def run(args) -> int:
         sys.stdout.write(json.dumps(obj) + "\n")
         sys.stdout.flush()
 
+    live = None
+    if args.rerun_serve:
+        from fgnav.viz.rerun_live import LiveRecording
+        live = LiveRecording()
+        print(f"fgnav: Rerun web viewer: {live.serve(args.rerun_grpc_port, args.rerun_web_port)}",
+              file=sys.stderr, flush=True)
     src = LineSource(args.source, args.idle_timeout)
     reader = StreamReader(src.name, reorder_window_s=args.reorder_window_s,
                           report=lambda m: note(f"fgnav: {m}"))
@@ -164,15 +185,21 @@ def run(args) -> int:
                 for st in nav.add_epoch(ns, rows):
                     emit(st.as_json())
                     files.add(st)
+                    if live is not None:
+                        live.epoch(st)
                     done += 1
                     if st.verdict != last_verdict:
-                        live = nav.integrity.as_dict()
-                        emit({"event": "integrity", "epoch": st.as_json()["epoch"],
-                              "from": last_verdict, "to": st.verdict, **live})
+                        live_int = nav.integrity.as_dict()
+                        event = {"event": "integrity", "epoch": st.as_json()["epoch"],
+                                 "from": last_verdict, "to": st.verdict, **live_int}
+                        emit(event)
+                        if live is not None:
+                            live.verdict(st, event)
                         note(f"fgnav: integrity {last_verdict} -> {st.verdict} at "
-                             f"{st.as_json()['epoch']} (window NIS {live['window']['nis']:.1f} "
-                             f"/ {live['window']['dof']} dof, all {live['all']['nis']:.1f} / "
-                             f"{live['all']['dof']} dof)")
+                             f"{st.as_json()['epoch']} (window NIS "
+                             f"{live_int['window']['nis']:.1f} / {live_int['window']['dof']} "
+                             f"dof, all {live_int['all']['nis']:.1f} / "
+                             f"{live_int['all']['dof']} dof)")
                         last_verdict = st.verdict
                     if args.checkpoint and nav.k % args.checkpoint_every == 0:
                         files.flush()
@@ -202,6 +229,10 @@ def run(args) -> int:
         "integrity_live": nav.integrity.as_dict(), "stream": counts}
     write_outputs(out, res, p)
     commit_outputs(out, None, ["online.oem", "latency.csv"], "follow", replaces=("follow",))
+    if live is not None:
+        from fgnav.results import residual_times
+        live.final(res.solution, residual_t_s=residual_times(res, p))
+        live.close()
     integrity = res.summary["integrity"]
     emit({"event": "end", "epochs": nav.k, "rows": counts["rows"], "skipped": counts["skipped"],
           "duplicates": counts["duplicates"], "late_kept": counts["late_kept"],

@@ -77,6 +77,7 @@ ADVICE = {
                 "units, or try --ignore-prior",
     "observability": "add measurements (limb, altitude) or a longer pass",
     "third_body": "try --third-body",
+    "mounting": "try --estimate camera-alignment (the star camera's mounting in the graph)",
     "aberration": "solve without --no-aberration: the correction is the physics, the option is "
                   "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
@@ -306,6 +307,13 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
             reasons.append(("suspect", text + " (consider analysis)", "aberration"))
         else:
             notes.append(text)
+    mounting = sol.extras.get("camera_mounting_test")
+    if mounting is not None and mounting["status"] != "ok":
+        reasons.append(("suspect", f"the star rows ask for a camera mounting rotation of "
+                                   f"{mounting['mounting_arcsec']:.3g} arcsec (chi-square falls "
+                                   f"by {mounting['chi2_drop']:.3g} > {mounting['threshold']:.3g} "
+                                   f"with it estimated): the star camera is not aligned with "
+                                   f"the body frame", "mounting"))
     if aberration_off(p) and any(v.name.startswith("attitude") for v in p.layout.extra):
         notes.append("--no-aberration with the attitude estimated: the consider analysis moves "
                      "the orbit's own rows only, not the attitude the star rows fix, whose shift "
@@ -339,6 +347,8 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
         out["third_body_omitted"] = third
     if aberration is not None:
         out["aberration_omitted"] = aberration
+    if mounting is not None:
+        out["camera_mounting"] = mounting
     return out
 
 

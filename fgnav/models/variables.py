@@ -86,6 +86,10 @@ class VectorSpace(Manifold):
         """The values as a measurement model receives them: the vector itself."""
         return x
 
+    def local(self, x_ref, x):
+        """The tangent vector from ``x_ref`` to ``x`` (an error): ``x - x_ref``."""
+        return x - x_ref
+
     def to_gtsam(self, x):
         return np.asarray(x, dtype=float)
 
@@ -123,6 +127,11 @@ class Rot3Manifold(Manifold):
     def exp(self, x):
         """The values as a measurement model receives them: rotation matrices (M, 3, 3)."""
         return so3_exp(x)
+
+    def local(self, x_ref, x):
+        """The tangent vector from ``x_ref`` to ``x``: ``Log(R_ref^T R)`` (the right
+        perturbation ``R = R_ref Exp(e)``; not a difference of rotation vectors)."""
+        return so3_log(np.swapaxes(so3_exp(x_ref), -1, -2) @ so3_exp(x))
 
     def to_gtsam(self, x):
         import gtsam

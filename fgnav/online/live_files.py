@@ -3,7 +3,8 @@
 ``online.oem``: CCSDS OEM 2.0 (KVN), one segment per block of epochs, each with its
 covariances (ODM 502.0-B-3 sec. 5.2: an OEM may hold several segments, each its own
 metadata, ephemeris lines and covariance), so the file is a valid OEM after every block.
-``latency.csv``: ``t_s,latency_s``, one line per epoch. Both are written with one
+``latency.csv``: ``t_s,latency_s,cpu_s`` (the update's wall time and the CPU time of it),
+one line per epoch. Both are written with one
 ``write`` per record and flushed; a checkpoint records their sizes, so a resumed run cuts
 away what was written after it and no epoch appears twice.
 """
@@ -49,7 +50,7 @@ class LiveFiles:
         self.oem = open(self.oem_path, "ab")
         self.lat = open(self.lat_path, "ab")
         if self.lat.tell() == 0:
-            self._write(self.lat, b"t_s,latency_s\n")
+            self._write(self.lat, b"t_s,latency_s,cpu_s\n")
         self.block: list = []
         self.block_t = time.monotonic()
         self.epoch0 = None
@@ -61,7 +62,8 @@ class LiveFiles:
 
     def add(self, state) -> None:
         """One epoch's :class:`fgnav.online.navigator.State`."""
-        self._write(self.lat, f"{state.t_s:.6f},{state.latency_s:.9f}\n".encode())
+        self._write(self.lat, f"{state.t_s:.6f},{state.latency_s:.9f},{state.cpu_s:.9f}\n"
+                    .encode())
         self.block.append(state)
         if len(self.block) >= BLOCK_EPOCHS or time.monotonic() - self.block_t > BLOCK_S:
             self.flush()

@@ -64,7 +64,8 @@ IOD_EPOCHS = (30, 60, 120, 240, 480, 960, 1920)
 @dataclass
 class State:
     """The newest online state: epoch, ``t_s`` (s from the stream's first epoch), state
-    ``x`` (6,) [m, m/s] ECI, covariance ``P`` (6, 6), the live verdict, the update latency."""
+    ``x`` (6,) [m, m/s] ECI, covariance ``P`` (6, 6), the live verdict, the update latency
+    (wall) and its CPU time."""
 
     ns: int
     t_s: float
@@ -73,6 +74,7 @@ class State:
     verdict: str
     latency_s: float
     k: int
+    cpu_s: float = float("nan")
 
     def as_json(self) -> dict:
         sig = np.sqrt(np.maximum(np.diag(self.P), 0.0))
@@ -80,7 +82,7 @@ class State:
                 "t_s": round(self.t_s, 9), "r_eci_m": self.x[:3].tolist(),
                 "v_eci_mps": self.x[3:].tolist(), "sigma_r_m": sig[:3].tolist(),
                 "sigma_v_mps": sig[3:].tolist(), "verdict": self.verdict,
-                "latency_s": self.latency_s}
+                "latency_s": self.latency_s, "cpu_s": self.cpu_s}
 
 
 class RowStore:
@@ -303,7 +305,7 @@ class Navigator:
     # ---- one epoch ----
 
     def _step(self, ns: int, rows: list) -> State | None:
-        t_wall = time.perf_counter()
+        t_wall, t_cpu = time.perf_counter(), time.thread_time()
         p = self._mini_pass(rows)
         t_j2000 = float(j2000_seconds(np.datetime64(ns, "ns")))
         first = self.last_ns is None
@@ -318,7 +320,7 @@ class Navigator:
                     if enters(p, kind) and not model_of(kind).between
                     and not (model_of(kind).prior and (not first or self.prior is not None
                                                        or self.ignore_prior))]
-        nis, dof, A_all, b_all = 0.0, 0, [], []
+        nis, dof, A_all, b_all, A, b, S = 0.0, 0, [], [], None, None, None
         for kind, fam in families:
             try:
                 _, A, b, _ = linearize_family(p, kind, fam, x_pred[None])
@@ -338,18 +340,18 @@ class Navigator:
             S = A @ P_pred @ A.T + np.eye(len(b))
             nis, dof = float(b @ np.linalg.solve(S, b)), len(b)
         try:
-            x, P = self.engine.step(p, families, ns, dt, t_j2000, x_pred, P_pred, first)
+            x, P = self.engine.step(p, families, ns, dt, t_j2000, x_pred, P_pred, first, A, b, S)
         except (RuntimeError, ModelDomainError, np.linalg.LinAlgError) as exc:
             raise NotObservableError(f"{self.source}: the online {self.method} could not update "
                                      f"at {format_utc(np.datetime64(ns, 'ns'))} ({exc})") from exc
         self.x, self.P, self.last_ns = x, P, ns
         self.integrity.add(ns, nis, dof)
         verdict = self.integrity.verdict()
-        lat = time.perf_counter() - t_wall
+        lat, cpu = time.perf_counter() - t_wall, time.thread_time() - t_cpu
         self.latency.append(lat)
         self.k += 1
         return State(ns, (ns - self.epoch0_ns) / 1e9, x.copy(), P.copy(), verdict, lat,
-                     self.k - 1)
+                     self.k - 1, cpu)
 
     # ---- the history ----
 
@@ -408,29 +410,19 @@ def _by_epoch(rows):
 
 
 class _Ekf:
-    """The EKF's measurement update of one epoch (:func:`fgnav.solvers.ekf.run_ekf`)."""
+    """The EKF's measurement update of one epoch (:func:`fgnav.solvers.ekf.run_ekf`), all the
+    epoch's kept rows at once, linearized at the prediction: ``K = P A^T S^-1``, Joseph form
+    ``P = (I - K A) P (I - K A)^T + K K^T`` (whitened rows: unit measurement noise)."""
 
     def __init__(self, nav: Navigator):
         self.nav = nav
 
-    def step(self, p, families, ns, dt, t_j2000, x, P, first):
-        for kind, fam in families:
-            if model_of(kind).prior:
-                continue
-            for j in range(len(fam)):
-                _, A, b, _ = linearize_family(p, kind, fam.subset(np.array([j]), 0), x[None])
-                A, b = A.reshape(-1, 6), b.reshape(-1)
-                if self.nav.options.gate_probability is not None and model_of(kind).robust:
-                    ok, S = passes_gate(A, b, P, self.nav.options.gate_probability)
-                    if not ok:
-                        continue
-                else:
-                    S = A @ P @ A.T + np.eye(len(b))
-                K = np.linalg.solve(S, A @ P).T
-                x = x + K @ b
-                IKA = np.eye(6) - K @ A
-                P = IKA @ P @ IKA.T + K @ K.T
-        return x, P
+    def step(self, p, families, ns, dt, t_j2000, x, P, first, A=None, b=None, S=None):
+        if A is None:
+            return x, P
+        K = np.linalg.solve(S, A @ P).T
+        IKA = np.eye(6) - K @ A
+        return x + K @ b, IKA @ P @ IKA.T + K @ K.T
 
 
 class _Window:
@@ -459,7 +451,7 @@ class _Window:
         self.held = None
         self.k = None            # the key index of the newest state
 
-    def step(self, p, families, ns, dt, t_j2000, x_pred, P_pred, first):
+    def step(self, p, families, ns, dt, t_j2000, x_pred, P_pred, first, A=None, b=None, S=None):
         gtsam, nav = self.gtsam, self.nav
         X = gtsam.symbol_shorthand.X
         graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()

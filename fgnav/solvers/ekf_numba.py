@@ -40,6 +40,7 @@ from factors.dynamics import process_noise_terms, propagate_nb
 from factors.errors import ModelDomainError
 from factors.limb import limb_radius_kernel
 from factors.prior import prior_position_kernel, prior_velocity_kernel
+from fgnav.graph import layout_of, prior_block_covariance
 from fgnav.measurements import prior_covariance
 from fgnav.models.registry import MODELS
 from fgnav.solution import Solution
@@ -390,7 +391,7 @@ def run_ekf_numba(p, options=None, *, progress=None, step_latency: bool = False,
     N = p.n_epochs
     pk = pack_pass(p)
     x = np.array(first_state(p, model, t0_j2000), dtype=float)
-    P = prior_covariance(p)
+    P = prior_block_covariance(layout_of(p), [prior_covariance(p)])   # the orbit alone
     xs = np.empty((N, 6))
     Ps = np.empty((N, 6, 6))
     innov = np.full((len(pk.m_sigma), 3), np.nan)

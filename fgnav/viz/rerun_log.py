@@ -535,6 +535,23 @@ def log_solution(rrd_path, solution, *, truth_x_eci=None, measurements=None, spa
     return result
 
 
+def log_solution_to(rec, solution, *, measurements=None, sigma_scale=3.0,
+                    residual_t_s=None) -> list[str]:
+    """The entities of :func:`log_solution` (trajectory, covariance ellipsoids, errors'
+    sigmas, residuals, measurement rays) logged into an open recording stream ``rec`` (e.g.
+    one served live, :mod:`fgnav.viz.rerun_live`) instead of a file; returns the entity
+    paths."""
+    import rerun as rr
+
+    t_s = np.asarray(solution.t_s, float)
+    x, P = np.asarray(solution.x_eci, float), np.asarray(solution.P_eci, float)
+    k = float(sigma_scale)
+    has_latency = solution.latency_s is not None and len(solution.latency_s) == len(t_s)
+    rkinds = [kk for kk, v in (solution.residuals or {}).items() if np.size(v)]
+    return _log_all(rec, rr, solution, t_s, x, P, None, measurements, k,
+                    f"{k:g}".replace(".", "p"), None, None, residual_t_s, rkinds, has_latency)[0]
+
+
 @contextmanager
 def recording_file(path, blueprint, application_id="fgnav"):
     """A recording stream saved to ``path`` with ``blueprint`` as its default layout. It is
