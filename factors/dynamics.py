@@ -53,22 +53,37 @@ On the INS/CNS lecture LEO (504 km) 5 s sub-steps give 0.75 mm / 0.75 um/s per h
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
 from factors.jit import njit, prange
 
-from factors.constants import J2_EARTH, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, R_EARTH_M
+from factors.constants import (
+    J2_EARTH, J2_MOON, MU_EARTH_M3_S2, MU_MOON_M3_S2, MU_SUN_M3_S2, R_EARTH_M, R_MOON_J2_M,
+    R_MOON_M,
+)
 from factors.ephemeris import moon_position_eci_m_nb, sun_position_eci_m_nb
 from factors.interpret import active, python_body, run
+from factors.jpl_ephemeris import (
+    de421_table, moon_pole_eci, moon_pole_nb, moon_position_de421_m, sun_moon_nb, sun_moon_np,
+)
 from factors.planets import NO_TABLE, table_positions_nb, third_body_table
 
 __all__ = [
-    "MotionModel", "accel_j2", "accel_j2_gradient", "accel_third_body",
+    "MotionModel", "CENTRES", "EPHEMERIDES", "accel_j2", "accel_j2_gradient", "accel_third_body",
+    "accel_zonal_j2", "accel_zonal_j2_gradient", "MOON_J2_WITHIN_M", "moon_j2_needed",
     "accel_third_body_gradient", "propagate", "propagate_many", "propagate_nb", "propagate_through",
     "process_noise", "process_noise_sqrt_information",
 ]
+
+
+CENTRES = ("earth", "sun", "moon")
+"""The motion model's central bodies."""
+EPHEMERIDES = ("analytic", "de421")
+"""Where the geocentric/selenocentric model takes the Sun and the Moon: the analytic series
+(``factors.ephemeris``) or JPL DE421 (``factors.jpl_ephemeris``)."""
 
 
 @dataclass(frozen=True)
@@ -82,7 +97,15 @@ class MotionModel:
     centre: ``"earth"`` (geocentric, the fields above) or ``"sun"``: heliocentric, the Sun's
     point mass (``mu`` = its GM, no J2) and, with ``third_body``, the planets of
     ``factors.planets.THIRD_BODIES`` as third bodies (their table, ``factors.planets``);
-    build it with :meth:`heliocentric`.
+    build it with :meth:`heliocentric`; ``"moon"``: selenocentric (ICRF axes), the Moon's
+    point mass (``mu`` its GM, ``j2 = 0``), the Earth and the Sun as third bodies from DE421;
+    build it with :meth:`selenocentric`.
+    ephemeris: ``"analytic"`` (the default, as before) or ``"de421"``: the Sun and the Moon
+    from JPL DE421, evaluated at each RK4 stage's time (cislunar sub-steps of a minute and
+    more: held over a sub-step they would make the scheme second order).
+    moon_j2: the Moon's J2 (``J2_MOON`` about its IAU pole, ``factors.jpl_ephemeris``), for a
+    pass that comes within ~1,000 km of the Moon (at 1,000 km altitude 8e-5 m/s^2;
+    ``de421`` only). Its acceleration on the Earth is left out (< 1e-13 m/s^2).
     """
 
     mu: float = MU_EARTH_M3_S2
@@ -93,6 +116,22 @@ class MotionModel:
     mu_sun: float = MU_SUN_M3_S2
     mu_moon: float = MU_MOON_M3_S2
     centre: str = "earth"
+    ephemeris: str = "analytic"
+    moon_j2: bool = False
+
+    @classmethod
+    def selenocentric(cls, *, third_body: bool = True, moon_j2: bool = True,
+                      max_step_s: float = 60.0) -> "MotionModel":
+        """An orbit about the Moon: the Moon's GM and J2 (its pole), the Earth and the Sun
+        from DE421 as third bodies."""
+        return cls(mu=MU_MOON_M3_S2, j2=0.0, re=R_MOON_J2_M, third_body=third_body,
+                   max_step_s=max_step_s, centre="moon", ephemeris="de421", moon_j2=moon_j2)
+
+    @classmethod
+    def cislunar(cls, *, moon_j2: bool = False, max_step_s: float = 60.0) -> "MotionModel":
+        """Geocentric between the Earth and the Moon: the Earth's GM and J2, the Sun and the
+        Moon from DE421, and with ``moon_j2`` the Moon's J2."""
+        return cls(third_body=True, max_step_s=max_step_s, ephemeris="de421", moon_j2=moon_j2)
 
     @classmethod
     def heliocentric(cls, *, third_body: bool = True, max_step_s: float = 14400.0) -> "MotionModel":
@@ -108,19 +147,43 @@ class MotionModel:
             raise ValueError(f"max_step_s must be a positive finite number of seconds, got {self.max_step_s!r}")
         if not self.mu > 0.0:
             raise ValueError(f"mu must be positive (m^3/s^2), got {self.mu!r}")
-        if self.centre not in ("earth", "sun"):
-            raise ValueError(f"centre must be 'earth' or 'sun', got {self.centre!r}")
+        if self.centre not in CENTRES:
+            raise ValueError(f"centre must be one of {', '.join(CENTRES)}, got {self.centre!r}")
+        if self.ephemeris not in EPHEMERIDES:
+            raise ValueError(f"ephemeris must be one of {', '.join(EPHEMERIDES)}, got {self.ephemeris!r}")
+        if self.ephemeris != "de421" and (self.centre == "moon" or self.moon_j2):
+            raise ValueError("a Moon-centred model and the Moon's J2 need ephemeris='de421'")
+        if self.centre == "sun" and self.ephemeris != "analytic":
+            raise ValueError("the heliocentric model reads the planets' table, not DE421")
 
     def table(self) -> np.ndarray:
-        """The kernels' third-body table: the planets' (heliocentric model) or
-        ``NO_TABLE`` (geocentric: the analytic Sun and Moon)."""
-        return third_body_table() if self.centre == "sun" else NO_TABLE
+        """The kernels' third-body table: the planets' (heliocentric model), DE421's
+        (:func:`cislunar_table`) or ``NO_TABLE`` (geocentric: the analytic Sun and Moon)."""
+        if self.centre == "sun":
+            return third_body_table()
+        if self.ephemeris == "de421":
+            second = MU_EARTH_M3_S2 if self.centre == "moon" else self.mu_moon
+            return cislunar_table(self.centre, float(second), bool(self.moon_j2))
+        return NO_TABLE
 
     def args(self):
         """The tuple (mu, j2, re, third_body, max_step_s, mu_sun, mu_moon, table) the
         kernels take."""
         return (float(self.mu), float(self.j2), float(self.re), bool(self.third_body),
                 float(self.max_step_s), float(self.mu_sun), float(self.mu_moon), self.table())
+
+
+@functools.lru_cache(maxsize=8)
+def cislunar_table(centre: str, mu_second: float, moon_j2: bool) -> np.ndarray:
+    """DE421's table (``factors.jpl_ephemeris.de421_table``) with the cislunar kernels'
+    header in row 0, columns 4-8: ``[centre (0 Earth, 1 Moon), GM of the second third body
+    (the Moon about the Earth, the Earth about the Moon), the Moon's J2 (0: off), its radius,
+    the Moon's GM]``. Read-only; one copy per distinct model."""
+    tab = de421_table().copy()
+    tab[0, 4:9] = (1.0 if centre == "moon" else 0.0, mu_second, J2_MOON if moon_j2 else 0.0,
+                   R_MOON_J2_M, MU_MOON_M3_S2)
+    tab.setflags(write=False)
+    return tab
 
 
 # ----------------------------------------------------------------------------- kernels
@@ -194,6 +257,72 @@ def _third(rx, ry, rz, b, mu_b, a, G, want_grad):
 
 
 @njit(cache=True)
+def _zonal(dx, dy, dz, p, mu, j2, re, a, G, want_grad):
+    """Add the J2 acceleration of a body whose pole is the unit vector p (3,), at the
+    relative position d = (dx, dy, dz), into a and its gradient into G (Vallado eq. 8-30
+    with e_z -> p, z = d . p): a = -c (d/|d|^5 - 5 z^2 d/|d|^7 + 2 z p/|d|^5),
+    dA/dd = -c [(1/|d|^5 - 5 z^2/|d|^7) I + (35 z^2/|d|^9 - 5/|d|^7) d d^T
+                - 10 z/|d|^7 (d p^T + p d^T) + 2 p p^T/|d|^5], c = 1.5 J2 mu R^2."""
+    d2 = dx * dx + dy * dy + dz * dz
+    dn = math.sqrt(d2)
+    id2 = 1.0 / d2
+    id5 = id2 * id2 / dn
+    id7 = id5 * id2
+    c = 1.5 * j2 * mu * re * re
+    z = dx * p[0] + dy * p[1] + dz * p[2]
+    s = -c * (id5 - 5.0 * z * z * id7)
+    q = -2.0 * c * z * id5
+    a[0] += s * dx + q * p[0]
+    a[1] += s * dy + q * p[1]
+    a[2] += s * dz + q * p[2]
+    if want_grad:
+        id9 = id7 * id2
+        cdd = -c * (35.0 * z * z * id9 - 5.0 * id7)
+        cdp = 10.0 * c * z * id7
+        cpp = -2.0 * c * id5
+        for i in range(3):
+            di = dx if i == 0 else (dy if i == 1 else dz)
+            for j in range(3):
+                dj = dx if j == 0 else (dy if j == 1 else dz)
+                G[i, j] += cdd * di * dj + cdp * (di * p[j] + p[i] * dj) + cpp * p[i] * p[j]
+            G[i, i] += s
+
+
+@njit(cache=True)
+def _cislunar_bodies(eph, t, sun, moon, b1, b2, jc, pole):
+    """The cislunar model's bodies at ``t`` from DE421 (``eph``: :func:`cislunar_table`):
+    b1 the Sun and b2 the second third body (the Moon, or the Earth about the Moon) relative
+    to the centre, jc the Moon's centre relative to the centre and its pole (for its J2)."""
+    sun_moon_nb(eph, t, sun, moon)
+    lunar = eph[0, 4] != 0.0
+    for m in range(3):
+        if lunar:
+            b1[m] = sun[m] - moon[m]
+            b2[m] = -moon[m]
+            jc[m] = 0.0
+        else:
+            b1[m] = sun[m]
+            b2[m] = moon[m]
+            jc[m] = moon[m]
+    if eph[0, 6] != 0.0:
+        moon_pole_nb(t, pole)
+
+
+@njit(cache=True)
+def _accel_cislunar(r0, r1, r2, mu, j2, re, third, b1, mu_sun, b2, jc, pole, eph, a, G,
+                    want_grad):
+    """Central + J2 (pole along z), the Sun and the second body (``_cislunar_bodies``) with
+    the indirect term, and the Moon's J2 about its pole at jc when the table switches it on."""
+    _gravity(r0, r1, r2, mu, j2, re, a, G, want_grad)
+    if third:
+        _third(r0, r1, r2, b1, mu_sun, a, G, want_grad)
+        _third(r0, r1, r2, b2, eph[0, 5], a, G, want_grad)
+    if eph[0, 6] != 0.0:
+        _zonal(r0 - jc[0], r1 - jc[1], r2 - jc[2], pole, eph[0, 8], eph[0, 6], eph[0, 7], a, G,
+               want_grad)
+
+
+@njit(cache=True)
 def _accel(r0, r1, r2, mu, j2, re, third, sun, moon, mu_sun, mu_moon, eph, bodies, a, G,
            want_grad):
     _gravity(r0, r1, r2, mu, j2, re, a, G, want_grad)
@@ -225,6 +354,11 @@ def propagate_nb(x0, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, t0, 
     moon = np.zeros(3)
     nb = int(eph[0, 2])
     bodies = np.zeros((max(nb, 1), 3))
+    jpl = nb < 0
+    b1 = np.zeros(3)
+    b2 = np.zeros(3)
+    jc = np.zeros(3)
+    pole = np.zeros(3)
     a = np.empty(3)
     G = np.zeros((3, 3))
     K = np.empty((4, 6))
@@ -241,14 +375,20 @@ def propagate_nb(x0, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, t0, 
             cst = coef[st] * h
             if third and nb > 0:   # the planets at each stage's time: fourth order in h
                 table_positions_nb(eph, t0 + step * h + cst, bodies)
+            if jpl:   # DE421's Sun and Moon at each stage's time
+                _cislunar_bodies(eph, t0 + step * h + cst, sun, moon, b1, b2, jc, pole)
             if st == 0:
                 for i in range(6):
                     xs[i] = x1[i]
             else:
                 for i in range(6):
                     xs[i] = x1[i] + cst * K[st - 1, i]
-            _accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon, eph,
-                   bodies, a, G, want_stm)
+            if jpl:
+                _accel_cislunar(xs[0], xs[1], xs[2], mu, j2, re, third, b1, mu_sun, b2, jc, pole,
+                                eph, a, G, want_stm)
+            else:
+                _accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon, eph,
+                       bodies, a, G, want_stm)
             for i in range(3):
                 K[st, i] = xs[3 + i]
                 K[st, 3 + i] = a[i]
@@ -307,6 +447,16 @@ def _table_positions_np(eph, t):
     return out
 
 
+def _cislunar_bodies_np(eph, t):
+    """``_cislunar_bodies`` at every time of ``t`` (N,): b1, b2, jc, pole, each (3, N)."""
+    sun, moon = sun_moon_np(eph, t)
+    sun, moon = sun.T, moon.T
+    pole = moon_pole_eci(t).T if eph[0, 6] != 0.0 else np.zeros((3, len(t)))
+    if eph[0, 4] != 0.0:
+        return sun - moon, -moon, np.zeros_like(moon), pole
+    return sun, moon, moon, pole
+
+
 def _propagate_many_np(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph, t0, want_stm,
                        X1, Phi):
     """``_propagate_many_nb`` with numpy, every epoch at once (short passes, see
@@ -319,6 +469,7 @@ def _propagate_many_np(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph,
     x = np.ascontiguousarray(X.T)
     P = np.ascontiguousarray(np.broadcast_to(np.eye(6)[:, :, None], (6, 6, N))) if want_stm else None
     accel = python_body(_accel, arrays=True)
+    accel_cis = python_body(_accel_cislunar, arrays=True)
     a = np.empty((3, N))
     G = np.zeros((3, 3, N))
     sun = moon = np.zeros((3, N))
@@ -337,8 +488,13 @@ def _propagate_many_np(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon, eph,
             if third and nb > 0:
                 bodies = _table_positions_np(eph, t0 + step * h + cst)
             xs = x if st == 0 else x + cst * K[-1]
-            accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon, eph, bodies,
-                  a, G, want_stm)
+            if nb < 0:
+                b1, b2, jc, pole = _cislunar_bodies_np(eph, t0 + step * h + cst)
+                accel_cis(xs[0], xs[1], xs[2], mu, j2, re, third, b1, mu_sun, b2, jc, pole, eph,
+                          a, G, want_stm)
+            else:
+                accel(xs[0], xs[1], xs[2], mu, j2, re, third, sun, moon, mu_sun, mu_moon, eph,
+                      bodies, a, G, want_stm)
             K.append(np.concatenate([xs[3:], a]))
             if want_stm:
                 M = P if st == 0 else P + cst * dK[-1]
@@ -415,6 +571,49 @@ def accel_third_body_gradient(r, r_body, mu_body):
     B = np.ascontiguousarray(np.broadcast_to(np.asarray(r_body, dtype=float), R.shape))
     _, G = run(_third_many, R, B, float(mu_body), True)
     return G[0] if single else G
+
+
+@njit(cache=True)
+def _zonal_many(D, P, mu, j2, re, want_grad):
+    N = D.shape[0]
+    A = np.zeros((N, 3))
+    G = np.zeros((N, 3, 3))
+    for k in range(N):
+        _zonal(D[k, 0], D[k, 1], D[k, 2], P[k], mu, j2, re, A[k], G[k], want_grad)
+    return A, G
+
+
+def accel_zonal_j2(d, pole, mu=MU_MOON_M3_S2, j2=J2_MOON, re=R_MOON_J2_M):
+    """J2 acceleration (m/s^2) at ``d`` (m) from a body's centre whose pole is the unit
+    vector ``pole`` (the Moon's by default): (3,) -> (3,), (N,3) -> (N,3); the central
+    term -mu d/|d|^3 not included (Vallado eq. 8-30 with e_z -> pole)."""
+    D, single = _as_rows(d, 3)
+    P = np.ascontiguousarray(np.broadcast_to(np.asarray(pole, dtype=float), D.shape))
+    A, _ = run(_zonal_many, D, P, float(mu), float(j2), float(re), False)
+    return A[0] if single else A
+
+
+def accel_zonal_j2_gradient(d, pole, mu=MU_MOON_M3_S2, j2=J2_MOON, re=R_MOON_J2_M):
+    """Analytic gradient d a / d d (1/s^2) of :func:`accel_zonal_j2`."""
+    D, single = _as_rows(d, 3)
+    P = np.ascontiguousarray(np.broadcast_to(np.asarray(pole, dtype=float), D.shape))
+    _, G = run(_zonal_many, D, P, float(mu), float(j2), float(re), True)
+    return G[0] if single else G
+
+
+MOON_J2_WITHIN_M = 1.0e6
+"""Altitude above the Moon's mean radius below which a pass takes the Moon's J2 (issue 31:
+at 1,000 km its acceleration is 8e-5 m/s^2, 0.3 km of position in an hour)."""
+
+
+def moon_j2_needed(t_j2000_s, r_m, centre: str = "earth", within_m: float = MOON_J2_WITHIN_M) -> bool:
+    """Whether positions ``r_m`` (N, 3) at ``t_j2000_s`` (N,) about ``centre`` (``"earth"``
+    or ``"moon"``) come within ``within_m`` of the Moon's surface (mean radius,
+    ``factors.constants.R_MOON_M``; the Moon from DE421)."""
+    r = np.asarray(r_m, dtype=float).reshape(-1, 3)
+    if centre == "earth":
+        r = r - moon_position_de421_m(np.asarray(t_j2000_s, dtype=float).reshape(-1))
+    return bool(len(r) and np.linalg.norm(r, axis=1).min() < R_MOON_M + within_m)
 
 
 _DEFAULT_MODEL = MotionModel()
@@ -520,7 +719,7 @@ def _propagate_chain_floats(X, dt, mu, j2, re, third, max_step, mu_sun, mu_moon,
 
 def _chain(X, dt, args, t0):
     """Run the chain kernel (or its float form where interpreted and Earth's field alone)."""
-    if active() and not args[3]:
+    if active() and not args[3] and args[7][0, 2] >= 0:   # (the float form has no DE421)
         _propagate_chain_floats(X, dt, *args, t0)
     else:
         run(_propagate_chain_nb, X, dt, *args, t0)
