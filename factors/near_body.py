@@ -32,6 +32,12 @@ One definition per kind: :func:`near_body_limb_kernel` and :func:`near_body_dire
 (numba) compute one row; the numpy residuals call them. Data packing (as the compiled
 EKF's row kernels): ``data = (measured value, R_body (limb), light time 1/0, aberration
 1/0)``, ``P = (p_body, v_body)`` (2, 3).
+
+The log kinds' row kernels (the compiled EKF's uniform signature ``(x, data, B, e, H)``):
+:func:`limb_radius_body_kernel` (``limb_radius``: ``data[4] = 0``, no ``body``, is
+``factors.limb.limb_radius_kernel`` exactly; otherwise the near-body limb, ``B = P``) and
+:func:`near_body_direction_row_kernel` (``body_direction``: ``B = (p_body, v_body, b1, b2)``,
+the body's state and the tangent basis of the measured direction).
 """
 
 from __future__ import annotations
@@ -46,11 +52,13 @@ from factors.direction import sphere_log_kernel, tangent_basis_kernel
 from factors.errors import ModelDomainError
 from factors.interpret import run
 from factors.jit import njit
+from factors.limb import limb_radius_kernel
 
 __all__ = [
     "near_body_limb_kernel", "near_body_direction_kernel", "near_body_limb_residual",
     "near_body_direction_residual", "near_body_direction_body_residual",
-    "make_near_body_limb_factor", "make_near_body_direction_factor",
+    "make_near_body_limb_factor", "make_near_body_direction_factor", "limb_radius_body_kernel",
+    "near_body_direction_row_kernel",
 ]
 
 _C = SPEED_OF_LIGHT_MPS
@@ -158,6 +166,27 @@ def near_body_direction_kernel(x, R, body_frame, data, P, B, e, Hx, HR):
             HR[i, 1] = 0.0
             HR[i, 2] = 0.0
     return 2
+
+
+@njit(cache=True)
+def limb_radius_body_kernel(x, data, B, e, H):
+    """Row kernel of the ``limb_radius`` kind with its ``body`` column: ``data = (rho_meas,
+    R, light time, aberration, has body)``; without a body (``data[4] = 0``) the Earth's limb
+    at the frame origin, :func:`factors.limb.limb_radius_kernel` (``asin(R/|r|)``), else
+    :func:`near_body_limb_kernel` with ``B[:2] = (p_body, v_body)``."""
+    if data[4] == 0.0:
+        return limb_radius_kernel(x, data, B, e, H)
+    return near_body_limb_kernel(x, data, B, e, H)
+
+
+@njit(cache=True)
+def near_body_direction_row_kernel(x, data, B, e, H):
+    """Row kernel of ``body_direction`` (EME2000): :func:`near_body_direction_kernel` with
+    ``B[:2] = (p_body, v_body)``, ``B[2:4]`` the tangent basis of the measured direction and
+    ``data[2:4]`` the light-time and aberration flags; writes ``e`` (2,), ``H`` (2, 6)."""
+    R = np.eye(3)
+    HR = np.empty((2, 3))
+    return near_body_direction_kernel(x, R, False, data, B[:2], B[2:4], e, H, HR)
 
 
 @njit(cache=True)

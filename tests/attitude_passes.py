@@ -13,6 +13,7 @@ import numpy as np
 
 from factors.geometry import so3_log
 from fgnav.io.log_csv import log_from_arrays
+from fgnav.models.registry import LOG_SCHEMA
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 
@@ -43,5 +44,5 @@ def with_gyro(log, t_truth, x_truth, bias_rad_s, sigma_rad_s, rng, attitude_ever
     merged = log_from_arrays(log.epoch0, t[order], kinds[order],
                              np.concatenate([log.xyz[keep], omega])[order],
                              np.concatenate([log.sigma[keep], np.full(len(dt), sigma_rad_s)])[order],
-                             extra)
+                             extra, schema=LOG_SCHEMA)
     return merged, R

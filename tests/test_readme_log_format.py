@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 from fgnav.io import log_csv
+from fgnav.models.registry import LOG_SCHEMA
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 
@@ -51,14 +52,14 @@ def test_every_column_documented():
 def test_every_kind_documented_once():
     _, kinds = _log_tables()
     documented = [_code_names(row[0])[0] for row in kinds]
-    assert sorted(documented) == sorted(log_csv.KINDS)
+    assert sorted(documented) == sorted(LOG_SCHEMA)   # the format's kinds and the models' rows
     assert len(documented) == len(set(documented))
 
 
 def test_each_kind_names_its_extra_columns():
     """A kind's row names exactly the extra columns the reader lets it use."""
     _, kinds = _log_tables()
-    spec = log_csv._KIND_SPEC  # the format's one table of kinds (usage per column)
+    spec = LOG_SCHEMA  # the format's one table of kinds and the models' rows (usage per column)
     usage_columns = ("x", "y", "z") + log_csv.EXTRA_COLUMNS
     for row in kinds:
         kind = _code_names(row[0])[0]
@@ -72,7 +73,7 @@ def test_each_kind_states_its_sigma_unit():
     _, kinds = _log_tables()
     for row in kinds:
         kind = _code_names(row[0])[0]
-        unit = log_csv.SIGMA_RANGE[kind][2]
+        unit = LOG_SCHEMA[kind].unit
         units = set(re.findall(r"(?<![\w/])(rad/s|m/s|rad|m)(?![\w/])", row[2]))
         assert units == {unit}, (kind, row[2], unit)
 

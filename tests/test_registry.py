@@ -22,7 +22,8 @@ from fgnav.io import log_csv, tdm
 from fgnav.graph import initial_block
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import Pass, build_pass, with_estimates
-from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE,
+from fgnav.models.registry import (ALTITUDE, ATTITUDE_VARIABLE, BODY_BODY_ANGLE, BODY_DIRECTION,
+                                   BODY_DIRECTION_BODY,
                                    BODY_STAR_ANGLE, EARTH_DIRECTION, GYRO_BIAS, LIMB_STAR_ANGLE,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, MODELS, REFRACTION,
                                    MOON_DIRECTION_BODY, STAR_DIRECTION_BODY,
@@ -82,7 +83,8 @@ def test_no_kind_string_outside_the_registry_and_the_log_format():
 
 
 def test_the_registry_and_the_log_format_know_the_same_kinds():
-    assert set(MODELS) == set(log_csv.KINDS) == set(registry.LOG_SCHEMA)
+    # the format's own kinds, and those a family module adds (LOG_KINDS: the near bodies')
+    assert set(MODELS) == set(registry.LOG_SCHEMA) and set(log_csv.KINDS) <= set(MODELS)
     assert set(log_csv.SIGMA_RANGE) == set(log_csv.KINDS)
     # a kind drawn as a direction, or turned into one, is a unit vector in the log
     directions = {k for k, m in MODELS.items() if m.eci_ray or m.body_frame_of} | set(
@@ -117,7 +119,8 @@ def sim_pass():
     """Six minutes of LEO: priors, Earth direction (ECI and body frame), Sun and Moon
     directions (body frame), limb radius, altimeter, refraction and its attitude rows, a star
     camera's raw stars (the attitude estimated, so that the attitude, star and body-frame rows
-    enter the graph), the attitude-free angles (Earth-limb - star, Moon - star, Earth - Moon)."""
+    enter the graph), the attitude-free angles (Earth-limb - star, Moon - star, Earth - Moon),
+    the Moon's direction (ECI and body frame) and limb radius."""
     base = load_scenario("refraction-leo")
     sensors = (SensorSpec(EARTH_DIRECTION.kind, sigma_deg=0.01, period_s=60.0),
                SensorSpec(LIMB_RADIUS.kind, sigma_deg=0.02, period_s=60.0),
@@ -134,7 +137,12 @@ def sim_pass():
                           stars_per_epoch=2, period_s=60.0),
                SensorSpec(BODY_BODY_ANGLE.kind, sigma_deg=0.005, body="earth", body2="moon",
                           period_s=60.0),
-               *base.sensors)
+               *base.sensors,
+               # an optical navigation camera on the Moon (the limb with its body column)
+               SensorSpec(BODY_DIRECTION.kind, sigma_deg=0.002, body="moon", period_s=60.0),
+               SensorSpec(BODY_DIRECTION_BODY.kind, sigma_deg=0.002, body="moon",
+                          period_s=60.0),
+               SensorSpec(LIMB_RADIUS.kind, sigma_deg=0.002, body="moon", period_s=60.0))
     sim = simulate_pass(base.with_options(sensors=sensors, duration_h=0.1), seed=3)
     # and a rate gyro between consecutive epochs (attitude rows thinned to one epoch in six)
     log, _ = with_gyro(sim.log, sim.t_s, sim.x_true, np.array([1e-4, -5e-5, 8e-5]), 1e-6,

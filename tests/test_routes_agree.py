@@ -24,6 +24,12 @@ from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass
 from fgnav.sun_earth_moon import preprocess_log
 
 _REFRACTION = load_scenario("refraction-leo").sensors[0]
+_GTO = load_scenario("gto-transfer").sensors
+_GEO = load_scenario("geo-limb").sensors
+# an optical navigation camera imaging the Moon and the Earth (issue 31 item 1)
+_NEAR = (SensorSpec("body_direction", body="moon", sigma_deg=2e-3, period_s=300.0),
+         SensorSpec("limb_radius", body="moon", sigma_deg=2e-3, period_s=300.0),
+         SensorSpec("body_direction", body="earth", sigma_deg=2e-3, period_s=300.0))
 CASES = {  # id: (scenario, options, families checked, graph variables beyond the orbit)
     "gto": ("gto-transfer", {}, ("prior_position", "prior_velocity", "earth_direction"), ()),
     "geo-limb": ("geo-limb", {}, ("limb_radius",), ()),
@@ -34,6 +40,15 @@ CASES = {  # id: (scenario, options, families checked, graph variables beyond th
                            ("sun_direction_body", "moon_direction_body", "earth_direction_body",
                             "altitude"), ("attitude",)),
     "refraction": ("refraction-leo", {}, ("refraction",), ()),
+    # near bodies: the Moon's and the Earth's apparent directions and the Moon's limb (with
+    # the body column) beside the Earth's limb rows of geo-limb; in the body frame with the
+    # attitude from raw stars
+    "near-body": ("gto-transfer", {"sensors": _GTO + _NEAR}, ("body_direction", "limb_radius"),
+                  ()),
+    "near-body-limb": ("geo-limb", {"sensors": _GEO + _NEAR[1:2]}, ("limb_radius",), ()),
+    "near-body-attitude": ("geo-limb", {"raw_stars": True, "sensors": _GEO + (
+        SensorSpec("body_direction_body", body="moon", sigma_deg=2e-3),)},
+        ("body_direction_body",), ("attitude",)),
     "refraction-bias": ("refraction-leo", {}, ("refraction",), ("refraction-bias",)),
     # attitude rows (from the refraction heads' clear stars) + Earth directions in the body
     # frame, with the attitude a Rot3 variable per epoch

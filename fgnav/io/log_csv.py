@@ -42,7 +42,10 @@ kind                      x, y, z (and extra columns)                      sigma
                                                                            axis, rad
 ``limb_radius``           x = apparent angular radius of the limb rho,     rad
                           rad, in (0, pi/2); y = radius of the limb
-                          sphere R_limb, m (> 0); z empty
+                          sphere R_limb, m (> 0); z empty; ``body``
+                          (optional: sun, earth, moon) the apparent limb
+                          of that body (light time, aberration); empty:
+                          the Earth's limb sphere at the frame origin
 ``earth_direction_body``  unit vector to the Earth's centre in the BODY    per tangent
   (fgnav extension)       frame; needs an attitude (an ``attitude`` row    axis, rad
                           at the same epoch, or an attitude key)
@@ -402,8 +405,9 @@ _KIND_SPEC: dict[str, _Kind] = {
                             check=_check_prior_velocity, heliocentric=True),
     "earth_direction": _Kind(_XYZ, "unit vector to Earth centre, EME2000", *_ANGLE,
                              unit_vector=True),
-    "limb_radius": _Kind(_XY, "x = limb angular radius, rad; y = limb radius, m", *_ANGLE,
-                         check=_check_limb_radius),
+    "limb_radius": _Kind(_XY + ("",) * 3 + ("o",),
+                         "x = limb angular radius, rad; y = limb radius, m; body (optional)",
+                         *_ANGLE, check=_check_limb_radius),
     "earth_direction_body": _Kind(_XYZ, "unit vector to Earth centre, body", *_ANGLE,
                                   unit_vector=True),
     "attitude": _Kind(_XYZ + ("",) * 5 + ("o",) * len(ATT_COV_COLUMNS),

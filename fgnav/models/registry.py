@@ -3,7 +3,8 @@
 Each kind is defined in one module of this package, by family: :mod:`~fgnav.models.priors`,
 :mod:`~fgnav.models.directions`, :mod:`~fgnav.models.ranges`, :mod:`~fgnav.models.refraction`,
 :mod:`~fgnav.models.attitude`, :mod:`~fgnav.models.body_directions`, :mod:`~fgnav.models.gyro`,
-:mod:`~fgnav.models.stars`, :mod:`~fgnav.models.angles`, :mod:`~fgnav.models.isl`; each lists its
+:mod:`~fgnav.models.stars`, :mod:`~fgnav.models.angles`, :mod:`~fgnav.models.isl`,
+:mod:`~fgnav.models.near_body`; each lists its
 models in ``MEASUREMENT_MODELS`` and may define the log schema rows of kinds the CSV format
 does not list (``LOG_KINDS``, :class:`fgnav.io.log_csv.KindSpec`). This module only assembles
 them: :data:`MODELS`, :data:`VARIABLES`, :data:`LOG_SCHEMA`, and re-exports every model and
@@ -17,8 +18,8 @@ from __future__ import annotations
 
 from fgnav.errors import UserError
 from fgnav.io.log_csv import FORMAT_KINDS, KindSpec
-from fgnav.models import (angles, attitude, body_directions, directions, gyro, isl, priors,
-                          ranges, refraction, stars)
+from fgnav.models import (angles, attitude, body_directions, directions, gyro, isl,
+                          near_body, priors, ranges, refraction, stars)
 from fgnav.models.angles import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
 from fgnav.models.attitude import ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE
 from fgnav.models.body_directions import (EARTH_DIRECTION_BODY, MOON_DIRECTION_BODY,
@@ -27,6 +28,7 @@ from fgnav.models.directions import EARTH_DIRECTION
 from fgnav.models.gyro import GYRO, GYRO_BIAS
 from fgnav.models.isl import ISL_CARRIER_PHASE, ISL_PSEUDORANGE
 from fgnav.models.model import MeasurementModel
+from fgnav.models.near_body import BODY_DIRECTION, BODY_DIRECTION_BODY
 from fgnav.models.priors import PRIOR_POSITION, PRIOR_VELOCITY
 from fgnav.models.ranges import ALTITUDE, LIMB_RADIUS
 from fgnav.models.refraction import REFRACTION, REFRACTION_BIAS, refraction_ray_eci
@@ -39,10 +41,11 @@ __all__ = ["MODELS", "VARIABLES", "LOG_SCHEMA", "FAMILY_MODULES", "model", "solv
            "LIMB_RADIUS", "ALTITUDE", "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY",
            "MOON_DIRECTION_BODY", "GYRO", "GYRO_BIAS", "STAR_DIRECTION_BODY", "BODY_STAR_ANGLE",
            "LIMB_STAR_ANGLE", "BODY_BODY_ANGLE", "CAMERA_ALIGNMENT", "ATTITUDE_RATE",
-           "refraction_ray_eci", "ISL_PSEUDORANGE", "ISL_CARRIER_PHASE"]
+           "refraction_ray_eci", "ISL_PSEUDORANGE", "ISL_CARRIER_PHASE", "BODY_DIRECTION",
+           "BODY_DIRECTION_BODY"]
 
 FAMILY_MODULES = (priors, directions, ranges, refraction, attitude, body_directions, gyro, stars,
-                  angles, isl)
+                  angles, isl, near_body)
 """The modules that define the kinds, in the order of :data:`MODELS`."""
 
 MODELS: dict[str, MeasurementModel] = {

@@ -14,6 +14,10 @@ the sphere is static and its cone from the observer exact, ``asin(R/|P(t) - O(t)
 eight points of that limb circle and its centre are aberrated by the relative velocity
 ``V_O - V_B`` (ERFA's ``ab``), the radius the mean angle between them. The models use the first-order planetary
 aberration instead; the difference is the models' error (tests/test_near_body.py).
+
+:func:`simulate_near_body_rows` makes the log's rows of an optical navigation camera from
+these (``body_direction``, ``body_direction_body``, ``limb_radius`` with a ``body``), the
+simulators of :mod:`fgnav.simulate.simulators`.
 """
 
 from __future__ import annotations
@@ -22,9 +26,16 @@ import functools
 
 import numpy as np
 
-from fgnav.constants import AU_M, C_LIGHT_M_S
+from fgnav.constants import AU_M, C_LIGHT_M_S, DEG, R_MOON_M, R_SUN_M
+from fgnav.errors import UserError
+from fgnav.io.log_csv import BODIES
+from fgnav.models.registry import BODY_DIRECTION, BODY_DIRECTION_BODY, LIMB_RADIUS
+from fgnav.simulate.body_directions import lvlh_R_eci_from_body, occulted_by_earth
+from fgnav.simulate.noise import perturb_directions
+from fgnav.time import j2000_seconds
 
-__all__ = ["NEAR_BODIES", "barycentric_state", "apparent_body"]
+__all__ = ["NEAR_BODIES", "barycentric_state", "apparent_body", "limb_sphere_radius_m",
+           "simulate_near_body_rows", "NEAR_BODY_FORMS"]
 
 NEAR_BODIES = ("earth", "moon", "sun")
 """The bodies a camera can image in the near-body kinds (the log's ``body`` column)."""
@@ -108,3 +119,60 @@ def apparent_body(body: str, t_j2000_s, x_sc, radius_m: float, centre: str = "ea
             ang.append(np.arctan2(np.linalg.norm(np.cross(uc, la), axis=1), np.sum(uc * la, axis=1)))
         rho = np.mean(ang, axis=0)
     return u, rho, tau
+
+
+NEAR_BODY_FORMS = {"direction": BODY_DIRECTION.kind, "direction_body": BODY_DIRECTION_BODY.kind,
+                   "limb": LIMB_RADIUS.kind}
+"""The row forms of :func:`simulate_near_body_rows` and the log kinds they give."""
+
+
+def limb_sphere_radius_m(body: str, spec=None) -> float:
+    """The limb sphere of a body, m: the Moon's mean radius, the Sun's photosphere (IAU 2015
+    B3), the Earth's ``spec.r_limb_km`` (the limb sensor's sphere, default 6375 km)."""
+    if body == "moon":
+        return R_MOON_M
+    if body == "sun":
+        return R_SUN_M
+    return 1e3 * (getattr(spec, "r_limb_km", None) or 6375.0)
+
+
+def simulate_near_body_rows(spec, t_s, x_true, epoch0, rng, *, form, centre="earth"):
+    """Rows ``(kind, t, xyz, sigma, {"body": code})`` of an optical navigation camera
+    imaging ``spec.body`` (``pass_sim`` protocol): ``form`` ``"direction"`` (the apparent
+    unit vector, EME2000), ``"direction_body"`` (the same in the LVLH body frame of
+    ``fgnav.simulate.body_directions.lvlh_R_eci_from_body``) or ``"limb"`` (x = apparent
+    angular radius, y = the limb sphere's radius), from :func:`apparent_body`; 1-sigma
+    ``spec.sigma_deg`` per tangent axis (deg); no row while the Earth hides the body's centre
+    (``occulted_by_earth``) or the camera is inside the limb sphere."""
+    if spec.body not in NEAR_BODIES:
+        raise UserError(f"sensor {spec.kind}: body = {spec.body!r}: expected one of "
+                        f"{', '.join(NEAR_BODIES)}")
+    t = np.asarray(t_s, dtype=float)
+    x = np.asarray(x_true, dtype=float).reshape(-1, 6)
+    tj = float(j2000_seconds(epoch0)) + t
+    radius = limb_sphere_radius_m(spec.body, spec)
+    pc = barycentric_state(centre, tj)[0]
+    p_geo = barycentric_state(spec.body, tj)[0] - barycentric_state("earth", tj)[0]
+    r_geo = x[:, :3] + pc - barycentric_state("earth", tj)[0]
+    d = np.linalg.norm(p_geo - r_geo, axis=1)
+    seen = d > radius
+    if spec.body != "earth":
+        seen &= ~occulted_by_earth(r_geo, p_geo)
+    i = np.flatnonzero(seen)
+    if not len(i):
+        return []
+    u, rho, _ = apparent_body(spec.body, tj[i], x[i], radius, centre)
+    sig = spec.sigma_deg * DEG
+    if form == "limb":
+        xyz = np.column_stack([rho + sig * rng.standard_normal(len(i)), np.full(len(i), radius),
+                               np.full(len(i), np.nan)])
+    elif form == "direction":
+        xyz = perturb_directions(u, np.full(len(i), sig), rng)
+    elif form == "direction_body":
+        R = lvlh_R_eci_from_body(x[i]) if centre == "earth" else lvlh_R_eci_from_body(
+            np.column_stack([r_geo[i], x[i, 3:]]))
+        xyz = perturb_directions(np.einsum("nji,nj->ni", R, u), np.full(len(i), sig), rng)
+    else:
+        raise ValueError(f"near-body rows: form {form!r}, expected one of {', '.join(NEAR_BODY_FORMS)}")
+    return [(NEAR_BODY_FORMS[form], t[i], xyz, sig,
+             {"body": np.full(len(i), float(BODIES.index(spec.body)))})]

@@ -23,13 +23,15 @@ import functools
 from dataclasses import dataclass
 from typing import Callable
 
-from fgnav.models.registry import (ALTITUDE, BODY_BODY_ANGLE, BODY_STAR_ANGLE, EARTH_DIRECTION,
+from fgnav.models.registry import (ALTITUDE, BODY_BODY_ANGLE, BODY_DIRECTION, BODY_DIRECTION_BODY,
+                                   BODY_STAR_ANGLE, EARTH_DIRECTION,
                                    EARTH_DIRECTION_BODY, LIMB_RADIUS, LIMB_STAR_ANGLE,
                                    MOON_DIRECTION_BODY, REFRACTION, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY)
 from fgnav.simulate.body_directions import (earth_centre_target, moon_target,
                                             simulate_body_direction_rows, sun_target)
 from fgnav.simulate.celestial_angles import simulate_angle_rows
+from fgnav.simulate.near_bodies import simulate_near_body_rows
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS, simulate_refraction_rows
 from fgnav.simulate.sensors import (altitude_readings, geocentric_direction_readings,
                                     limb_radius_readings)
@@ -64,13 +66,26 @@ def _body(seen):
     return functools.partial(simulate_body_direction_rows, target=seen)
 
 
+def _near(form):
+    return functools.partial(simulate_near_body_rows, form=form)
+
+
+def _limb(spec, t_s, x_true, epoch0, rng, centre="earth"):
+    """``limb_radius`` rows: the Earth's limb sphere at the origin as ever (no ``body``
+    column; ``body = "earth"``, the default), or the apparent limb of the Moon or the Sun
+    (rows with their ``body``: :func:`fgnav.simulate.near_bodies.simulate_near_body_rows`)."""
+    if spec.body == "earth":
+        return readings(limb_radius_readings)(spec, t_s, x_true, epoch0, rng)
+    return simulate_near_body_rows(spec, t_s, x_true, epoch0, rng, form="limb", centre=centre)
+
+
 def _angle(star, limb):
     return functools.partial(simulate_angle_rows, star=star, limb=limb)
 
 
 SIMULATORS: dict[str, Simulator] = {s.kind: s for s in (
     Simulator(EARTH_DIRECTION.kind, readings(geocentric_direction_readings), ("sigma_deg",)),
-    Simulator(LIMB_RADIUS.kind, readings(limb_radius_readings), ("sigma_deg", "r_limb_km")),
+    Simulator(LIMB_RADIUS.kind, _limb, ("sigma_deg", "r_limb_km", "body")),
     Simulator(ALTITUDE.kind, readings(altitude_readings), ("sigma_m",)),
     Simulator(REFRACTION.kind, simulate_refraction_rows,
               ("gamma_halfwidth_arcsec", "sigma_model_m", "star_sigma_arcsec", "fov_deg",
@@ -84,6 +99,8 @@ SIMULATORS: dict[str, Simulator] = {s.kind: s for s in (
     Simulator(BODY_STAR_ANGLE.kind, _angle(True, False), _STAR_KEYS),
     Simulator(LIMB_STAR_ANGLE.kind, _angle(True, True), _STAR_KEYS + ("r_limb_km",)),
     Simulator(BODY_BODY_ANGLE.kind, _angle(False, False), ("sigma_deg", "body", "body2")),
+    Simulator(BODY_DIRECTION.kind, _near("direction"), ("sigma_deg", "body")),
+    Simulator(BODY_DIRECTION_BODY.kind, _near("direction_body"), ("sigma_deg", "body")),
 )}
 """Every simulated kind's simulator, by kind (in the measurement models' order)."""
 
