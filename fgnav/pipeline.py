@@ -38,8 +38,8 @@ from fgnav.results import (pairs, read_formation_truth, read_truth, relative_row
 from fgnav.results import write_outputs  # noqa: F401  (the route's last stage, by its old name)
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
-from fgnav.start import (START_INFLATION, Start, batch_first_guess, link_fixes,
-                         start_point)
+from fgnav.start import (START_INFLATION, Start, batch_first_guess, check_prior_centre,
+                         link_fixes, start_point)
 from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
 from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
@@ -111,6 +111,8 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
                                                ignore_prior=ignore_prior), method)
     model = options.motion_model()
     t0_j2000 = float(j2000_seconds(p.epoch0))
+    if not from_data:   # a prior that contradicts the log's centre: refused before any work
+        check_prior_centre(p, model.centre)
     formation = len(p.spacecraft) > 1
 
     def run(start: Start) -> Solution:
