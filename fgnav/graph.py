@@ -33,6 +33,7 @@ import numpy as np
 
 from factors.dynamics import MotionModel, process_noise_sqrt_information, propagate_many
 from factors.motion import make_motion_factor
+from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import model, prior_kinds
 from fgnav.models.variables import Layout
 
@@ -68,10 +69,13 @@ def initial_block(p, x_orbit) -> tuple[np.ndarray, np.ndarray]:
             mdl = model(kind)
             if mdl.initial is None or not mdl.enters(lay):
                 continue
-            vals = mdl.initial(fam).get(v.name)
-            if vals is not None:
-                k_all.append(fam.k)
-                val_all.append(np.asarray(vals, dtype=float).reshape(len(fam), v.dim))
+            for role, vals in mdl.initial(fam).items():
+                cols = fam.values.get(COLUMN_PREFIX + role)   # a formation's: row by row
+                rows = (np.flatnonzero(np.asarray(cols) == sl.start) if cols is not None else
+                        np.arange(len(fam)) if role == v.name else ())
+                if len(rows):
+                    k_all.append(fam.k[rows])
+                    val_all.append(np.asarray(vals, dtype=float).reshape(len(fam), v.dim)[rows])
         if not k_all:
             continue
         k_all, val_all = np.concatenate(k_all), np.concatenate(val_all)

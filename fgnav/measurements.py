@@ -38,7 +38,7 @@ from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
                                    PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import (ORBIT, Layout, ambiguity_variable, clock_variable,
-                                    orbit_variable)
+                                    orbit_variable, spacecraft_variable)
 from fgnav.vision.attitude import wahba_by_epoch
 
 
@@ -183,10 +183,11 @@ def _check_formation_kinds(log):
         if kind in ISL_KINDS or kind == ATTITUDE.kind:
             continue
         mdl = MODELS.get(kind)
-        if mdl is None or mdl.requires is not None or mdl.body_frame_of is not None or mdl.between:
+        if mdl is None or mdl.between or (mdl.requires is not None and mdl.body_frame_of is None):
             raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
-                            "may hold priors, ECI directions, limb, altitude, refraction and angle "
-                            "rows per spacecraft, attitude rows, and inter-satellite rows)")
+                            "may hold priors, ECI and body-frame directions, limb, altitude, "
+                            "refraction and angle rows per spacecraft, attitude rows, and "
+                            "inter-satellite rows)")
 
 
 def orbit_columns(lay: Layout) -> np.ndarray:
@@ -211,11 +212,16 @@ def _formation_pass(log) -> Pass:
     start = orbit_columns(lay)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
              layout=lay, spacecraft=ids)
+    body_kinds = []
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
-        if (not len(i) or not mdl.solved or kind in isl
-                or (mdl.requires is not None and mdl is not ATTITUDE)):
+        if not len(i) or kind in isl:
             continue   # (the links' families: isl_families above)
+        if mdl.body_frame_of is not None:
+            body_kinds.append((kind, i))
+            continue
+        if not mdl.solved or (mdl.requires is not None and mdl is not ATTITUDE):
+            continue
         values = dict(mdl.values(log, i))
         values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
         fam = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])
@@ -223,6 +229,26 @@ def _formation_pass(log) -> Pass:
             p.deferred[kind] = fam
         else:
             p.families[kind] = fam
+    for kind, i in body_kinds:   # per spacecraft as build_pass: to ECI with its attitude rows
+        mdl = MODELS[kind]
+        values = dict(mdl.values(log, i))
+        values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
+        body = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])
+        p.deferred[kind] = body
+        att = p.deferred.get(ATTITUDE.kind)
+        missing = []
+        for col in np.unique(start[sc[i]]):
+            own = np.flatnonzero(body.values[COLUMN_PREFIX + "orbit"] == col)
+            own_att = None if att is None else _rows_of(att, col)
+            new, miss = _rotated_to_eci(body.subset(own), own_att)
+            missing.append(miss)
+            if len(new):
+                new.values[COLUMN_PREFIX + "orbit"] = np.full(len(new), col, dtype=int)
+                p.families[mdl.body_frame_of] = _merged_rows(p.families.get(mdl.body_frame_of),
+                                                             new)
+        missing = np.sort(np.concatenate(missing))
+        if len(missing):
+            p.unconverted[kind] = missing
     for kind, fam in isl.items():   # per-row variable names ("var:<role>") -> block columns
         for key in [k for k in fam.values if k.startswith("var:")]:
             names = np.asarray(fam.values.pop(key)).astype(str)
@@ -230,6 +256,36 @@ def _formation_pass(log) -> Pass:
                                                            dtype=int)
         p.families[kind] = fam
     return p
+
+
+def _rows_of(fam: Family | None, col: int) -> Family | None:
+    """The rows of a formation's family bound to the orbit whose first column is ``col``
+    (one spacecraft's rows), or None when it has none."""
+    if fam is None:
+        return None
+    rows = np.flatnonzero(np.asarray(fam.values[COLUMN_PREFIX + "orbit"]) == col)
+    return fam.subset(rows) if len(rows) else None
+
+
+def _merged_rows(old: Family | None, new: Family) -> Family:
+    """:func:`_merged` for a formation's families, whose rows also carry their variables'
+    columns (``col:`` values): every value array concatenated, sorted by epoch."""
+    if old is None:
+        return new
+    order = np.argsort(np.concatenate([old.k, new.k]), kind="stable")
+    values = {}
+    for key in old.values:
+        a = old.values[key]
+        if key == "from_body" and key not in new.values:
+            values[key] = np.concatenate([a, np.zeros(len(new), bool)])[order]
+        else:
+            values[key] = np.concatenate([a, new.values[key]])[order]
+    if "from_body" not in old.values:
+        values["from_body"] = np.concatenate([np.zeros(len(old), bool),
+                                              new.values["from_body"]])[order]
+    return Family(k=np.concatenate([old.k, new.k])[order], values=values,
+                  sigma=np.concatenate([old.sigma, new.sigma])[order],
+                  line=np.concatenate([old.line, new.line])[order])
 
 
 def isl_families(log, k_of_row):
@@ -263,6 +319,8 @@ def spacecraft_pass(p: Pass, s: int) -> Pass:
     """The one-spacecraft pass of spacecraft ``s`` (0-based): its own celestial and prior rows,
     without the links, on the formation's epochs (epochs without its rows are free states)."""
     start = orbit_columns(p.layout)[s]
+    own = tuple(v for v in PER_SPACECRAFT
+                if p.layout.has(spacecraft_variable(v, s, p.spacecraft[s]).name))
     fams = {}
     for kind, fam in p.families.items():
         if kind in ISL_KINDS:
@@ -273,7 +331,8 @@ def spacecraft_pass(p: Pass, s: int) -> Pass:
         sub = fam.subset(rows)
         sub.values = {n: v for n, v in sub.values.items() if not n.startswith(COLUMN_PREFIX)}
         fams[kind] = sub
-    return dataclasses.replace(p, families=fams, layout=Layout(), spacecraft=(), warnings=[],
+    return dataclasses.replace(p, families=fams, layout=Layout((ORBIT,) + own), spacecraft=(),
+                               warnings=[],
                                deferred={}, unconverted={},
                                source=f"{p.source} (spacecraft {p.spacecraft[s]})")
 
@@ -426,6 +485,8 @@ def _with_variable(p: Pass, name: str) -> Pass:
 def with_estimates(p: Pass, estimate=()) -> Pass:
     """The pass with the graph variables named in ``estimate`` (e.g. ``refraction-bias``)
     added to every epoch's block; each must be declared by a model with rows in the pass."""
+    if p.spacecraft:
+        return _formation_estimates(p, estimate)
     requested = [variable(name) for name in estimate or ()]
     for v in requested:
         if any(MODELS[k].requires == v.name for k in p.deferred):
@@ -448,6 +509,66 @@ def with_estimates(p: Pass, estimate=()) -> Pass:
                             f"(it is used by {', '.join(declared)})"
                             + (f"; its rows there enter with {' and '.join(needs)}" if needs else ""))
     return dataclasses.replace(p, layout=Layout(tuple(variables)))
+
+
+PER_SPACECRAFT = (ATTITUDE_VARIABLE,)
+"""The further variables a formation estimates per spacecraft (``--estimate``), each
+spacecraft's own copy (:func:`fgnav.models.variables.spacecraft_variable`) bound to its rows."""
+
+
+def check_formation_estimates(estimate=()) -> None:
+    """Refuse, before any work, a variable a formation does not estimate per spacecraft."""
+    for v in (variable(name) for name in estimate or ()):
+        if v not in PER_SPACECRAFT:
+            raise UserError(
+                f"--estimate {v.cli_name}: a log of several spacecraft estimates, beside the "
+                f"orbits, clocks and ambiguities, each spacecraft's "
+                f"{', '.join(u.cli_name for u in PER_SPACECRAFT)} only (the {v.cli_name} "
+                f"rows are not yet bound per spacecraft)")
+
+
+def _formation_estimates(p: Pass, estimate=()) -> Pass:
+    """:func:`with_estimates` for a formation: each spacecraft with rows that need the
+    attitude (its attitude rows, its body-frame directions) gets its own attitude variable,
+    after the orbits, clocks and ambiguities (their columns stay), and those rows join the
+    graphs bound to it (``col:attitude``); the rows converted to ECI with the measured
+    attitude leave, as for one spacecraft. The links keep the measured attitude rows for
+    their lever arms (:mod:`fgnav.models.isl`: 1 arcsec on a 0.9 m arm is 4 um, far below a
+    link's noise)."""
+    check_formation_estimates(estimate)
+    requested = [variable(name) for name in estimate or ()]
+    if not requested or any(v.name == ATTITUDE_VARIABLE.name for v in p.layout.extra):
+        return p
+    p = _with_variable(p, ATTITUDE_VARIABLE.name)
+    cols = orbit_columns(p.layout)
+    users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables]
+    have = sorted({int(np.searchsorted(cols, c)) for k in users
+                   for c in np.unique(p.families[k].values[COLUMN_PREFIX + "orbit"])})
+    if not users:
+        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has no rows that "
+                        f"depend on it (attitude or body-frame rows)")
+    if have[0] != 0:
+        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has attitude or "
+                        f"body-frame rows of spacecraft {', '.join(p.spacecraft[s] for s in have)}"
+                        f" but none of the first, '{p.spacecraft[0]}': give its rows too")
+    for s in have:
+        own = [k for k in users if np.any(p.families[k].values[COLUMN_PREFIX + "orbit"] == cols[s])]
+        if ATTITUDE.kind not in own and len(own) < 2:
+            raise UserError(
+                f"{p.source}: --estimate {ATTITUDE_VARIABLE.cli_name}: spacecraft "
+                f"'{p.spacecraft[s]}''s {', '.join(own)} rows need its attitude, and nothing "
+                f"fixes it: no '{ATTITUDE.kind}' row of it, nor a second body-frame direction")
+    attitudes = tuple(spacecraft_variable(ATTITUDE_VARIABLE, s, p.spacecraft[s]) for s in have)
+    lay = Layout(p.layout.variables + attitudes)
+    att_col = {int(cols[s]): lay.slices[v.name].start for s, v in zip(have, attitudes)}
+    fams = dict(p.families)
+    for k in users:
+        fam = fams[k]
+        values = dict(fam.values)
+        values[COLUMN_PREFIX + ATTITUDE_VARIABLE.name] = np.array(
+            [att_col[int(c)] for c in values[COLUMN_PREFIX + "orbit"]], dtype=int)
+        fams[k] = Family(k=fam.k, values=values, sigma=fam.sigma, line=fam.line)
+    return dataclasses.replace(p, families=fams, layout=lay)
 
 
 def check_attitude(p: Pass) -> None:

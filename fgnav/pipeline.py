@@ -25,15 +25,16 @@ from fgnav.diagnostics.mirror import mirror_test
 from fgnav.io.log_csv import read_log
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
-from fgnav.measurements import (Pass, build_pass, check_observable, covering_sigmas, fill_gaps,
-                                format_duration, spacecraft_pass, spacecraft_states,
-                                with_estimates)
+from fgnav.measurements import (PER_SPACECRAFT, Pass, build_pass, check_formation_estimates,
+                                check_observable, covering_sigmas, fill_gaps, format_duration,
+                                spacecraft_pass, spacecraft_states, with_estimates)
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, LOG_SCHEMA, MODELS, VARIABLES,
                                    variable)
+from fgnav.models.variables import ORBIT, Layout, spacecraft_variable
 from fgnav.orbit import truth_at
 from fgnav.prior_sources import prior_for_log
 from fgnav.results import (pairs, read_formation_truth, read_truth, relative_rows,
-                           sigma_rms, spherical_position_nees, spherical_summary)
+                           sigma_rms, truth_path_of, spherical_position_nees, spherical_summary)
 from fgnav.results import write_outputs  # noqa: F401  (the route's last stage, by its old name)
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
@@ -182,15 +183,18 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
         raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
                         "several spacecraft (their online start is each spacecraft's prior); "
                         "--method batch starts from the measurements alone")
-    if options.estimate:
-        raise UserError("--estimate: a log of several spacecraft estimates their orbits, clocks "
-                        "and carrier ambiguities; further variables are not yet supported there")
+    check_formation_estimates(options.estimate)
     if getattr(options, "centre", "earth") != "earth":
         raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
                         "the Earth in this version")
     if getattr(options, "state", "cartesian") != "cartesian":
-        raise UserError(f"--state {options.state}: a log of several spacecraft is solved in "
-                        "Cartesian states")
+        raise UserError(
+            f"--state {options.state}: a log of several spacecraft is solved in Cartesian "
+            "states: the element chart (fgnav.solvers.state_elements) parameterizes one orbit, "
+            "the block's first six columns, and its motion rows, not each spacecraft's orbit; "
+            "and the links fix the separation (cm on 1 km), a difference of two element sets "
+            "each known to the km, where the elements' curved steps bring nothing: the batch "
+            "minimum is the same in either chart (docs/elements.md). Use --state cartesian")
 
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
@@ -466,7 +470,9 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
         if ignore_prior:   # (the summary's counts and tests: the rows the solution used)
             p = replace(p, families=strip_prior(p).families)
         sol.wall_s = time.perf_counter() - t0
-        summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian")
+        summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian",
+                            truth_vars=None if truth_path is None else
+                            read_formation_truth_variables(truth_path, p))
         sol.extras["relative_parameterization"] = relative or "cartesian"
         if truth_path is not None:
             summary["truth_path"] = str(truth_path)
@@ -516,6 +522,29 @@ def read_truth_variables(truth_path: str | Path, p: Pass, estimate=()) -> dict:
     return out
 
 
+def read_formation_truth_variables(truth: str | Path, p: Pass) -> dict:
+    """Each spacecraft's true attitude where it is estimated, from ``truth_attitude-<id>.csv``
+    beside its ``truth-<id>.oem`` (``fgnav simulate --body-frame`` writes them), as
+    :func:`read_truth_variables` reads one spacecraft's; spacecraft without a file are left
+    out."""
+    out = {}
+    for s, sc in enumerate(p.spacecraft):
+        v = spacecraft_variable(ATTITUDE_VARIABLE, s, sc)
+        path = truth_path_of(truth, sc).parent / f"truth_{ATTITUDE_VARIABLE.name}-{sc}.csv"
+        if not p.layout.has(v.name) or not path.exists():
+            continue
+        epochs, cols = read_truth_params_csv(path)
+        missing = [c for c in ATTITUDE_VARIABLE.components if c not in cols]
+        if missing:
+            raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
+        t = np.asarray(seconds_since(epochs, p.epoch0), dtype=float)
+        if t[0] > p.t_s[0] + 1e-6 or t[-1] < p.t_s[-1] - 1e-6:
+            raise UserError(f"{path}: does not cover the log's epochs ({t[0]:.1f}..{t[-1]:.1f} s "
+                            f"vs {p.t_s[0]:.1f}..{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
+        out[v.name] = (t, np.column_stack([cols[c] for c in ATTITUDE_VARIABLE.components]))
+    return out
+
+
 def truth_variables(truth: dict, sol: Solution) -> dict:
     """The true values of :func:`read_truth_variables` at the solution's epochs (linear
     interpolation): name -> (N, d)."""
@@ -544,7 +573,7 @@ def read_measurements(path: str | Path, estimate=()):
 
 
 def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
-              relative: str = "cartesian") -> dict:
+              relative: str = "cartesian", truth_vars=None) -> dict:
     """summary.json of a solution of S >= 1 spacecraft: the keys every method shares, the
     Cramer-Rao bound and the integrity verdict (:func:`fgnav.diagnostics.integrity.assess`;
     ``p`` is given the solution's further variables if it lacks them, so the integrity
@@ -562,6 +591,13 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
     if formation:
         s["converged"] = sol.extras.get("converged")
         s.update(relative_summary(sol, p, truths, relative))
+        names = {spacecraft_variable(u, i, sc).name for u in PER_SPACECRAFT
+                 for i, sc in enumerate(p.spacecraft)}
+        own = [v for v in p.layout.parameters if v.name in names and v.name in sol.variables]
+        if own:   # each spacecraft's attitude (not the clocks and ambiguities: relative.csv)
+            s["variables"] = variable_summary(
+                sol, truth_variables(truth_vars or {}, sol), layout=Layout(
+                    (ORBIT,) + tuple(own)))
         s["integrity"] = assess(sol, p, options.motion_model())
         return s
     if options.state != "cartesian":
@@ -624,7 +660,7 @@ def relative_summary(sol: Solution, p: Pass, truths=None, relative: str = "carte
     return s
 
 
-def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
+def variable_summary(sol: Solution, truth: dict | None = None, layout=None) -> dict:
     """summary.json's ``variables``: per estimated variable (beside the orbit), its unit, mean
     and RMS value, and the RMS and final 1-sigma of each component; with ``truth``
     (name -> (N, d) true values at the solution's epochs) the RMS error, the largest
@@ -633,7 +669,9 @@ def variable_summary(sol: Solution, truth: dict | None = None) -> dict:
     not a difference of rotation vectors (which is wrong near a half turn)."""
     out = {}
     for name, (x, P) in sol.variables.items():
-        v = variable(name)
+        if layout is not None and not layout.has(name):
+            continue
+        v = layout.variable(name) if layout is not None else variable(name)
         sig = np.sqrt(np.diagonal(P, axis1=1, axis2=2))
         d = {"unit": v.unit, "components": list(v.components), "mean": x.mean(axis=0).tolist(),
              "rms": np.sqrt(np.mean(x * x, axis=0)).tolist(),

@@ -18,7 +18,7 @@ from fgnav.errors import UserError
 from fgnav.iod.fit import InitialOrbit
 from fgnav.iod.initial import initial_orbit, iod_support, propagate_orbit, trajectory
 from fgnav.iod.links import far_field_guess, logged_epoch
-from fgnav.graph import prior_block_covariance
+from fgnav.graph import initial_block, prior_block_covariance
 from fgnav.iod.single_epoch import solve_single_epoch
 from fgnav.chi2 import chi2_ppf
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
@@ -290,7 +290,7 @@ def formation_guess(p: Pass, model: MotionModel, t0_j2000_s: float, options=None
     ambiguities at their prior mean (the links are linear in them: one Gauss-Newton step
     places them)."""
     lay = p.layout
-    X = lay.initial(np.zeros((p.n_epochs, 6)))
+    X = initial_block(p, np.zeros((p.n_epochs, 6)))[0]   # a measured attitude where one is
     filtered = True
     for s, v in enumerate(lay.orbits):
         sub = spacecraft_pass(p, s)

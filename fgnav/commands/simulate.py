@@ -47,6 +47,10 @@ def register(sub):
                         "error of SIGMA arcsec (1-sigma per axis, drawn once from the seed); its "
                         "rows are then in its own frame (estimate the mounting with `fgnav "
                         "smooth --estimate camera-alignment`; default 0: confocal)")
+    p.add_argument("--body-frame", action="store_true",
+                   help="a formation's direction sensors measure in each spacecraft's body "
+                        "frame (earth_direction_body rows, with attitude rows of each "
+                        "spacecraft); solve with `fgnav smooth --estimate attitude`")
     p.add_argument("--gravity", choices=["j2", "point-mass"],
                    help="the Earth's gravity in the truth, overrides the scenario's [truth] j2: "
                         "point-mass (Keplerian; smooth it with --gravity point-mass) or j2 "
@@ -96,6 +100,9 @@ def run(args) -> int:
 
             camera = replace(RAW_STAR_CAMERA, mounting_sigma_arcsec=mounting)
         scn = raw_star_scenario(scn) if camera is None else raw_star_scenario(scn, camera)
+    if getattr(args, "body_frame", False) and scn.formation is None:
+        raise UserError(f"--body-frame: scenario {scn.name} has one spacecraft (use --raw-stars "
+                        "for body-frame rows of one spacecraft)")
     if scn.formation is not None:
         for opt, on in (("--stream", stream), ("--raw-stars", getattr(args, "raw_stars", False)),
                         ("--images", getattr(args, "images", False))):
@@ -115,7 +122,8 @@ def run(args) -> int:
         from fgnav.simulate.formation_sim import simulate_formation_pass, write_formation_files
 
         fsim = simulate_formation_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
-                                       max_duration_h=args.max_duration_h)
+                                       max_duration_h=args.max_duration_h,
+                                       body_frame=getattr(args, "body_frame", False))
         written = write_formation_files(out, fsim)
         if not args.quiet:
             print(f"{scn.name}: {len(fsim.ids)} spacecraft ({', '.join(fsim.ids)}), "

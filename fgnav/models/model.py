@@ -176,8 +176,13 @@ class MeasurementModel:
         for key, start in fam.values.items():
             if key.startswith(COLUMN_PREFIX):
                 name = key[len(COLUMN_PREFIX):]
-                d = ROLE_DIMS.get(name, 1)
+                # a role's variables share a dimension and manifold (a spacecraft's attitude:
+                # Rot3, whose values reach the residual as matrices, as values_at gives them)
+                v = _variables_by_start(layout).get(int(start[0])) if M else None
+                d = ROLE_DIMS.get(name, 1) if v is None else v.dim
                 vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
+                if v is not None and not v.manifold.additive:
+                    vals[name] = v.manifold.exp(vals[name])
         try:
             e, jac = self.residual(fam, vals)
         except ModelDomainError as exc:   # name the row's log line

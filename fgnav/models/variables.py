@@ -39,7 +39,8 @@ from factors.random_walk import (make_random_walk_factor, make_rot3_prior_factor
                                  random_walk_residual, rot3_random_walk_residual)
 
 __all__ = ["Variable", "Layout", "ORBIT", "CONSTANT_PSD_FLOOR", "orbit_variable", "clock_variable",
-           "ambiguity_variable", "CLOCK_PSD_M2_S", "CLOCK_PRIOR_SIGMA_M", "AMBIGUITY_PRIOR_SIGMA_M",
+           "ambiguity_variable", "spacecraft_variable", "CLOCK_PSD_M2_S", "CLOCK_PRIOR_SIGMA_M",
+           "AMBIGUITY_PRIOR_SIGMA_M",
            "Manifold", "VECTOR", "ROT3", "MANIFOLDS", "Process", "MOTION", "RANDOM_WALK",
            "ConstantRate"]
 
@@ -374,6 +375,17 @@ def orbit_variable(i: int, spacecraft_id: str) -> Variable:
                     components=tuple(f"{c}_{spacecraft_id}" for c in ORBIT.components),
                     description=f"orbit state of spacecraft {spacecraft_id}, EME2000",
                     orbit=True, index=i)
+
+
+def spacecraft_variable(v: Variable, i: int, spacecraft_id: str) -> Variable:
+    """A formation's spacecraft ``i``'s own copy of the per-spacecraft variable ``v`` (an
+    attitude): ``v`` itself for spacecraft 0, as :func:`orbit_variable` keeps :data:`ORBIT`;
+    else ``<name>_<id>``, its components suffixed, told apart by ``index``."""
+    if i == 0:
+        return v
+    return replace(v, name=f"{v.name}_{spacecraft_id}",
+                   components=tuple(f"{c}_{spacecraft_id}" for c in v.components),
+                   description=f"{v.description} (spacecraft {spacecraft_id})", index=i)
 
 
 CLOCK_PSD_M2_S = 1e-4

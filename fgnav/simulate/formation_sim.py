@@ -23,7 +23,12 @@ only where a ``[[link]]`` says so.
 Attitude: each spacecraft's body frame is the Earth-pointing LVLH frame of its own orbit
 turned by its ``yaw_deg`` about the body z axis (nadir); when a link uses an antenna, the
 attitude at every link epoch is written as ``attitude`` rows (rotation vector of
-``R_eci_from_body``, perturbed in the body frame by ``attitude_sigma_rad``).
+``R_eci_from_body``, perturbed in the body frame by ``attitude_sigma_rad``). With
+``body_frame`` the direction sensors with a body-frame kind (``earth_direction`` ->
+``earth_direction_body``, ...) measure in each spacecraft's own body frame: the noisy ECI
+direction turned by the true attitude, ``u_body = R_eci_from_body^T u_eci`` (an isotropic
+angular noise stays isotropic under a rotation, so the draws are those of the ECI rows), and
+the attitude rows are written whether or not a link uses an antenna.
 
 Random streams (one seed, independent draws): the first spacecraft's celestial rows draw
 from ``default_rng(seed)`` exactly as a one-spacecraft pass of the same scenario would (so its
@@ -168,9 +173,11 @@ def _check_formation_sensors(scn: Scenario) -> None:
 
 
 def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
-                            max_duration_h: float = MAX_DURATION_H) -> FormationPass:
+                            max_duration_h: float = MAX_DURATION_H,
+                            body_frame: bool = False) -> FormationPass:
     """Truth and one measurement log for a formation scenario; the same seed gives the same
-    numbers (module docstring: the link model, the attitude law and the random streams)."""
+    numbers (module docstring: the link model, the attitude law, ``body_frame`` and the random
+    streams)."""
     check_seed(seed)
     if scn.formation is None:
         raise UserError(f"scenario {scn.name}: one spacecraft (no [[spacecraft]] tables)")
@@ -189,6 +196,8 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     for k, i in enumerate(ids):   # each spacecraft's prior and celestial rows, own draws
         words = (seed,) if k == 0 else (seed, FORMATION_STREAM, k)
         got, _ = sensor_chunks(scn, t_all, x_true[i], epoch0, words)
+        if body_frame:
+            got = [_in_body_frame(c, R[i], t_all) for c in got]
         chunks += [(c[0], c[1], c[2], c[3], {**(c[4] if len(c) > 4 and c[4] else {}),
                                               "spacecraft": np.full(len(c[1]), i, dtype=object)})
                    for c in got]
@@ -209,7 +218,7 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     order = {i: k for k, i in enumerate(ids)}
     arms = {(a, n): np.array(arm) for a, n, arm in f.antennas}
     zero = np.zeros(3)
-    attitude_rows = any(ln.rx_antenna or ln.tx_antenna for ln in f.links)
+    attitude_rows = body_frame or any(ln.rx_antenna or ln.tx_antenna for ln in f.links)
     if attitude_rows:
         for i in ids:
             noise = rs.attitude_sigma_rad * rng.standard_normal((K, 3))
@@ -244,6 +253,23 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
                          x_true=x_true, R_eci_from_body=R, t_link=t_link, clock_m=clock, log=log,
                          ambiguity_m=amb, attitude_rows=attitude_rows, light_time_s=light,
                          clocks=clocks)
+
+
+BODY_KIND_OF = {m.body_frame_of: kind for kind, m in MODELS.items() if m.body_frame_of}
+"""The body-frame kind of each ECI direction kind that has one (``earth_direction`` ->
+``earth_direction_body``)."""
+
+
+def _in_body_frame(chunk, R_eci_from_body, t_all):
+    """A chunk ``(kind, t_s, values, sigma, extra)`` of an ECI direction kind with a body-frame
+    kind as that kind's rows, ``u_body = R^T u_eci`` with the attitude at the chunk's epochs
+    (module docstring); other chunks unchanged."""
+    kind = chunk[0]
+    if kind not in BODY_KIND_OF:
+        return chunk
+    R = R_eci_from_body[np.searchsorted(t_all, chunk[1])]
+    u_body = np.einsum("mji,mj->mi", R, np.asarray(chunk[2], dtype=float))
+    return (BODY_KIND_OF[kind], chunk[1], u_body, *chunk[3:])
 
 
 def write_formation_files(out_dir, sim: FormationPass) -> list:
