@@ -174,7 +174,7 @@ def limb_radius_body_kernel(x, data, B, e, H):
     R, light time, aberration, has body)``; without a body (``data[4] = 0``) the Earth's limb
     at the frame origin, :func:`factors.limb.limb_radius_kernel` (``asin(R/|r|)``), else
     :func:`near_body_limb_kernel` with ``B[:2] = (p_body, v_body)``."""
-    if data[4] == 0.0:
+    if data.shape[0] < 5 or data[4] == 0.0:   # (a log without a body packs 3 values)
         return limb_radius_kernel(x, data, B, e, H)
     return near_body_limb_kernel(x, data, B, e, H)
 
