@@ -33,6 +33,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+REQUIRED_MODULES = ("gtsam", "numpy", "scipy", "cv2", "rerun", "numba", "matplotlib", "tqdm",
+                    "pyarrow", "dask", "distributed", "erfa", "sgp4", "jplephem", "de421")
+"""The import names of pyproject.toml's dependencies: a command that finds one missing (the
+commands load their libraries lazily) ends with a message naming it, not a traceback."""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -46,6 +52,14 @@ def main(argv: list[str] | None = None) -> int:
         rc = args.func(args)
     except UserError as exc:
         print(f"fgnav: error: {exc}", file=sys.stderr)
+        return 2
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] not in REQUIRED_MODULES:
+            raise
+        print(f"fgnav: error: the package fgnav needs for this command, '{exc.name}', is not "
+              f"installed in this Python ({sys.executable}): install fgnav with its "
+              f"dependencies (pip install fgnav, or pip install -e . in a checkout)",
+              file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("fgnav: interrupted; outputs already written are complete, none is half-written",

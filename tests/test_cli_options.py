@@ -78,3 +78,23 @@ def test_stars_bad_fov_and_epoch_are_exit_2(tmp_path, capsys):
     for fov in ("0", "180", "nan", "-3", "inf"):
         assert main(["stars", str(img), f"--fov-deg={fov}"]) == 2
         assert "--fov-deg" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("missing, raised", [("gtsam", True), ("not_a_dependency", False)])
+def test_a_missing_dependency_is_a_message_not_a_traceback(monkeypatch, capsys, missing, raised):
+    """A Python without one of fgnav's dependencies (gtsam not installed: 'fgnav smooth' ended
+    in a ModuleNotFoundError traceback) gets one error line naming the package and exit 2; a
+    missing module that is not a dependency stays the bug it is."""
+    import fgnav.commands.check as check
+
+    def run(args):
+        raise ModuleNotFoundError(f"No module named '{missing}'", name=missing)
+
+    monkeypatch.setattr(check, "run", run)
+    if raised:
+        assert main(["check", "log.csv"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("fgnav: error:") and f"'{missing}'" in err and "pip install" in err
+    else:
+        with pytest.raises(ModuleNotFoundError):
+            main(["check", "log.csv"])
