@@ -32,6 +32,7 @@ import numpy as np
 from fgnav.errors import UserError
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.models.isl import isl_values, pair_ids
+from fgnav.models.manoeuvres import MANOEUVRE_KIND, manoeuvre_values
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
                                    EARTH_DIRECTION_BODY, MODELS, MOON_DIRECTION_BODY,
@@ -94,6 +95,9 @@ class Pass:
     # the formation's start (fgnav.start.link_fixes, set by fgnav.pipeline.smooth_log), not by build_pass
     link_fixes: tuple | None = None
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
+    # declared manoeuvres (``manoeuvre`` rows, values ``dv_mps`` (M, 3), sigma m/s): each
+    # enters the motion of the step that ends at its epoch (fgnav.graph.impulses); None: none
+    manoeuvres: Family | None = None
 
     @property
     def n_epochs(self) -> int:
@@ -156,6 +160,16 @@ def build_pass(log) -> Pass:
             p.deferred[kind] = fam
         elif mdl.solved:
             p.families[kind] = fam
+    i = np.flatnonzero(kinds == MANOEUVRE_KIND)
+    if len(i):
+        if np.any(k_of_row[i] == 0):
+            j = i[np.flatnonzero(k_of_row[i] == 0)[0]]
+            raise UserError(f"{log.path}: line {int(lines[j])}: a manoeuvre at the first epoch "
+                            "of the log has no step before it to enter; expected a manoeuvre "
+                            "after the first epoch (the a-priori state is the state after any "
+                            "earlier burn)")
+        p.manoeuvres = Family(k=k_of_row[i], values=manoeuvre_values(log, i), sigma=sigma[i],
+                              line=lines[i])
     att = p.deferred.get(ATTITUDE.kind)
     if att is not None:
         p.families[ATTITUDE.kind] = att   # rows of their own kind (used for body -> ECI)
@@ -182,6 +196,11 @@ def _check_formation_kinds(log):
     for kind in sorted(kinds):
         if kind in ISL_KINDS or kind == ATTITUDE.kind:
             continue
+        if kind == MANOEUVRE_KIND:
+            raise UserError(f"{log.path}: 'manoeuvre' rows {_PLAIN_REFUSED}: a burn changes "
+                            "one spacecraft's orbit, and a formation's graph does not yet put "
+                            "an impulse into one spacecraft's motion (solve each spacecraft's "
+                            "rows on their own, or leave the rows out)")
         mdl = MODELS.get(kind)
         if mdl is None or mdl.between or (mdl.requires is not None and mdl.body_frame_of is None):
             raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
@@ -686,8 +705,11 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
                        for kind, f in group.items()} for group in (p.families, p.deferred))
     n_ins = len(t_new) - p.n_epochs
     longest = float(dt[gaps].max())
+    man = p.manoeuvres
+    if man is not None:
+        man = Family(k=remap[man.k], values=man.values, sigma=man.sigma, line=man.line)
     return dataclasses.replace(
-        p, t_s=t_new, families=fams, deferred=deferred, inserted=inserted,
+        p, t_s=t_new, families=fams, deferred=deferred, inserted=inserted, manoeuvres=man,
         breaks=tuple(int(remap[b]) for b in p.breaks),
         warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
                                f"longer than {gap_factor * step:g} s (longest "
@@ -734,8 +756,14 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
                              sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
             fams[kind] = new
             rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
+    man = None
+    if p.manoeuvres is not None:   # a burn on an arc's first epoch: before its prior, left out
+        rows = np.flatnonzero((p.manoeuvres.k > k0) & (p.manoeuvres.k < k1))
+        if len(rows):
+            man = p.manoeuvres.subset(rows)
+            man.k = man.k - k0
     sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source, layout=p.layout,
-               deferred=deferred,
+               deferred=deferred, manoeuvres=man,
                inserted=None if p.inserted is None else p.inserted[k0:k1])
     return sub, rows_of
 

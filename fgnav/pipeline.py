@@ -101,6 +101,10 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
+    if p.manoeuvres is not None and options.state != "cartesian":
+        raise UserError(f"{p.source}: manoeuvre rows (line {int(p.manoeuvres.line[0])}, ...) "
+                        f"with --state {options.state}: a declared burn enters the Cartesian "
+                        "velocity of its step; solve with --state cartesian (the default)")
     from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
         if checkpoint or resume:

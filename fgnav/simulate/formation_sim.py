@@ -181,6 +181,10 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     check_seed(seed)
     if scn.formation is None:
         raise UserError(f"scenario {scn.name}: one spacecraft (no [[spacecraft]] tables)")
+    if scn.manoeuvres:
+        raise UserError(f"scenario {scn.name}: manoeuvres are not yet simulated for several "
+                        "spacecraft (a formation's graph does not yet take a burn of one "
+                        "spacecraft); simulate a one-spacecraft scenario")
     _check_formation_sensors(scn)
     check_size(scn, max_epochs, max_duration_h)
     f, rs = scn.formation, scn.formation.ranging
