@@ -390,7 +390,9 @@ def _joint_assess(sol, p) -> dict:
         tests["mirror"] = mirror
         if mirror["status"] != "ok":
             better = mirror["chi2_mirrored"] < mirror["chi2"]
-            worse("failed", f"the relative geometry mirrored through the first spacecraft "
+            geometry = mirror.get("geometry",
+                                  "the relative geometry mirrored through the first spacecraft")
+            worse("failed", f"{geometry} "
                   f"{'fits the data better' if better else 'fits the data as well'} "
                   f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
                   f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
