@@ -40,6 +40,7 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.apparent import aberration_off, with_aberration
 from fgnav.chi2 import chi2_isf, chi2_logsf, norm_isf
 from fgnav.diagnostics.crb import CHUNK, rows_at_first_state
+from fgnav.diagnostics.mirror import range_curvature_test
 from fgnav.graph import PRIOR_KINDS, block_values
 from fgnav.measurements import slice_pass
 from fgnav.models.attitude import ATTITUDE_VARIABLE
@@ -83,6 +84,9 @@ ADVICE = {
                   "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
               "direction), or a prior on the relative position",
+    "curvature": "links through more receive antennas per spacecraft (their lever arms fix the "
+                 "direction across the line of sight), a longer pass, or read the relative "
+                 "position as range and directions (--relative spherical)",
 }
 
 
@@ -389,11 +393,22 @@ def _joint_assess(sol, p) -> dict:
         tests["mirror"] = mirror
         if mirror["status"] != "ok":
             better = mirror["chi2_mirrored"] < mirror["chi2"]
-            worse("failed", f"the relative geometry mirrored through the first spacecraft "
+            geometry = mirror.get("geometry",
+                                  "the relative geometry mirrored through the first spacecraft")
+            worse("failed", f"{geometry} "
                   f"{'fits the data better' if better else 'fits the data as well'} "
                   f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
                   f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
                   f"relative position from its mirror image", "mirror")
+    curvature = range_curvature_test(p, sol)
+    tests["range_curvature"] = curvature
+    if curvature["status"] != "ok":
+        worse(curvature["status"], f"the range from {curvature['reference']} to "
+              f"{curvature['spacecraft']} is bent {curvature['bend_m']:.3g} m over the relative "
+              f"position's {curvature['sigma_across_m']:.3g} m sigma across the "
+              f"{curvature['separation_m']:.4g} m line of sight, {curvature['ratio']:.3g} times "
+              f"its {curvature['sigma_along_m']:.3g} m sigma along it: the covariance (linear) "
+              f"understates the errors across the line", "curvature")
     if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
         worse("failed", "non-finite states or covariances", None)
     return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
