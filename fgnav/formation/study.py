@@ -440,6 +440,7 @@ def run_track(sc, param="spherical", solver="batch", seed=0, out_dir=None, rerun
                  "final_error": 0.5 * float(sol.chi2), "chi2": float(sol.chi2),
                  "wall_s": float(sol.wall_s), "converged": sol.extras.get("converged"),
                  "integrity": res.summary["integrity"]["status"],
+                 "integrity_reasons": list(res.summary["integrity"].get("reasons", [])),
                  "yaw_deg": [s.yaw_deg for s in scn.formation.spacecraft],
                  "measurements": res.summary["measurements"]},
         "scenario": asdict(sc),
