@@ -211,7 +211,7 @@ def _formation_pass(log) -> Pass:
     lay = Layout(orbits + tuple(extra_vars))
     start = orbit_columns(lay)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
-             layout=lay, spacecraft=ids)
+             layout=lay, spacecraft=ids, centre=getattr(log, "centre", "earth"))
     body_kinds = []
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)

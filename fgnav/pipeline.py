@@ -177,16 +177,13 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
                          checkpoint=None, resume: bool = False, method: str = "batch") -> None:
     """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
     is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
-    wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
-    the Earth in Cartesian states."""
+    wired to it), and its graph holds the orbits, clocks and ambiguities only, in Cartesian
+    states (about the log's centre, the Earth or the Sun)."""
     if ignore_prior and method != "batch":
         raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
                         "several spacecraft (their online start is each spacecraft's prior); "
                         "--method batch starts from the measurements alone")
     check_formation_estimates(options.estimate)
-    if getattr(options, "centre", "earth") != "earth":
-        raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
-                        "the Earth in this version")
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(
             f"--state {options.state}: a log of several spacecraft is solved in Cartesian "
@@ -469,6 +466,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     if formation:
         if ignore_prior:   # (the summary's counts and tests: the rows the solution used)
             p = replace(p, families=strip_prior(p).families)
+        if centre != "earth":   # the outputs' frame (write_outputs)
+            sol.extras["centre"] = centre
         sol.wall_s = time.perf_counter() - t0
         summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian",
                             truth_vars=None if truth_path is None else

@@ -514,8 +514,9 @@ def _keyed(src, table, i, t, keys, label, required=()):
     return {k: _value(src, table, i, k, t[k], keys[k], f"{label}.{k}") for k in t}
 
 
-def _formation(src: _Source, d: dict) -> FormationSpec | None:
-    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them."""
+def _formation(src: _Source, d: dict, centre: str = "earth") -> FormationSpec | None:
+    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them; a
+    spacecraft's own orbit about the scenario's ``centre``."""
     present = [k for k in ("spacecraft", "antenna", "link", "ranging") if k in d]
     if not present:
         return None
@@ -535,7 +536,7 @@ def _formation(src: _Source, d: dict) -> FormationSpec | None:
                             "[orbit]) or an own [spacecraft.orbit] table, not both", "both",
                             label=f"{label}.lead_s")
         x0 = (None if "orbit" not in v else
-              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit"))
+              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit", centre))
         ids.append(v["id"])
         spacecraft.append(SpacecraftSpec(id=v["id"], x0_eci=x0, lead_s=v.get("lead_s", 0.0),
                                          yaw_deg=v.get("yaw_deg", 0.0)))
@@ -648,10 +649,11 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
     centre = top.get("centre", "earth")
     if centre != "earth":
+        helio = [k for k in HELIOCENTRIC_KINDS if k in SENSOR_KINDS]   # (not priors, links)
         for i, spec in enumerate(specs):
-            if spec.kind not in HELIOCENTRIC_KINDS:
+            if spec.kind not in helio:
                 raise src.error("sensor", i, "kind", f"a kind a heliocentric pass can hold "
-                                f"(centre = {centre!r}): {', '.join(HELIOCENTRIC_KINDS[2:])}",
+                                f"(centre = {centre!r}): {', '.join(helio)}",
                                 spec.kind, label=f"sensor[{i + 1}].kind")
         for k in ("drag", "srp"):
             if tv.get(k):
@@ -675,7 +677,7 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
         prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
         prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path),
-        formation=_formation(src, d), centre=centre)
+        formation=_formation(src, d, centre), centre=centre)
 
 
 def sensor_epoch_count(scn: Scenario) -> int:
