@@ -230,7 +230,7 @@ def _formation_pass(log) -> Pass:
     lay = Layout(orbits + tuple(extra_vars))
     start = orbit_columns(lay)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
-             layout=lay, spacecraft=ids)
+             layout=lay, spacecraft=ids, centre=getattr(log, "centre", "earth"))
     body_kinds = []
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
@@ -731,7 +731,9 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
     and for each family the indices of its rows in ``p`` (-1 for added rows).
 
     ``prior = (x (6,), sigma_position_m, sigma_velocity_mps)`` adds ``prior_position`` /
-    ``prior_velocity`` rows at the first epoch (placed first in their families).
+    ``prior_velocity`` rows at the first epoch (placed first in their families); a
+    formation's ``prior`` is one such tuple per spacecraft (rows bound to its orbit). A
+    formation's arc keeps its spacecraft, centre and the link fixes within its epochs.
     """
     fams, rows_of, deferred = {}, {}, {}
     for kind, f in p.families.items():
@@ -746,25 +748,41 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
             deferred[kind] = f.subset(rows, None)
             deferred[kind].k = deferred[kind].k - k0
     if prior is not None:
-        x, s_r, s_v = prior
-        for kind, xyz, s in ((PRIOR_POSITION.kind, x[:3], s_r), (PRIOR_VELOCITY.kind, x[3:], s_v)):
-            new = Family(k=np.array([0]), values={"xyz": np.asarray(xyz, float)[None]},
-                         sigma=np.array([float(s)]), line=np.array([0]))
+        per = list(prior) if p.spacecraft else [prior]   # one (x, s_r, s_v) per spacecraft
+        cols = orbit_columns(p.layout) if p.spacecraft else None
+        for j, kind in enumerate((PRIOR_POSITION.kind, PRIOR_VELOCITY.kind)):
+            values = {"xyz": np.array([np.asarray(x, float)[3 * j:3 * j + 3] for x, *_ in per])}
+            if cols is not None:
+                values[COLUMN_PREFIX + "orbit"] = cols[:len(per)].copy()
+            n = len(per)
+            new = Family(k=np.zeros(n, dtype=int), values=values,
+                         sigma=np.array([float(sig[j]) for _, *sig in per]),
+                         line=np.zeros(n, dtype=int))
             old = fams.get(kind)
             if old is not None:
-                new = Family(k=np.r_[new.k, old.k], values={"xyz": np.r_[new.values["xyz"], old.values["xyz"]]},
+                new = Family(k=np.r_[new.k, old.k],
+                             values={c: np.concatenate([new.values[c], old.values[c]])
+                                     for c in new.values},
                              sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
             fams[kind] = new
-            rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
+            rows_of[kind] = np.r_[np.full(n, -1), rows_of.get(kind, np.zeros(0, dtype=int))]
     man = None
     if p.manoeuvres is not None:   # a burn on an arc's first epoch: before its prior, left out
         rows = np.flatnonzero((p.manoeuvres.k > k0) & (p.manoeuvres.k < k1))
         if len(rows):
             man = p.manoeuvres.subset(rows)
             man.k = man.k - k0
+    formation = {}
+    if p.spacecraft:
+        fixes = None
+        if p.link_fixes is not None:   # (the arc's own: the start places sat2 from them)
+            t_f, dr = p.link_fixes
+            keep = (t_f >= p.t_s[k0]) & (t_f <= p.t_s[k1 - 1])
+            fixes = (t_f[keep], dr[keep]) if keep.sum() >= 2 else None
+        formation = {"spacecraft": p.spacecraft, "centre": p.centre, "link_fixes": fixes}
     sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source, layout=p.layout,
                deferred=deferred, manoeuvres=man,
-               inserted=None if p.inserted is None else p.inserted[k0:k1])
+               inserted=None if p.inserted is None else p.inserted[k0:k1], **formation)
     return sub, rows_of
 
 

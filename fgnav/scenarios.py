@@ -390,8 +390,9 @@ def _array(src: TomlSource, d: dict, name: str) -> list:
     return a
 
 
-def _formation(src: TomlSource, d: dict) -> FormationSpec | None:
-    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them."""
+def _formation(src: TomlSource, d: dict, centre: str = "earth") -> FormationSpec | None:
+    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them; a
+    spacecraft's own orbit about the scenario's ``centre``."""
     present = [k for k in ("spacecraft", "antenna", "link", "ranging") if k in d]
     if not present:
         return None
@@ -411,7 +412,7 @@ def _formation(src: TomlSource, d: dict) -> FormationSpec | None:
                             "[orbit]) or an own [spacecraft.orbit] table, not both", "both",
                             label=f"{label}.lead_s")
         x0 = (None if "orbit" not in v else
-              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit"))
+              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit", centre))
         ids.append(v["id"])
         spacecraft.append(SpacecraftSpec(id=v["id"], x0_eci=x0, lead_s=v.get("lead_s", 0.0),
                                          yaw_deg=v.get("yaw_deg", 0.0)))
@@ -524,10 +525,11 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
     centre = top.get("centre", "earth")
     if centre != "earth":
+        helio = [k for k in HELIOCENTRIC_KINDS if k in SENSOR_KINDS]   # (not priors, links)
         for i, spec in enumerate(specs):
-            if spec.kind not in HELIOCENTRIC_KINDS:
+            if spec.kind not in helio:
                 raise src.error("sensor", i, "kind", f"a kind a heliocentric pass can hold "
-                                f"(centre = {centre!r}): {', '.join(HELIOCENTRIC_KINDS[2:])}",
+                                f"(centre = {centre!r}): {', '.join(helio)}",
                                 spec.kind, label=f"sensor[{i + 1}].kind")
         for k in ("drag", "srp"):
             if tv.get(k):
@@ -551,7 +553,7 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
         prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
         prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path),
-        formation=_formation(src, d), centre=centre, manoeuvres=_manoeuvres(src, d))
+        formation=_formation(src, d, centre), centre=centre, manoeuvres=_manoeuvres(src, d))
 
 
 def parse_manoeuvre(text: str, scn: Scenario) -> ManoeuvreSpec:
