@@ -16,7 +16,8 @@ them equal):
 * orbit motion (``factors.motion``): :func:`motion_rows` / :func:`motion_factors`;
 * the further variables' process (``Variable.process``: random walk, constant rate):
   :func:`process_rows` / :func:`process_factors` (:func:`step_rows`: both families' rows of
-  every step, as the batch solver stacks them);
+  every step, as the batch solver stacks them; :func:`step_factors`: both families' factors
+  of one step, as the incremental solvers add them);
 * the further variables' priors at the first epoch (``Variable.prior_rows``):
   :func:`prior_rows` / :func:`prior_factors`, and a filter's initial covariance
   :func:`prior_block_covariance`.
@@ -271,6 +272,17 @@ def motion_factors(lay, k: int, dt: float, q: float, model: MotionModel,
     ``t0_j2000_s`` (``factors.motion.make_motion_factor``)."""
     return [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s)
             for v in lay.orbits]
+
+
+def step_factors(lay, k: int, dt: float, q: float, model: MotionModel,
+                 t0_j2000_s: float) -> list:
+    """The GTSAM factors from epoch ``k - 1`` to ``k`` (``dt`` s from ``t0_j2000_s``): every
+    orbit's :func:`motion_factors` and the further variables' :func:`process_factors` (the
+    factors of :func:`step_rows`'s rows); at ``k = 0`` the further variables'
+    :func:`prior_factors`."""
+    if k == 0:
+        return prior_factors(lay)
+    return motion_factors(lay, k, dt, q, model, t0_j2000_s) + process_factors(lay, k, dt)
 
 
 def step_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,

@@ -37,7 +37,7 @@ import numpy as np
 from factors.errors import ModelDomainError
 from fgnav.chi2 import chi2_logsf
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import enters, layout_of, linearize_family, motion_factors
+from fgnav.graph import enters, layout_of, linearize_family, step_factors
 from fgnav.io.log_csv import EXTRA_COLUMNS, VALUE_COLUMNS, MeasurementLog
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import first_state, has_prior, strip_prior
@@ -427,7 +427,7 @@ class _Ekf:
 
 class _Window:
     """iSAM2 over a bounded window (``gtsam.IncrementalFixedLagSmoother``): the orbit's
-    motion factors (:func:`fgnav.graph.motion_factors`) and the rows' factors (:meth:`fgnav.models.model.MeasurementModel.factors`),
+    motion factors (:func:`fgnav.graph.step_factors`) and the rows' factors (:meth:`fgnav.models.model.MeasurementModel.factors`),
     the states older than the window marginalized into a prior on the oldest kept one."""
 
     def __init__(self, nav: Navigator):
@@ -451,8 +451,8 @@ class _Window:
                     X(k), np.asarray(x_pred, float),
                     gtsam.noiseModel.Gaussian.Covariance(np.asarray(P_pred, float), False)))
         else:
-            for f in motion_factors(layout_of(p), k, dt, nav.options.q_m2_s3, nav.model,
-                                    t_j2000 - dt):
+            for f in step_factors(layout_of(p), k, dt, nav.options.q_m2_s3, nav.model,
+                                  t_j2000 - dt):
                 graph.add(f)
         for kind, fam in families:
             for f in model_of(kind).factors(fam, np.arange(len(fam)), k, p.layout,
