@@ -184,7 +184,11 @@ def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
     assert _relative_errors(res, p, truth)[0] < 20.0
     log, truth = formation_log(1)
     res, p = smooth_log(log, "ekf", SmootherOptions())
-    assert res.summary["integrity"]["status"] == "ok", res.summary["integrity"]["reasons"]
+    verdict = res.summary["integrity"]
+    # the first epochs' covariance, 200 m across the line of sight, is a bent range sphere:
+    # the range-curvature test says so (suspect) and nothing else may fail
+    assert verdict["status"] == "ok" or (verdict["status"] == "suspect" and all(
+        "is bent" in why for why in verdict["reasons"])), verdict["reasons"]
     sigma = res.summary["relative"]["sigma_position_rms_m"]
     assert _relative_errors(res, p, truth)[0] <= 2.0 * sigma
 

@@ -109,12 +109,17 @@ def test_the_ekf_stays_within_its_covariance(formation_hour, tmp_path, capsys):
     had lost positive definiteness: LinAlgError), and its rows solved by Gauss-Newton over a
     start window, then iterated per epoch (fgnav.solvers.ekf.window_update). Linearized at the
     prediction, 60 s after a 2 m/s prior, the links' curvature made it diverge: 421 m relative
-    error against a 0.5 m sigma, verdict failed (exit 3 with --strict); now exit 0, verdict
-    ok, within twice its own sigma."""
+    error against a 0.5 m sigma, verdict failed (exit 3 with --strict); now within twice its
+    own sigma."""
     rc, s = _smooth(formation_hour / "measurements.csv", tmp_path / "r", capsys,
                     "--method", "ekf", "--strict")
-    rel = s["relative"]
-    assert rc == 0 and s["integrity"]["status"] == "ok", s["integrity"]
+    rel, verdict = s["relative"], s["integrity"]
+    # (the first epochs' covariance, metres across the line of sight on a 1 km range, is a
+    # bent range sphere: the range-curvature test may say so, exit 3 under --strict; no
+    # other test may fail)
+    assert (rc == 0 and verdict["status"] == "ok") or (
+        rc == 3 and verdict["status"] == "suspect"
+        and all("is bent" in why for why in verdict["reasons"])), verdict
     assert rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
 
 
@@ -224,3 +229,16 @@ def test_the_ekf_with_estimated_attitudes_ends_with_a_verdict(formation_body_hou
         assert rc == 0 and rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
     else:
         assert rc == 3 and s["integrity"]["reasons"]
+
+
+def test_a_gate_that_rejects_most_rows_is_not_an_ok_verdict(formation_hour):
+    """The verdict of a formation counts the rows its gate rejected, as one spacecraft's does
+    (more than a quarter of a family: failed): an acceptance probability of 1e-4 (a user's
+    false-alarm rate given where the acceptance probability is asked, which the command line
+    refuses) rejected all but 6 of 1,448 rows and the verdict was ok, with a relative error of
+    km. The command line's refusal names the probability meant."""
+    res, _ = smooth_file(formation_hour / "measurements.csv", "isam2",
+                         SmootherOptions(gate_probability=1e-4), truth_path=formation_hour)
+    integrity = res.summary["integrity"]
+    assert integrity["status"] == "failed", integrity
+    assert any("rejected" in r for r in integrity["reasons"]), integrity["reasons"]

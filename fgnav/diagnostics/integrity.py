@@ -40,6 +40,7 @@ from factors.ephemeris import moon_position_eci_m, sun_position_eci_m
 from fgnav.apparent import aberration_off, with_aberration
 from fgnav.chi2 import chi2_isf, chi2_logsf, norm_isf
 from fgnav.diagnostics.crb import CHUNK, rows_at_first_state
+from fgnav.diagnostics.mirror import range_curvature_test
 from fgnav.graph import PRIOR_KINDS, block_values
 from fgnav.measurements import slice_pass
 from fgnav.models.attitude import ATTITUDE_VARIABLE
@@ -83,6 +84,9 @@ ADVICE = {
                   "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
               "direction), or a prior on the relative position",
+    "curvature": "links through more receive antennas per spacecraft (their lever arms fix the "
+                 "direction across the line of sight), a longer pass, or read the relative "
+                 "position as range and directions (--relative spherical)",
 }
 
 
@@ -209,10 +213,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
             reasons.append((sev, f"{kind}: chi2/dof = {test['normalized']:.3g} over {test['dof']} "
                                  f"components (expected ~1)", "outliers"))
         if test["rejected_fraction"] > MAX_REJECTED_FRACTION:
-            reasons.append(("failed", f"{kind}: {n_rej} of {len(fam)} measurements rejected "
-                                      f"({100 * test['rejected_fraction']:.0f} % > "
-                                      f"{100 * MAX_REJECTED_FRACTION:.0f} %): the answer is not "
-                                      f"the data's", "rejected"))
+            reasons.append(("failed", rejected_reason(kind, test), "rejected"))
         elif n_rej:
             notes.append(f"{kind}: {n_rej} of {len(fam)} measurements rejected as outliers")
         run = largest_run(p.t_s[fam.k][keep], r[keep])
@@ -378,6 +379,8 @@ def _joint_assess(sol, p) -> dict:
         tests[kind] = test
         worse(test["status"], f"{kind}: chi2/dof {test['normalized']:.3g} over {test['dof']} "
               f"components (p = 1e{test['log10_p']:.0f})", "outliers")
+        if test["rejected_fraction"] > MAX_REJECTED_FRACTION:   # (a gate, a robust kernel)
+            worse("failed", rejected_reason(kind, test), "rejected")
     if "chi2_motion" in sol.extras:   # (a filter has no process residuals)
         motion = _chi2_test(float(sol.extras["chi2_motion"]), max(p.n_epochs - 1, 1) * p.layout.n)
         motion["status"] = _severity(motion)
@@ -390,15 +393,35 @@ def _joint_assess(sol, p) -> dict:
         tests["mirror"] = mirror
         if mirror["status"] != "ok":
             better = mirror["chi2_mirrored"] < mirror["chi2"]
-            worse("failed", f"the relative geometry mirrored through the first spacecraft "
+            geometry = mirror.get("geometry",
+                                  "the relative geometry mirrored through the first spacecraft")
+            worse("failed", f"{geometry} "
                   f"{'fits the data better' if better else 'fits the data as well'} "
                   f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
                   f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
                   f"relative position from its mirror image", "mirror")
+    curvature = range_curvature_test(p, sol)
+    tests["range_curvature"] = curvature
+    if curvature["status"] != "ok":
+        worse(curvature["status"], f"the range from {curvature['reference']} to "
+              f"{curvature['spacecraft']} is bent {curvature['bend_m']:.3g} m over the relative "
+              f"position's {curvature['sigma_across_m']:.3g} m sigma across the "
+              f"{curvature['separation_m']:.4g} m line of sight, {curvature['ratio']:.3g} times "
+              f"its {curvature['sigma_along_m']:.3g} m sigma along it: the covariance (linear) "
+              f"understates the errors across the line", "curvature")
     if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
         worse("failed", "non-finite states or covariances", None)
     return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
             "false_alarm_probability": FALSE_ALARM_PROBABILITY}
+
+
+def rejected_reason(kind: str, test: dict) -> str:
+    """The reason of a family whose rows were mostly rejected (more than
+    :data:`MAX_REJECTED_FRACTION`, by the gate or a robust kernel): its answer is not the
+    data's, whatever the chi-square of the rows kept says."""
+    return (f"{kind}: {test['rejected']} of {test['rows']} measurements rejected "
+            f"({100 * test['rejected_fraction']:.0f} % > {100 * MAX_REJECTED_FRACTION:.0f} %): "
+            f"the answer is not the data's")
 
 
 def _family_test(r: np.ndarray, w) -> tuple[dict, np.ndarray]:
