@@ -176,14 +176,21 @@ def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
     """The EKF filters both orbits, the clock and the links: with a 3 m prior it tracks the
     relative position to metres and its innovations (normalized by their covariance) pass;
     with 100 m priors on a 1 km formation the first links' linearization error (d^2/2R ~
-    10 m) makes it diverge, and the verdict says so instead of returning a number."""
+    10 m) made it diverge (verdict failed); its rows solved by Gauss-Newton over a start
+    window (fgnav.solvers.ekf.window_update), it stays within twice its own sigma."""
     log, truth = formation_log(1, prior_sigma_m=3.0, prior_sigma_mps=1.5e-3)
     res, p = smooth_log(log, "ekf", SmootherOptions())
     assert res.summary["integrity"]["status"] == "ok", res.summary["integrity"]["reasons"]
     assert _relative_errors(res, p, truth)[0] < 20.0
     log, truth = formation_log(1)
     res, p = smooth_log(log, "ekf", SmootherOptions())
-    assert res.summary["integrity"]["status"] == "failed"
+    verdict = res.summary["integrity"]
+    # the first epochs' covariance, 200 m across the line of sight, is a bent range sphere:
+    # the range-curvature test says so (suspect) and nothing else may fail
+    assert verdict["status"] == "ok" or (verdict["status"] == "suspect" and all(
+        "is bent" in why for why in verdict["reasons"])), verdict["reasons"]
+    sigma = res.summary["relative"]["sigma_position_rms_m"]
+    assert _relative_errors(res, p, truth)[0] <= 2.0 * sigma
 
 
 def test_batch_covariance_is_the_dense_bound_at_the_truth():

@@ -112,19 +112,24 @@ def test_a_checkpoint_then_resume_ends_where_the_uninterrupted_run_does(formatio
         assert resumed["relative"][key] == pytest.approx(whole["relative"][key], rel=1e-6)
 
 
-def test_the_ekf_ends_with_a_verdict_not_a_traceback(formation_hour, tmp_path, capsys):
+def test_the_ekf_stays_within_its_covariance(formation_hour, tmp_path, capsys):
     """The filter of two km-sigma orbits whose difference the links know to centimetres: its
-    covariance is kept in relative coordinates (fgnav.solvers.ekf.relative_coordinates), where
-    it had lost positive definiteness (LinAlgError); with 10 km priors on a 1 km formation the
-    first links' linearization error still makes it diverge, and the verdict says so."""
+    covariance kept in relative coordinates (fgnav.solvers.ekf.relative_coordinates, where it
+    had lost positive definiteness: LinAlgError), and its rows solved by Gauss-Newton over a
+    start window, then iterated per epoch (fgnav.solvers.ekf.window_update). Linearized at the
+    prediction, 60 s after a 2 m/s prior, the links' curvature made it diverge: 421 m relative
+    error against a 0.5 m sigma, verdict failed (exit 3 with --strict); now within twice its
+    own sigma."""
     rc, s = _smooth(formation_hour / "measurements.csv", tmp_path / "r", capsys,
                     "--method", "ekf", "--strict")
-    st = s["integrity"]["status"]
-    rel = s["relative"]
-    if st == "ok":
-        assert rc == 0 and rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
-    else:   # (--strict: exit 3 when the verdict is not ok)
-        assert rc == 3 and s["integrity"]["reasons"]
+    rel, verdict = s["relative"], s["integrity"]
+    # (the first epochs' covariance, metres across the line of sight on a 1 km range, is a
+    # bent range sphere: the range-curvature test may say so, exit 3 under --strict; no
+    # other test may fail)
+    assert (rc == 0 and verdict["status"] == "ok") or (
+        rc == 3 and verdict["status"] == "suspect"
+        and all("is bent" in why for why in verdict["reasons"])), verdict
+    assert rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
 
 
 def test_the_online_solution_carries_its_latency_and_states(formation_hour):
