@@ -84,6 +84,7 @@ ADVICE = {
                   "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
               "direction), or a prior on the relative position",
+    "mirror_better": "--method batch, which solves again from the geometry that fits better",
     "curvature": "links through more receive antennas per spacecraft (their lever arms fix the "
                  "direction across the line of sight), a longer pass, or read the relative "
                  "position as range and directions (--relative spherical)",
@@ -400,7 +401,8 @@ def _joint_assess(sol, p) -> dict:
                   f"{'fits the data better' if better else 'fits the data as well'} "
                   f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
                   f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
-                  f"relative position from its mirror image", "mirror")
+                  f"relative position from its mirror image",
+                  "mirror_better" if better and sol.method != "batch" else "mirror")
     curvature = range_curvature_test(p, sol)
     tests["range_curvature"] = curvature
     if curvature["status"] != "ok":

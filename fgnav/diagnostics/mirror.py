@@ -116,7 +116,7 @@ def alternative_geometries(p: Pass, X: np.ndarray) -> list[tuple[str, np.ndarray
     return out
 
 
-def mirror_test(p: Pass, sol, options, smooth_batch) -> dict:
+def mirror_test(p: Pass, sol, options, smooth_batch, minima: list | None = None) -> dict:
     """The batch from the solution and from each other relative geometry the links may allow
     (:func:`alternative_geometries`: the mirror through the first spacecraft; with three
     spacecraft or more, each further one turned about a line through two others), compared
@@ -129,7 +129,9 @@ def mirror_test(p: Pass, sol, options, smooth_batch) -> dict:
     alternative), or the failing alternative's; ``alternatives`` lists each.
     ``smooth_batch(p, options, x_init=X)``: the batch smoother
     (:func:`fgnav.solvers.batch.smooth_batch`, given by the pipeline: the diagnostics sit
-    below the solvers)."""
+    below the solvers). ``minima``: a list that receives ``(chi2, geometry, X)`` of every
+    alternative solved, ``X`` (N, n) its block values (the pipeline restarts the batch from
+    one that fits better)."""
 
     # at the requested process noise at once, and at most MIRROR_MAX_ITERATIONS: a mirror the
     # lever arms refute stays far above the solution's chi-square (formation-gto with every
@@ -147,6 +149,9 @@ def mirror_test(p: Pass, sol, options, smooth_batch) -> dict:
         except (ModelDomainError, NotObservableError):   # it leaves the models' domain
             there = None
         alt = _alternative(p, here, there)
+        if minima is not None and there is not None:
+            minima.append((float(there.chi2), geometry,
+                           block_values(p, there.x_eci, there.variables)))
         alt["geometry"] = geometry
         alt["status"] = ("failed" if alt["distinct_minimum"]
                          and alt["chi2_mirrored"] < chi2 + MIRROR_MARGIN_CHI2 else "ok")
