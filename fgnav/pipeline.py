@@ -21,7 +21,7 @@ from fgnav.frames import relative_state_lvlh
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior
 from fgnav.diagnostics.integrity import assess, needs_prior_test
-from fgnav.diagnostics.mirror import MIRROR_MARGIN_CHI2, mirror_test
+from fgnav.diagnostics.mirror import MIRROR_MARGIN_CHI2, batch_agreement_test, mirror_test
 from fgnav.io.log_csv import read_log
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
@@ -198,13 +198,16 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
 
 def _tested_geometry(p: Pass, sol: Solution, method: str, options: SmootherOptions) -> Solution:
     """A formation's solution with its mirror test (:func:`fgnav.diagnostics.mirror.mirror_test`,
-    ``extras["mirror_test"]``). Where batch's solution is a wrong minimum (another geometry's
+    ``extras["mirror_test"]``) and, for an online method, the agreement of its relative
+    states with that batch (:func:`fgnav.diagnostics.mirror.batch_agreement_test`,
+    ``extras["batch_agreement"]``). Where batch's solution is a wrong minimum (another geometry's
     fits better by more than ``MIRROR_MARGIN_CHI2``), the batch is solved again from that
     minimum, and the better solution kept and tested in its turn; ``mirror_test["restarted"]``
     then names the geometry and the chi-square left (formation-gto-3, 1 h at 30 s: seeds 1-5
     of 9 ended with sat3 270 m or 32 km off; from the better geometry, the truth's minimum)."""
-    minima: list = []
-    test = mirror_test(p, sol, options, smooth_batch, minima)
+    minima, batch = [], []
+    test = mirror_test(p, sol, options, smooth_batch, minima, batch)
+    sol.extras["batch_agreement"] = batch_agreement_test(p, sol, batch[0])
     better = [m for m in minima if m[0] < test["chi2"] - MIRROR_MARGIN_CHI2]
     if method == "batch" and better:
         chi2_best, geometry, X = min(better, key=lambda m: m[0])
