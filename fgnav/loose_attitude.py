@@ -63,6 +63,7 @@ def attitude_rows_from_stars(log: MeasurementLog, v_eci_mps=None,
     new = log_from_arrays(log.epoch0, np.concatenate([log.t_s[keep], t_att]),
                           np.concatenate([kinds[keep], np.full(len(ep), ATTITUDE.kind)]),
                           np.concatenate([log.xyz[keep], so3_log(R).reshape(-1, 3)]),
-                          np.concatenate([log.sigma[keep], sig_att]), extra, path=log.path)
+                          np.concatenate([log.sigma[keep], sig_att]), extra, path=log.path,
+                          centre=log.centre, schema=log.schema)
     return new, {"attitude_rows": len(ep), "epochs_without_attitude": len(t_u) - len(ep),
                  "body_rows_dropped": int(orphan.sum())}

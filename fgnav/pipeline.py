@@ -258,7 +258,7 @@ def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, 
     return smooth_incremental(p, options, relinearizing_links(p, IncrementalOptions(lag_s=lag_s)),
                               method=method, progress=progress, checkpoint=checkpoint,
                               checkpoint_every=checkpoint_every, resume=resume,
-                              x_start=start.x_start)
+                              x_start=start.x_start, P_start=start.P_start)
 
 
 DIRECT_ITERATIONS = 8

@@ -15,7 +15,6 @@ caller raises the limits (``fgnav simulate --max-epochs N --max-duration-h H``).
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -25,8 +24,9 @@ import numpy as np
 from fgnav.constants import DEG, MU_EARTH_M3_S2, R_EARTH_M, R_SUN_M
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, CENTRES, HELIOCENTRIC_KINDS
-from fgnav.io.log_spacecraft import ID_EXPECTED, ID_RE
 from fgnav.io.text import parse_toml, read_utf8_text
+from fgnav.io.toml_schema import (TomlSource, check_keys, check_value, expected, keyed,
+                                  table_of)
 from fgnav.orbit import elements_to_state, mean_to_true_anomaly
 from fgnav.paths import data_dir
 from fgnav.simulate.refraction_sim import MODEL_BIAS_KEYS
@@ -279,156 +279,16 @@ def builtin_names() -> list[str]:
     return sorted(p.stem for p in (data_dir() / "scenarios").glob("*.toml"))
 
 
-class _Source:
-    """The TOML text, to point errors at the line that defines a key (best effort)."""
-
-    def __init__(self, path, text: str):
-        self.path = path
-        self.lines = text.splitlines()
-
-    def line_of(self, table: str | None, key: str | None, index: int = 0) -> int | None:
-        """1-based line of ``key`` in ``[table]`` (or the ``index``-th ``[[table]]``); of the
-        table header when ``key`` is None; None if not found (e.g. an inline table)."""
-        current, count, header_line = None, -1, None
-        for n, raw in enumerate(self.lines, 1):
-            s = raw.strip()
-            if s.startswith("["):
-                name = s.strip("[]").split("]")[0].strip().strip('"')
-                if s.startswith("[[") and name == table:
-                    count += 1
-                current = name
-                if current == table and (count == index or not s.startswith("[[")):
-                    header_line = n
-                    if key is None:
-                        return n
-                continue
-            if key is None or "=" not in s:
-                continue
-            k = s.split("=", 1)[0].strip().strip('"')
-            in_table = (current is None and table is None) or (
-                current == table and (table not in _ARRAY_TABLES or count == index))
-            if in_table and k == key:
-                return n
-        return header_line if key is None else None
-
-    def error(self, table, index, key, expected, found=None, *, label=None) -> InputFormatError:
-        return InputFormatError(self.path, self.line_of(table, key, index), label or key,
-                                expected, found)
-
-
-def _expected(spec) -> str:
-    typ, unit, lo, hi, lo_in, hi_in = spec
-    u = f" {unit}" if unit else ""
-    if typ == "number":
-        if lo is not None and math.isinf(lo) and math.isinf(hi):
-            return f"a finite number ({unit or 'no unit'})"
-        parts = []
-        if lo is not None and not math.isinf(lo):
-            parts.append(f"{'>=' if lo_in else '>'} {lo:g}{u}")
-        if hi is not None and not math.isinf(hi):
-            parts.append(f"{'<=' if hi_in else '<'} {hi:g}{u}")
-        return "a finite number " + " and ".join(parts) + (f" ({unit})" if unit and not parts else "")
-    if typ == "bool":
-        return "true or false (a TOML boolean, unquoted)"
-    if typ == "str":
-        return "a quoted string"
-    if typ == "epoch":
-        return "an ISO-8601 UTC epoch string 'YYYY-MM-DDTHH:MM:SS[.f]Z'"
-    if typ == "choice":
-        return "one of " + ", ".join(repr(c) for c in lo)
-    if typ == "id":
-        return f"a quoted name: {ID_EXPECTED}"
-    if typ == "table":
-        return "a table"
-    if typ == "vec3":
-        return f"an array of 3 finite numbers ({unit})"
-    return f"a non-empty array of finite numbers ({unit})"
-
-
-def _value(src: _Source, table, index, key, value, spec, label):
-    """Check ``value`` against ``spec``; return it converted (float, tuple, str, bool)."""
-    typ, _unit, lo, hi, lo_in, hi_in = spec
-
-    def bad():
-        return src.error(table, index, key, _expected(spec), value, label=label)
-
-    if typ == "number":
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise bad()
-        x = float(value)
-        if not math.isfinite(x):
-            raise bad()
-        if lo is not None and not math.isinf(lo) and (x < lo or (x == lo and not lo_in)):
-            raise bad()
-        if hi is not None and not math.isinf(hi) and (x > hi or (x == hi and not hi_in)):
-            raise bad()
-        return x
-    if typ == "bool":
-        if not isinstance(value, bool):
-            raise bad()
-        return value
-    if typ == "str":
-        if not isinstance(value, str):
-            raise bad()
-        return value
-    if typ == "epoch":
-        if isinstance(value, _dt.datetime) and value.utcoffset() in (None, _dt.timedelta(0)):
-            value = value.replace(tzinfo=None).isoformat() + "Z"
-        if not isinstance(value, str):
-            raise bad()
-
-        try:
-            parse_utc(value)
-        except ValueError as exc:
-            raise src.error(table, index, key, f"{_expected(spec)} ({exc})", value,
-                            label=label) from None
-        return value
-    if typ == "choice":
-        if not isinstance(value, str) or value not in lo:
-            raise bad()
-        return value
-    if typ == "id":
-        if not isinstance(value, str) or not ID_RE.match(value):
-            raise bad()
-        return value
-    if typ == "table":
-        if not isinstance(value, dict):
-            raise bad()
-        return value
-    if not isinstance(value, list) or not value or (typ == "vec3" and len(value) != 3):
-        raise bad()
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(float(v)):
-            raise bad()
-    return tuple(float(v) for v in value)
-
-
-def _table(src: _Source, d, name, index=None):
-    t = d.get(name, {})
-    label = name if index is None else f"{name}[{index + 1}]"
-    if not isinstance(t, dict):
-        raise src.error(None, 0, name, f"a table [{name}]" if index is None else
-                        f"an array of tables [[{name}]]", t, label=label)
-    return t
-
-
-def _check_keys(src: _Source, table, index, d: dict, known, label_prefix, what):
-    for k in d:
-        if k not in known:
-            raise src.error(table, index, k, f"a key of {what} (known: {', '.join(known)})",
-                            k, label=f"{label_prefix}{k}")
-
-
 R_SUN_PHOTOSPHERE_M = R_SUN_M
 """A heliocentric orbit stays outside the Sun's photosphere (``factors.constants.R_SUN_M``)."""
 
 
-def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0,
+def _orbit_state(src: TomlSource, orbit: dict, table: str = "orbit", index: int = 0,
                  label: str = "orbit", centre: str = "earth") -> tuple:
     """The truth state (6,) of an ``[orbit]`` table (or of ``[spacecraft.orbit]``: ``table``,
     ``index`` and ``label`` name it in errors), about the scenario's ``centre``."""
-    _check_keys(src, table, index, orbit, tuple(ORBIT_KEYS), f"{label}.", f"[{label}]")
-    v = {k: _value(src, table, index, k, orbit[k], ORBIT_KEYS[k], f"{label}.{k}") for k in orbit}
+    check_keys(src, table, index, orbit, tuple(ORBIT_KEYS), f"{label}.", f"[{label}]")
+    v = {k: check_value(src, table, index, k, orbit[k], ORBIT_KEYS[k], f"{label}.{k}") for k in orbit}
     forms = "either r_eci_m + v_eci_mps, or a_m, e, i_deg, raan_deg, argp_deg and " \
             "true_anomaly_deg or mean_anomaly_deg"
     cart = [k for k in _CARTESIAN if k in v]
@@ -477,25 +337,25 @@ def _orbit_state(src: _Source, orbit: dict, table: str = "orbit", index: int = 0
     return tuple(float(t) for t in np.asarray(x).ravel())
 
 
-def _sensor(src: _Source, i: int, s) -> SensorSpec:
+def _sensor(src: TomlSource, i: int, s) -> SensorSpec:
     label = f"sensor[{i + 1}]"
     if not isinstance(s, dict):
         raise src.error(None, 0, "sensor", "an array of tables [[sensor]]", s, label="sensor")
     if "kind" not in s:
         raise src.error("sensor", i, None, "a key 'kind' (one of " + ", ".join(SENSOR_KINDS) + ")",
                         label=f"{label}.kind")
-    kind = _value(src, "sensor", i, "kind", s["kind"], SENSOR_KEYS["kind"], f"{label}.kind")
+    kind = check_value(src, "sensor", i, "kind", s["kind"], SENSOR_KEYS["kind"], f"{label}.kind")
     known = ("kind", "period_s") + SENSOR_KIND_KEYS[kind]
-    _check_keys(src, "sensor", i, s, known, f"{label}.", f"sensor kind '{kind}'")
-    kw = {k: _value(src, "sensor", i, k, s[k], SENSOR_KEYS[k], f"{label}.{k}") for k in s}
+    check_keys(src, "sensor", i, s, known, f"{label}.", f"sensor kind '{kind}'")
+    kw = {k: check_value(src, "sensor", i, k, s[k], SENSOR_KEYS[k], f"{label}.{k}") for k in s}
     for k in _SENSOR_REQUIRED:
         if k in SENSOR_KIND_KEYS[kind] and k not in kw:
-            raise src.error("sensor", i, None, f"a key '{k}' ({_expected(SENSOR_KEYS[k])}) for "
+            raise src.error("sensor", i, None, f"a key '{k}' ({expected(SENSOR_KEYS[k])}) for "
                             f"sensor kind '{kind}'", label=f"{label}.{k}")
     return SensorSpec(**kw)
 
 
-def _array(src: _Source, d: dict, name: str) -> list:
+def _array(src: TomlSource, d: dict, name: str) -> list:
     """The ``[[name]]`` array of tables of ``d`` (empty when absent)."""
     a = d.get(name, [])
     if not isinstance(a, list) or not all(isinstance(t, dict) for t in a):
@@ -503,18 +363,7 @@ def _array(src: _Source, d: dict, name: str) -> list:
     return a
 
 
-def _keyed(src, table, i, t, keys, label, required=()):
-    """Check the keys of the ``i``-th ``[[table]]`` ``t`` against ``keys`` and return the
-    converted values; a missing required key names the table."""
-    _check_keys(src, table, i, t, tuple(keys), f"{label}.", f"[[{table}]]")
-    for k in required:
-        if k not in t:
-            raise src.error(table, i, None, f"a key '{k}' ({_expected(keys[k])})",
-                            label=f"{label}.{k}")
-    return {k: _value(src, table, i, k, t[k], keys[k], f"{label}.{k}") for k in t}
-
-
-def _formation(src: _Source, d: dict) -> FormationSpec | None:
+def _formation(src: TomlSource, d: dict) -> FormationSpec | None:
     """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them."""
     present = [k for k in ("spacecraft", "antenna", "link", "ranging") if k in d]
     if not present:
@@ -526,7 +375,7 @@ def _formation(src: _Source, d: dict) -> FormationSpec | None:
     spacecraft, ids = [], []
     for i, t in enumerate(sc_tables):
         label = f"spacecraft[{i + 1}]"
-        v = _keyed(src, "spacecraft", i, t, SPACECRAFT_KEYS, label, required=("id",))
+        v = keyed(src, "spacecraft", i, t, SPACECRAFT_KEYS, label, required=("id",))
         if v["id"] in ids:
             raise src.error("spacecraft", i, "id", "a spacecraft id not used before", v["id"],
                             label=f"{label}.id")
@@ -548,7 +397,7 @@ def _formation(src: _Source, d: dict) -> FormationSpec | None:
     antennas = {}
     for i, t in enumerate(_array(src, d, "antenna")):
         label = f"antenna[{i + 1}]"
-        v = _keyed(src, "antenna", i, t, ANTENNA_KEYS, label, required=tuple(ANTENNA_KEYS))
+        v = keyed(src, "antenna", i, t, ANTENNA_KEYS, label, required=tuple(ANTENNA_KEYS))
         known("antenna", i, "spacecraft", v["spacecraft"], label)
         key = (v["spacecraft"], v["name"])
         if key in antennas:
@@ -565,7 +414,7 @@ def _formation(src: _Source, d: dict) -> FormationSpec | None:
                                "optional rx_antenna, tx_antenna) in a formation scenario")
     for i, t in enumerate(link_tables):
         label = f"link[{i + 1}]"
-        v = _keyed(src, "link", i, t, LINK_KEYS, label, required=("rx", "tx"))
+        v = keyed(src, "link", i, t, LINK_KEYS, label, required=("rx", "tx"))
         for k in ("rx", "tx"):
             known("link", i, k, v[k], label)
         if v["rx"] == v["tx"]:
@@ -581,12 +430,12 @@ def _formation(src: _Source, d: dict) -> FormationSpec | None:
     if "ranging" not in d:
         raise InputFormatError(src.path, None, "ranging", "a table [ranging] (sigma_m, the "
                                "pseudorange 1-sigma, m) in a formation scenario")
-    r = _table(src, d, "ranging")
-    _check_keys(src, "ranging", 0, r, tuple(RANGING_KEYS), "ranging.", "[ranging]")
+    r = table_of(src, d, "ranging")
+    check_keys(src, "ranging", 0, r, tuple(RANGING_KEYS), "ranging.", "[ranging]")
     if "sigma_m" not in r:
-        raise src.error("ranging", 0, None, f"a key 'sigma_m' ({_expected(RANGING_KEYS['sigma_m'])})",
+        raise src.error("ranging", 0, None, f"a key 'sigma_m' ({expected(RANGING_KEYS['sigma_m'])})",
                         label="ranging.sigma_m")
-    rv = {k: _value(src, "ranging", 0, k, r[k], RANGING_KEYS[k], f"ranging.{k}") for k in r}
+    rv = {k: check_value(src, "ranging", 0, k, r[k], RANGING_KEYS[k], f"ranging.{k}") for k in r}
     arcsec = math.pi / (180.0 * 3600.0)
     ranging = RangingSpec(
         sigma_m=rv["sigma_m"], period_s=rv.get("period_s"),
@@ -622,25 +471,25 @@ def load_scenario(name_or_path: str) -> Scenario:
 def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
     """Validate a parsed scenario TOML ``d`` (read from ``path``, source ``text`` for line
     numbers) and build the :class:`Scenario`."""
-    src = _Source(path, text)
+    src = TomlSource(path, text, _ARRAY_TABLES)
     if not d:
         raise InputFormatError(path, 1, None, "a scenario (keys " + ", ".join(TOP_KEYS)
                                + ", tables [orbit], [[sensor]], optional [truth], [prior])",
                                "an empty file")
-    _check_keys(src, None, 0, d, tuple(TOP_KEYS) + TOP_TABLES, "", "the scenario")
+    check_keys(src, None, 0, d, tuple(TOP_KEYS) + TOP_TABLES, "", "the scenario")
     for k in ("epoch", "duration_h", "step_s", "orbit", "sensor"):
         if k not in d:
             what = {"orbit": "a table [orbit]", "sensor": "at least one [[sensor]] table"}.get(
-                k, f"a key '{k}' ({_expected(TOP_KEYS.get(k, ('str',) + (None,) * 5))})")
+                k, f"a key '{k}' ({expected(TOP_KEYS.get(k, ('str',) + (None,) * 5))})")
             raise InputFormatError(path, None, k, what)
-    top = {k: _value(src, None, 0, k, d[k], TOP_KEYS[k], k) for k in TOP_KEYS if k in d}
-    orbit = _table(src, d, "orbit")
-    truth = _table(src, d, "truth")
-    prior = _table(src, d, "prior")
-    _check_keys(src, "truth", 0, truth, tuple(TRUTH_KEYS), "truth.", "[truth]")
-    _check_keys(src, "prior", 0, prior, tuple(PRIOR_KEYS), "prior.", "[prior]")
-    tv = {k: _value(src, "truth", 0, k, truth[k], TRUTH_KEYS[k], f"truth.{k}") for k in truth}
-    pv = {k: _value(src, "prior", 0, k, prior[k], PRIOR_KEYS[k], f"prior.{k}") for k in prior}
+    top = {k: check_value(src, None, 0, k, d[k], TOP_KEYS[k], k) for k in TOP_KEYS if k in d}
+    orbit = table_of(src, d, "orbit")
+    truth = table_of(src, d, "truth")
+    prior = table_of(src, d, "prior")
+    check_keys(src, "truth", 0, truth, tuple(TRUTH_KEYS), "truth.", "[truth]")
+    check_keys(src, "prior", 0, prior, tuple(PRIOR_KEYS), "prior.", "[prior]")
+    tv = {k: check_value(src, "truth", 0, k, truth[k], TRUTH_KEYS[k], f"truth.{k}") for k in truth}
+    pv = {k: check_value(src, "prior", 0, k, prior[k], PRIOR_KEYS[k], f"prior.{k}") for k in prior}
     sensors = d["sensor"]
     if not isinstance(sensors, list) or not sensors:
         raise src.error(None, 0, "sensor", "at least one [[sensor]] table (an array of tables)",

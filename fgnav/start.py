@@ -334,10 +334,13 @@ def formation_start(p: Pass, method: str, model: MotionModel, t0_j2000_s: float,
     """The start of a pass of several spacecraft (:func:`formation_guess`): batch from the
     guessed block values (at the requested process noise at once when every orbit was
     filtered, ``how="initial orbit"``; else the continuation, ``"prior"``); the online
-    methods from its first epoch, the filter with :func:`start_covariance`."""
+    methods from its first epoch with :func:`start_covariance` (the filter's first covariance,
+    the gate's first prediction; the online smoothers' where every spacecraft has prior rows)."""
     X, filtered = formation_guess(p, model, t0_j2000_s, options)
     info = {"prior": "log" if has_prior(p) else "initial_orbit", "start": ("each spacecraft's own rows"
                                       + (", the links" if p.link_fixes is not None else ""))}
-    P0 = start_covariance(p) if method == "ekf" else None
+    # the filter starts from it; iSAM2's gate predicts the first epoch's rows with it
+    with_priors = all(has_prior(spacecraft_pass(p, s)) for s in range(len(p.layout.orbits)))
+    P0 = start_covariance(p) if method == "ekf" or (method != "batch" and with_priors) else None
     return Start(p, X, X, info, how="initial orbit" if filtered else "prior", x_start=X[0],
                  P_start=P0)

@@ -182,5 +182,6 @@ def preprocess_log(log, *, first="sun"):
     t = np.concatenate([t_all[keep], ep.t_s, ep.t_s])
     X = np.concatenate([xyz[keep], ep.u_earth_eci, so3_log(ep.R_eci_from_body)])
     S = np.concatenate([sig[keep], ep.sigma_earth_rad, att_sig])
-    out = log_from_arrays(log.epoch0, t, kinds, X, S, path=f"{log.path} (Sun/Earth/Moon preprocessed)")
+    out = log_from_arrays(log.epoch0, t, kinds, X, S, path=f"{log.path} (Sun/Earth/Moon preprocessed)",
+                          centre=log.centre, schema=log.schema)
     return out, ep

@@ -224,3 +224,16 @@ def test_the_ekf_with_estimated_attitudes_ends_with_a_verdict(formation_body_hou
         assert rc == 0 and rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
     else:
         assert rc == 3 and s["integrity"]["reasons"]
+
+
+def test_a_gate_that_rejects_most_rows_is_not_an_ok_verdict(formation_hour):
+    """The verdict of a formation counts the rows its gate rejected, as one spacecraft's does
+    (more than a quarter of a family: failed): an acceptance probability of 1e-4 (a user's
+    false-alarm rate given where the acceptance probability is asked, which the command line
+    refuses) rejected all but 6 of 1,448 rows and the verdict was ok, with a relative error of
+    km. The command line's refusal names the probability meant."""
+    res, _ = smooth_file(formation_hour / "measurements.csv", "isam2",
+                         SmootherOptions(gate_probability=1e-4), truth_path=formation_hour)
+    integrity = res.summary["integrity"]
+    assert integrity["status"] == "failed", integrity
+    assert any("rejected" in r for r in integrity["reasons"]), integrity["reasons"]

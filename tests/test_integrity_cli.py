@@ -79,6 +79,7 @@ BAD_OPTIONS = [
     (["--robust", "cauchy", "--robust-k", "-1"], "--robust-k"),
     (["--method", "ekf", "--gate", "0"], "--gate"),
     (["--method", "ekf", "--gate", "1"], "--gate"),
+    (["--method", "isam2", "--gate", "1e-4"], "Did you mean 0.9999"),
     (["--method", "isam2", "--gate", "1.5"], "--gate"),
     (["--method", "ekf", "--gate", "nan"], "--gate"),
     # options the method would ignore

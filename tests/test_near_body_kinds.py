@@ -16,12 +16,13 @@ import numpy as np
 import pytest
 
 from fgnav import api
-from fgnav.errors import InputFormatError
+from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import BODIES, read_log, write_log
 from fgnav.measurements import build_pass, with_estimates
 from fgnav.models.registry import LOG_SCHEMA, MODELS
 from fgnav.scenarios import SensorSpec, load_scenario
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
+from fgnav.simulate.faults import with_rows
 from fgnav.simulate.near_bodies import simulate_near_body_rows
 from fgnav.simulate.pass_sim import chunks_to_log, simulate_pass
 from fgnav.solvers import ekf_numba
@@ -165,3 +166,26 @@ def test_body_frame_rows_wait_for_the_attitude():
     p = build_pass(sim.log)
     assert "body_direction_body" in p.deferred and "body_direction_body" not in p.families
     assert MODELS["body_direction_body"].enters(with_estimates(p, ("attitude",)).layout)
+
+
+def test_a_rebuilt_log_keeps_the_kinds_it_was_read_with(tmp_path):
+    """A log read with the models' schema carries it: a fault drawn on it
+    (:func:`fgnav.simulate.faults.with_rows`), and :func:`write_log` without a ``schema``,
+    accept the near-body kinds the format's own table does not list (before, both refused
+    them as unknown kinds), and the rebuilt log keeps the log's centre."""
+    sim = simulate_pass(_gto(1.0), seed=3)
+    chunks = simulate_near_body_rows(SensorSpec("x", body="moon", sigma_deg=1e-3),
+                                     sim.t_s[::10], sim.x_true[::10], sim.epoch0, _NoNoise(),
+                                     form="direction")
+    path = tmp_path / "moon.csv"
+    write_log(path, chunks_to_log(sim.epoch0, chunks), schema=LOG_SCHEMA)
+    log = read_log(path, schema=LOG_SCHEMA)
+    with pytest.raises(UserError, match="body_direction"):
+        read_log(path)                      # the format's own kinds: refused, by name
+    keep = np.arange(len(log)) % 2 == 0
+    sub = with_rows(log, keep=keep)
+    assert len(sub) == keep.sum() and set(np.unique(sub.kind)) == {"body_direction"}
+    assert sub.centre == log.centre and sub.schema is log.schema
+    write_log(tmp_path / "sub.csv", sub)     # the log's own schema
+    back = read_log(tmp_path / "sub.csv", schema=LOG_SCHEMA)
+    assert np.allclose(back.xyz, sub.xyz) and np.all(back.kind == sub.kind)

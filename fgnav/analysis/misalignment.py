@@ -105,7 +105,8 @@ def few_stars(log, seed: int):
         keep[rng.permutation(rows)[:n]] = True
     extra = {c: np.asarray(v)[keep] for c, v in log.extra.items()}
     return log_from_arrays(log.epoch0, np.asarray(log.t_s)[keep], np.asarray(log.kind)[keep],
-                           np.asarray(log.xyz)[keep], np.asarray(log.sigma)[keep], extra)
+                           np.asarray(log.xyz)[keep], np.asarray(log.sigma)[keep], extra,
+                           centre=log.centre, schema=log.schema)
 
 
 def _truth_block(p, sim):

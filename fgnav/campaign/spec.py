@@ -17,14 +17,14 @@ Keys (anything else is an error naming the file and the key)::
     max_sigma_deg = 0.05
 
 Every parameter is checked against the task's parameter dataclass (name, type, > 0 where
-the field says so); every reference key against the report's reference dataclass.
+the field says so); every reference key against the report's reference dataclass
+(:func:`fgnav.io.toml_schema.typed_value`, :func:`~fgnav.io.toml_schema.typed_object`: the
+one typed-TOML validator, which the scenario files use too).
 """
 
 from __future__ import annotations
 
 import itertools
-from collections import abc
-import math
 import types
 import typing
 from dataclasses import MISSING, dataclass, field, fields, replace
@@ -36,6 +36,7 @@ from fgnav.campaign.reports import REPORTS
 from fgnav.campaign.tasks import TASKS, Column, RunParams
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.text import load_toml
+from fgnav.io.toml_schema import typed_object, typed_value
 from fgnav.paths import data_dir
 from fgnav.pipeline import METHODS
 
@@ -45,100 +46,6 @@ __all__ = ["Study", "RunSpec", "load_study", "builtin_studies", "study_runs", "r
 STUDY_KEYS = ("name", "description", "task", "report", "methods", "seeds", "save_curves", "fixed",
               "grid", "reference")
 EXAMPLE = "see data/studies/seed002-noise.toml"
-
-
-# ---- typed values ----------------------------------------------------------------------
-
-def _describe(tp) -> str:
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if origin in (types.UnionType, typing.Union):
-        return " or ".join(_describe(a) for a in args if a is not type(None))
-    if origin is tuple:
-        if len(args) == 2 and args[1] is Ellipsis:
-            return f"a non-empty list of {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
-        return f"a list of {len(args)} {_describe(args[0]).removeprefix('a ').removeprefix('an ')}s"
-    if origin in (dict, abc.Mapping):
-        return f"a table of {_describe(args[1]).removeprefix('a ')} keyed by number"
-    return {float: "a number", int: "an integer", str: "a string", bool: "true or false"}[tp]
-
-
-def typed_value(path, key: str, value, tp, positive: bool = False):
-    """``value`` (as parsed from TOML) checked against the annotation ``tp`` and converted
-    (int -> float for a float, list -> tuple, table keys -> float); an
-    :class:`InputFormatError` naming ``path`` and ``key`` otherwise."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    expected = _describe(tp) + (" > 0" if positive else "")
-
-    def bad():
-        return InputFormatError(path, None, key, expected, value)
-
-    if origin in (types.UnionType, typing.Union):
-        for a in (a for a in args if a is not type(None)):
-            try:
-                return typed_value(path, key, value, a, positive)
-            except InputFormatError:
-                pass
-        raise bad()
-    if origin is tuple:
-        n = None if (len(args) == 2 and args[1] is Ellipsis) else len(args)
-        if not isinstance(value, list) or not value or (n is not None and len(value) != n):
-            raise bad()
-        return tuple(typed_value(path, f"{key}[{i}]", v, args[0], positive) for i, v in enumerate(value))
-    if origin in (dict, abc.Mapping):
-        if not isinstance(value, dict) or not value:
-            raise bad()
-        out = {}
-        for k, v in value.items():
-            try:
-                kf = float(k)
-            except ValueError:
-                raise InputFormatError(path, None, f"{key}.{k}", "a number as the key", k) from None
-            out[kf] = typed_value(path, f"{key}.{k}", v, args[1], positive)
-        return MappingProxyType(out)
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise bad()
-        return value
-    if tp is str:
-        if not isinstance(value, str) or not value:
-            raise bad()
-        return value
-    if tp in (int, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or (tp is int and not isinstance(value, int)):
-            raise bad()
-        value = tp(value)
-        if not math.isfinite(value) or (positive and not value > 0):
-            raise bad()
-        return value
-    raise TypeError(f"typed_value: unsupported annotation {tp!r}")
-
-
-def _hints(cls) -> dict:
-    return typing.get_type_hints(cls)
-
-
-def typed_object(cls, d: dict, path, prefix: str, *, defaults: dict | None = None):
-    """An instance of the frozen dataclass ``cls`` from the TOML table ``d``: every key must
-    be a field (the error names ``prefix.key`` and the fields), every field without a default
-    must be given, every value has the field's type; ``obj.problem()``, if defined, returns
-    ``None`` or ``(key, expected, found)`` for a rule across keys."""
-    hints = _hints(cls)
-    names = [f.name for f in fields(cls)]
-    kw = dict(defaults or {})
-    for k, v in d.items():
-        if k not in names:
-            raise InputFormatError(path, None, f"{prefix}{k}", f"one of the keys {tuple(names)}", k)
-        f = cls.__dataclass_fields__[k]
-        kw[k] = typed_value(path, f"{prefix}{k}", v, hints[k], f.metadata.get("positive", False))
-    for f in fields(cls):
-        if f.name not in kw and f.default is MISSING and f.default_factory is MISSING:
-            raise InputFormatError(path, None, f"{prefix}{f.name}", "this key (required)")
-    obj = cls(**kw)
-    problem = obj.problem() if hasattr(obj, "problem") else None  # a rule across keys
-    if problem is not None:
-        key, expected, found = problem
-        raise InputFormatError(path, None, f"{prefix}{key}", expected, found)
-    return obj
 
 
 def _scalar_type(tp) -> type:
@@ -196,7 +103,7 @@ def run_columns(task: str, grid_keys: tuple[str, ...], with_method: bool) -> tup
     """``run_id, status, error``, the swept parameters, ``method``, ``seed``, the task's
     result columns, then ``run_s`` and ``worker`` (execution)."""
     t = TASKS[task]
-    hints = _hints(t.params)
+    hints = typing.get_type_hints(t.params)
     params = [Column(k, _scalar_type(hints[k])) for k in grid_keys]
     params += [Column("method", str)] * with_method + [Column("seed", int)]
     names = {c.name for c in t.columns}
@@ -288,7 +195,7 @@ def study_from_dict(d: dict, path) -> Study:
     for key, table in (("fixed", fixed_d), ("grid", grid_d)):
         if not isinstance(table, dict):
             raise InputFormatError(path, None, key, "a table of parameters", table)
-    hints = _hints(task.params)
+    hints = typing.get_type_hints(task.params)
     pfields = {f.name: f for f in fields(task.params) if f.name not in ("seed", "method")}
 
     def param(prefix, key, v):

@@ -241,7 +241,8 @@ def visibility(p: VisibilityParams):
     row["n_epochs_ring"], row["position_rms_ring_m"], row["final_position_ring_m"] = 0, float("nan"), float("nan")
     if keep.sum() > prior.sum():
         sub = log_from_arrays(log.epoch0, log.t_s[keep], log.kind[keep], log.xyz[keep], log.sigma[keep],
-                              {k: v[keep] for k, v in (log.extra or {}).items()})
+                              {k: v[keep] for k, v in (log.extra or {}).items()},
+                              centre=log.centre, schema=log.schema)
         try:
             row["n_epochs_ring"], row["position_rms_ring_m"], row["final_position_ring_m"] = metrics(sub)
             row["ring_status"] = "ok"

@@ -215,10 +215,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
             reasons.append((sev, f"{kind}: chi2/dof = {test['normalized']:.3g} over {test['dof']} "
                                  f"components (expected ~1)", "outliers"))
         if test["rejected_fraction"] > MAX_REJECTED_FRACTION:
-            reasons.append(("failed", f"{kind}: {n_rej} of {len(fam)} measurements rejected "
-                                      f"({100 * test['rejected_fraction']:.0f} % > "
-                                      f"{100 * MAX_REJECTED_FRACTION:.0f} %): the answer is not "
-                                      f"the data's", "rejected"))
+            reasons.append(("failed", rejected_reason(kind, test), "rejected"))
         elif n_rej:
             notes.append(f"{kind}: {n_rej} of {len(fam)} measurements rejected as outliers")
         run = largest_run(p.t_s[fam.k][keep], r[keep])
@@ -384,6 +381,8 @@ def _joint_assess(sol, p) -> dict:
         tests[kind] = test
         worse(test["status"], f"{kind}: chi2/dof {test['normalized']:.3g} over {test['dof']} "
               f"components (p = 1e{test['log10_p']:.0f})", "outliers")
+        if test["rejected_fraction"] > MAX_REJECTED_FRACTION:   # (a gate, a robust kernel)
+            worse("failed", rejected_reason(kind, test), "rejected")
     if "chi2_motion" in sol.extras:   # (a filter has no process residuals)
         motion = _chi2_test(float(sol.extras["chi2_motion"]), max(p.n_epochs - 1, 1) * p.layout.n)
         motion["status"] = _severity(motion)
@@ -426,6 +425,15 @@ def _joint_assess(sol, p) -> dict:
         worse("failed", "non-finite states or covariances", None)
     return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
             "false_alarm_probability": FALSE_ALARM_PROBABILITY}
+
+
+def rejected_reason(kind: str, test: dict) -> str:
+    """The reason of a family whose rows were mostly rejected (more than
+    :data:`MAX_REJECTED_FRACTION`, by the gate or a robust kernel): its answer is not the
+    data's, whatever the chi-square of the rows kept says."""
+    return (f"{kind}: {test['rejected']} of {test['rows']} measurements rejected "
+            f"({100 * test['rejected_fraction']:.0f} % > {100 * MAX_REJECTED_FRACTION:.0f} %): "
+            f"the answer is not the data's")
 
 
 def _family_test(r: np.ndarray, w) -> tuple[dict, np.ndarray]:

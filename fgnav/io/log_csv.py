@@ -488,7 +488,9 @@ class MeasurementLog:
     and ``tx_spacecraft`` columns index, ``antenna_names`` the antenna names the antenna
     columns' codes index, ``antennas`` the lever arms (3,), m, body frame, by
     (spacecraft id, antenna name) (:mod:`fgnav.io.log_spacecraft`); ``centre`` the central
-    body of every position (:data:`CENTRES`; the ``# centre:`` line).
+    body of every position (:data:`CENTRES`; the ``# centre:`` line); ``schema`` the kinds
+    it was read or built with (``{kind: KindSpec}``; None: :data:`FORMAT_KINDS`), which a
+    log rebuilt from it (a subset, a fault, a preprocessing) and :func:`write_log` reuse.
     """
 
     path: Any
@@ -505,6 +507,7 @@ class MeasurementLog:
     antenna_names: tuple[str, ...] = ()
     antennas: dict = field(default_factory=dict)
     centre: str = "earth"
+    schema: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def n_spacecraft(self) -> int:
@@ -881,7 +884,7 @@ def _parse_log_bytes(path, data: bytes, on_bad_row: str, schema=None) -> Measure
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
         line=line_arr, warnings=warnings, dropped=dropped, spacecraft=spacecraft,
         antenna_names=antenna_names, antennas=antennas,
-        centre=centre or "earth")
+        centre=centre or "earth", schema=schema)
 
 
 def _check_centre_kinds(centre, kind_arr, error, schema=None):
@@ -1307,7 +1310,8 @@ def log_from_arrays(epoch0, t_s, kind, xyz, sigma, extra=None, *,
         sigma=V[:, 3].copy(), extra={c: V[:, 4 + j].copy() for j, c in enumerate(EXTRA_COLUMNS)},
         line=line, warnings=warnings, dropped={},
         spacecraft=tuple(names["spacecraft"]) if any(c in extra for c in SPACECRAFT_COLUMNS)
-        else (), antenna_names=tuple(names["antenna"]), antennas=antennas, centre=centre)
+        else (), antenna_names=tuple(names["antenna"]), antennas=antennas, centre=centre,
+        schema=schema)
 
 
 def _fmt(v: float, column: str = "", names=None) -> str:
@@ -1326,9 +1330,11 @@ def write_log(path, log: MeasurementLog, *, comments=(), schema=None) -> None:
     """Write ``log`` to ``path`` (CSV v1) atomically; rows in the log's order.
 
     The extra columns are written only when some row uses them. Each row is validated
-    first, by its kind's row of ``schema`` (:func:`read_log`): a log that cannot be read
-    back is never written.
+    first, by its kind's row of ``schema`` (:func:`read_log`; default the log's own
+    schema): a log that cannot be read back is never written.
     """
+    if schema is None:
+        schema = log.schema
     M = len(log.t_s)
     kind = np.asarray(log.kind).astype(str)
     xyz = np.asarray(log.xyz, dtype=float)

@@ -407,8 +407,8 @@ def clock_variable(a: str, b: str, index: int) -> Variable:
 
 def ambiguity_variable(name: str, index: int) -> Variable:
     """The float carrier-phase ambiguity (m) of one link, constant while the link stays
-    locked (as :mod:`fgnav.formation.smoother` treats it; a constant is a random walk of
-    zero ``psd``, Maybeck 1979, sec. 4.10)."""
+    locked (Xing et al.'s float ambiguity; a constant is a random walk of zero ``psd``,
+    Maybeck 1979, sec. 4.10)."""
     return Variable(f"ambiguity_{name}", "n", 1, "m", components=(f"ambiguity_{name}_m",),
                     psd=0.0, prior_sigma=AMBIGUITY_PRIOR_SIGMA_M, index=index,
                     description=f"carrier-phase ambiguity of link {name}, m (constant)")

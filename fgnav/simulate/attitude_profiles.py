@@ -76,4 +76,5 @@ def with_attitude_truth(log, t_truth, x_truth, R_true, rng, *, attitude_every=1,
     extra = {c: np.concatenate([np.asarray(v)[keep], np.full(n_new, np.nan)])
              for c, v in (log.extra or {}).items()} or None
     return log_from_arrays(log.epoch0, np.concatenate(t), np.concatenate(kinds),
-                           np.concatenate(xyz), np.concatenate(sig), extra)
+                           np.concatenate(xyz), np.concatenate(sig), extra,
+                           centre=log.centre, schema=log.schema)

@@ -35,7 +35,7 @@ def with_rows(log, *, xyz=None, sigma=None, keep=None, t_s=None):
     keep = np.ones(len(t), bool) if keep is None else keep
     extra = None if log.extra is None else {k: v[keep] for k, v in log.extra.items()} or None
     return log_from_arrays(log.epoch0, t[keep], np.asarray(log.kind)[keep], xyz[keep],
-                           sigma[keep], extra)
+                           sigma[keep], extra, centre=log.centre, schema=log.schema)
 
 
 def _direction_rows(fraction, seed, salt, opts):

@@ -289,4 +289,5 @@ def ideal_log_like(log, epoch0, t_truth_s: np.ndarray, x_truth: np.ndarray, seed
     other = set(np.unique(log.kind)) - {EARTH_DIRECTION.kind, LIMB_RADIUS.kind, *prior_kinds()}
     if other:
         raise UserError(f"ideal_log_like: kinds {sorted(other)} are not supported")
-    return log_from_arrays(log.epoch0, log.t_s, log.kind, xyz, log.sigma, path="<ideal>")
+    return log_from_arrays(log.epoch0, log.t_s, log.kind, xyz, log.sigma, path="<ideal>",
+                           centre=log.centre, schema=log.schema)

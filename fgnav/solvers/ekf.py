@@ -4,14 +4,15 @@ Prediction with the motion model's propagation and STM and the white-acceleratio
 process noise, ``P <- Phi P Phi^T + Q(dt)``; update with the same whitened measurement rows
 the smoothers use (the measurement models, ``fgnav.graph.linearize_family``): with whitened
 rows ``A dx ~ b`` the measurement noise is the identity, ``K = P A^T (A P A^T + I)^-1``,
-Joseph-form covariance. Graph variables beyond the orbit state (a bias, an attitude) augment
-the state, their prior is the initial covariance; a rotation's error is its right
-perturbation ``R = R_hat Exp(delta)`` (the multiplicative EKF: Markley 2003, "Attitude error
-representations for Kalman filtering", JGCD 26(2)). Between epochs they follow their process
-model (a random walk, Maybeck 1979, vol. 1, sec. 4.10: mean held, variance ``+ psd dt``) and
-the rows between two epochs (a rate-gyro interval), see :func:`propagate_variables`: the
-gyro propagates the attitude ``R_k = R_{k-1} Exp((omega - b) dt)``, its noise the process
-noise, its bias part of the state.
+Joseph-form covariance (both steps: :mod:`fgnav.solvers.kalman`). Graph variables beyond
+the orbit state (a bias, an attitude) augment the state, their prior is the initial
+covariance; a rotation's error is its right perturbation ``R = R_hat Exp(delta)`` (the
+multiplicative EKF: Markley 2003, "Attitude error representations for Kalman filtering",
+JGCD 26(2)). Between epochs they follow their process model (a random walk, Maybeck 1979,
+vol. 1, sec. 4.10: mean held, variance ``+ psd dt``) and the rows between two epochs (a
+rate-gyro interval), see :func:`propagate_variables`: the gyro propagates the attitude
+``R_k = R_{k-1} Exp((omega - b) dt)``, its noise the process noise, its bias part of the
+state.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import time
 
 import numpy as np
 
-from factors.dynamics import process_noise, propagate
+from factors.dynamics import propagate
 from factors.errors import ModelDomainError
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.errors import UserError
@@ -31,6 +32,7 @@ from fgnav.models.registry import model as model_of
 from fgnav.robust import passes_gate
 from fgnav.solution import Solution
 from fgnav.iod.prior import first_state
+from fgnav.solvers.kalman import kalman_update, orbit_transition, predict_covariance
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.state_elements import chart_of
 from fgnav.solvers.variables import block_variables
@@ -73,8 +75,12 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))
     latency = np.empty(N)
-    eye_n = np.eye(n)
     x_prev = x
+
+    def retract(x, dx):   # an update in the filter's coordinates applied to the block
+        dx = dx if T is None else T_inv @ dx
+        return lay.retract(x, dx) if chart is None else chart.retract(lay, x, dx)
+
     residuals: dict[str, np.ndarray] = {}  # innovations, whitened, in family row order
     rejected: dict[str, int] = {}
     weights: dict[str, np.ndarray] = {}  # kind -> (M,) 0 where the gate rejected the row
@@ -84,15 +90,15 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
         if k > 0:
             dt = p.t_s[k] - p.t_s[k - 1]
             x = x.copy()
-            x[:6], Phi6 = propagate(x[:6], dt, model, t0_j2000 + p.t_s[k - 1])
-            Q6 = process_noise(dt, options.q_m2_s3)
+            x[:6], Phi6, Q6 = orbit_transition(x[:6], dt, options.q_m2_s3, model,
+                                               t0_j2000 + p.t_s[k - 1])
             if chart is not None:
                 Phi6, Q6 = chart.transition(x_prev[:6], x[:6], Phi6, Q6)
             if len(lay.orbits) > 1:   # a formation: every orbit, the clocks, the ambiguities
                 x, F, Q = _propagate_formation(lay, x, Phi6, Q6, dt, model,
                                                t0_j2000 + p.t_s[k - 1])
                 F = T @ F @ T_inv
-                P = F @ P @ F.T + T @ Q @ T.T
+                P = predict_covariance(P, F, T @ Q @ T.T)
             elif lay.extra:
                 rows_k = [(kind, rows) for kind, rows in per_epoch[k] if kind in between]
                 x, P, r_between = propagate_variables(p, lay, x_prev, x, P, Phi6, Q6, dt, rows_k)
@@ -101,7 +107,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                         residuals[kind] = np.full((len(p.families[kind]), r.shape[1]), np.nan)
                     residuals[kind][j] = r
             else:
-                P = Phi6 @ P @ Phi6.T + Q6
+                P = predict_covariance(P, Phi6, Q6)
         for kind, rows in per_epoch[k]:
             if not enters(p, kind) or kind in between:
                 continue   # (rows between two epochs: in the propagation above)
@@ -127,19 +133,15 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                         weights.setdefault(kind, np.ones(len(fam)))[j] = 0.0
                         continue
                 else:
-                    S = A @ P @ A.T + np.eye(len(b))
-                if kind not in normalized:
-                    normalized[kind] = np.full((len(fam), len(b)), np.nan)
-                normalized[kind][j] = np.linalg.solve(np.linalg.cholesky(S), b)
-                K = np.linalg.solve(S, A @ P).T
-                dx = K @ b if T is None else T_inv @ (K @ b)
+                    S = None
                 try:
-                    x = lay.retract(x, dx) if chart is None else chart.retract(lay, x, dx)
+                    x, P, nu = kalman_update(x, P, A, b, S=S, retract=retract)
                 except ModelDomainError as exc:   # the element chart's (--state elements)
                     raise ModelDomainError(f"{kind} row at log line {int(fam.line[j])}: "
                                            f"{exc}") from exc
-                IKA = eye_n - K @ A
-                P = IKA @ P @ IKA.T + K @ K.T
+                if kind not in normalized:
+                    normalized[kind] = np.full((len(fam), len(b)), np.nan)
+                normalized[kind][j] = nu
         xs[k] = x
         Ps[k] = P if chart is None else chart.covariance_to_cartesian(x, P)
         if T is not None:
@@ -268,11 +270,7 @@ def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iteratio
     R1, S, d = R[:m, :m], R[:m, m:m + n], R[:m, -1]
     Ac, dc = R[m:, m:m + n], R[m:, -1]
     if len(dc) and np.any(Ac):                         # rows on epoch k - 1 alone
-        Sc = Ac @ P0 @ Ac.T + np.eye(len(dc))
-        K = np.linalg.solve(Sc, Ac @ P0).T
-        d0 = K @ dc
-        IKA = np.eye(n) - K @ Ac
-        P0 = IKA @ P0 @ IKA.T + K @ K.T
+        d0, P0, _ = kalman_update(np.zeros(n), P0, Ac, dc)
     else:
         d0 = np.zeros(n)
     F = np.zeros((n, n))
@@ -285,5 +283,5 @@ def propagate_variables(p: Pass, lay, x0, x1, P0, Phi6, Q6, dt, rows_k, iteratio
     dx1 = F @ d0
     dx1[6:] += R1inv @ d
     x1 = lay.retract(x1, dx1)
-    P1 = F @ P0 @ F.T + Q
+    P1 = predict_covariance(P0, F, Q)
     return x1, 0.5 * (P1 + P1.T), res

@@ -147,7 +147,8 @@ def isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
 def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                        inc: IncrementalOptions = IncrementalOptions(), *, method: str = "isam2",
                        progress=None, checkpoint: str | None = None, checkpoint_every: int = 100,
-                       resume: bool = False, x_start: np.ndarray | None = None) -> Solution:
+                       resume: bool = False, x_start: np.ndarray | None = None,
+                       P_start: np.ndarray | None = None) -> Solution:
     """Run iSAM2 (``method="isam2"``) or the fixed-lag smoother (``"fixed-lag"``) over a pass.
 
     ``checkpoint``: a file (.npz) written atomically every ``checkpoint_every`` epochs with
@@ -160,7 +161,10 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     are those of the resumed run.
 
     ``x_start``: the block values (n,) to start from at the first epoch (a formation's: every
-    spacecraft's orbit, :func:`fgnav.start.formation_start`); default the prior.
+    spacecraft's orbit, :func:`fgnav.start.formation_start`); default the prior. ``P_start``
+    (n, n): their covariance, which the gate (``options.gate_probability``) predicts the first
+    epoch's rows with (default: the prior rows' for the first orbit, each further variable's
+    prior).
     """
     t_start = time.perf_counter()
     model = options.motion_model()
@@ -269,12 +273,15 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             values = gtsam.Values()
             dt = p.t_s[k] - p.t_s[k - 1] if k > 0 else 0.0
             guess = x_prev.copy()
+            Phis = []
             if k > 0:
                 guess[:6], Phi_k = propagate(x_prev[:6], dt, model, t0_j2000 + p.t_s[k - 1])
-                for v in lay.orbits[1:]:   # a formation's further spacecraft
+                Phis.append(Phi_k)
+                for v in lay.orbits[1:]:   # a formation's further spacecraft (the gate: STMs)
                     sl = lay.slices[v.name]
-                    guess[sl] = propagate(x_prev[sl], dt, model, t0_j2000 + p.t_s[k - 1],
-                                          with_stm=False)[0]
+                    guess[sl], Phi_v = propagate(x_prev[sl], dt, model, t0_j2000 + p.t_s[k - 1],
+                                                 with_stm=gate is not None)
+                    Phis.append(Phi_v)
             if k > 0:   # the further variables' means carried on (a rate turns the attitude)
                 process_predict(lay, x_prev, guess, dt)
             for i, v in enumerate(lay.extra):
@@ -285,7 +292,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                 graph.add(f)
             if gate is not None:   # [state, covariance] updated by each family's kept rows
                 gated = [guess.copy(), _predicted_covariance(
-                    p, lay, k, Phi_k if k else None, online_P, online_V, dt, options.q_m2_s3)]
+                    p, lay, k, Phis, online_P, online_V, dt, options.q_m2_s3, P_start)]
             add_epoch_factors(graph, k, guess, kept_only=False)
             _insert_block(values, lay, k, guess)
             try:
@@ -649,28 +656,33 @@ def _load_checkpoint(path, fingerprint, online_x, online_P, latency, rejected_ro
     return k, arrays["x_est"], rows
 
 
-def _predicted_covariance(p, lay, k, Phi_k, online_P, online_V, dt, q):
+def _predicted_covariance(p, lay, k, Phis, online_P, online_V, dt, q, P_start=None):
     """The covariance of epoch ``k``'s block predicted from the online estimate of ``k - 1``
     (for the gate): orbit ``Phi P Phi^T + Q``. With further variables, from their joint
     online marginal with the orbit at ``k - 1`` (``online_V``; a bias and the radial
     position are strongly correlated, so their separate marginals would overstate the
     spread of the tangent height they predict) plus each one's random-walk step
-    ``psd dt``; at the first epoch their priors."""
+    ``psd dt``, each further orbit (a formation's) by its own ``Phis`` (the orbits' state
+    transition matrices, in the layout's order) and ``Q``; at the first epoch ``P_start``
+    when given (every spacecraft's prior rows), else the prior rows' and their priors."""
+    if k == 0 and P_start is not None:
+        return np.array(P_start, dtype=float)
     P = np.zeros((lay.n, lay.n))
     if k == 0 or not lay.extra:
         P[:6, :6] = (prior_covariance(p) if k == 0 else
-                     Phi_k @ online_P[k - 1] @ Phi_k.T + process_noise(dt, q))
+                     Phis[0] @ online_P[k - 1] @ Phis[0].T + process_noise(dt, q))
         for v in lay.extra:
             sl = lay.slices[v.name]
             P[sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
         return P
     F = np.eye(lay.n)
-    F[:6, :6] = Phi_k
+    for v, Phi in zip(lay.orbits, Phis):
+        F[lay.slices[v.name], lay.slices[v.name]] = Phi
     P = F @ online_V[k - 1] @ F.T
-    P[:6, :6] += process_noise(dt, q)
-    for v in lay.extra:
+    Q = process_noise(dt, q)
+    for v in lay.variables:
         sl = lay.slices[v.name]
-        P[sl, sl] += np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
+        P[sl, sl] += Q if v.orbit else np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
     return P
 
 
