@@ -210,7 +210,7 @@ def _tested_geometry(p: Pass, sol: Solution, method: str, options: SmootherOptio
     sol.extras["batch_agreement"] = batch_agreement_test(p, sol, batch[0])
     better = [m for m in minima if m[0] < test["chi2"] - MIRROR_MARGIN_CHI2]
     if method == "batch" and better:
-        chi2_best, geometry, X = min(better, key=lambda m: m[0])
+        _, geometry, X = min(better, key=lambda m: m[0])
         again = smooth_batch(p, replace(options, q_start_m2_s3=options.q_m2_s3), x_init=X)
         if again.extras.get("converged") and again.chi2 < sol.chi2 - MIRROR_MARGIN_CHI2:
             again.iterations += sol.iterations
