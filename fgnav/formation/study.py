@@ -28,7 +28,7 @@ from fgnav.errors import UserError
 from fgnav.io.log_spacecraft import spacecraft_index
 from fgnav.formation.relative_motion import (chief_circular_state, circular_relative_orbit,
                                              mean_motion)
-from fgnav.frames import (deputy_from_relative_lvlh, relative_covariance, relative_position_body,
+from fgnav.frames import (deputy_from_relative_lvlh, relative_position_body,
                           relative_state_lvlh)
 from fgnav.iod.single_epoch import (
     PARAMS, conditioning, design_matrix, from_param, solve_single_epoch, solve_single_epoch_many,
