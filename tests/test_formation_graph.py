@@ -48,6 +48,17 @@ def test_joint_graph_without_links_is_the_separate_solutions():
                                    rtol=1e-6)
 
 
+def _ok_but_for_the_curvature(integrity: dict) -> bool:
+    """The verdict is ok, or suspect for the range curvature alone: centre-of-mass links on
+    this 30 min pass leave 6.6 m of relative sigma across a 1.08 km line of sight, which bend
+    the range 2 cm, 7.8 times its 2.6 mm sigma along it (the Cartesian NEES of ~20 below;
+    fgnav.diagnostics.mirror.range_curvature_test says so)."""
+    tests = integrity["tests"]
+    return integrity["status"] == "ok" or (
+        integrity["status"] == "suspect" and tests["range_curvature"]["status"] == "suspect"
+        and all("covariance (linear) understates" in r for r in integrity["reasons"]))
+
+
 def test_links_give_the_relative_state_consistently_over_seeds():
     """Pseudoranges (1 cm) shrink the relative error from hundreds of metres (celestial alone)
     to metres, with a relative position NEES in range, azimuth and elevation (3 dof, the pass
@@ -61,7 +72,7 @@ def test_links_give_the_relative_state_consistently_over_seeds():
         rms_alone.append(_relative_errors(*smooth_log(log, "batch", SmootherOptions()), truth)[0])
         log, truth = formation_log(seed)
         res, p = smooth_log(log, "batch", SmootherOptions())
-        assert res.summary["integrity"]["status"] == "ok"
+        assert _ok_but_for_the_curvature(res.summary["integrity"])
         r, n = _relative_errors(res, p, truth)
         rms_links.append(r)
         nees.append(n)
@@ -80,7 +91,7 @@ def test_lever_arms_with_attitude_rows_match_the_centre_of_mass_case():
     relative accuracy as centre-of-mass links (the lever arms are modelled, not ignored)."""
     log, truth = formation_log(2, lever_arms=True)
     res, p = smooth_log(log, "batch", SmootherOptions())
-    assert res.summary["integrity"]["status"] == "ok"
+    assert _ok_but_for_the_curvature(res.summary["integrity"])
     log0, _ = formation_log(2)
     res0, p0 = smooth_log(log0, "batch", SmootherOptions())
     assert abs(_relative_errors(res, p, truth)[0] - _relative_errors(res0, p0, truth)[0]) < 1.0
