@@ -189,12 +189,11 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
                         "the Earth in this version")
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(
-            f"--state {options.state}: a log of several spacecraft is solved in Cartesian "
-            "states: the element chart (fgnav.solvers.state_elements) parameterizes one orbit, "
-            "the block's first six columns, and its motion rows, not each spacecraft's orbit; "
-            "and the links fix the separation (cm on 1 km), a difference of two element sets "
-            "each known to the km, where the elements' curved steps bring nothing: the batch "
-            "minimum is the same in either chart (docs/elements.md). Use --state cartesian")
+            f"--state {options.state}: not yet available for a log of several spacecraft: the "
+            "element chart (fgnav.solvers.state_elements) maps the block's first six columns, "
+            "not each spacecraft's orbit, and the formation EKF filters relative Cartesian "
+            "states; the batch minimum is the same in either chart (docs/elements.md): use "
+            "--state cartesian")
 
 
 def _dispatch(start, method: str, options: SmootherOptions, *, lag_s, progress, checkpoint,
