@@ -190,12 +190,11 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
     check_formation_estimates(options.estimate)
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(
-            f"--state {options.state}: a log of several spacecraft is solved in Cartesian "
-            "states: the element chart (fgnav.solvers.state_elements) parameterizes one orbit, "
-            "the block's first six columns, and its motion rows, not each spacecraft's orbit; "
-            "and the links fix the separation (cm on 1 km), a difference of two element sets "
-            "each known to the km, where the elements' curved steps bring nothing: the batch "
-            "minimum is the same in either chart (docs/elements.md). Use --state cartesian")
+            f"--state {options.state}: not yet available for a log of several spacecraft: the "
+            "element chart (fgnav.solvers.state_elements) maps the block's first six columns, "
+            "not each spacecraft's orbit, and the formation EKF filters relative Cartesian "
+            "states; the batch minimum is the same in either chart (docs/elements.md): use "
+            "--state cartesian")
 
 
 def _tested_geometry(p: Pass, sol: Solution, method: str, options: SmootherOptions) -> Solution:
@@ -596,25 +595,26 @@ def read_truth_variables(truth_path: str | Path, p: Pass, estimate=()) -> dict:
 
 
 def read_formation_truth_variables(truth: str | Path, p: Pass) -> dict:
-    """Each spacecraft's true attitude where it is estimated, from ``truth_attitude-<id>.csv``
-    beside its ``truth-<id>.oem`` (``fgnav simulate --body-frame`` writes them), as
-    :func:`read_truth_variables` reads one spacecraft's; spacecraft without a file are left
-    out."""
+    """Each spacecraft's true further variables where they are estimated (its attitude, its
+    gyro bias), from ``truth_<variable>-<id>.csv`` beside its ``truth-<id>.oem`` (``fgnav
+    simulate --body-frame`` and ``--gyro`` write them), as :func:`read_truth_variables` reads
+    one spacecraft's; spacecraft without a file are left out."""
     out = {}
-    for s, sc in enumerate(p.spacecraft):
-        v = spacecraft_variable(ATTITUDE_VARIABLE, s, sc)
-        path = truth_path_of(truth, sc).parent / f"truth_{ATTITUDE_VARIABLE.name}-{sc}.csv"
-        if not p.layout.has(v.name) or not path.exists():
-            continue
-        epochs, cols = read_truth_params_csv(path)
-        missing = [c for c in ATTITUDE_VARIABLE.components if c not in cols]
-        if missing:
-            raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
-        t = np.asarray(seconds_since(epochs, p.epoch0), dtype=float)
-        if t[0] > p.t_s[0] + 1e-6 or t[-1] < p.t_s[-1] - 1e-6:
-            raise UserError(f"{path}: does not cover the log's epochs ({t[0]:.1f}..{t[-1]:.1f} s "
-                            f"vs {p.t_s[0]:.1f}..{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
-        out[v.name] = (t, np.column_stack([cols[c] for c in ATTITUDE_VARIABLE.components]))
+    for u in PER_SPACECRAFT:
+        for s, sc in enumerate(p.spacecraft):
+            v = spacecraft_variable(u, s, sc)
+            path = truth_path_of(truth, sc).parent / f"truth_{u.name}-{sc}.csv"
+            if not p.layout.has(v.name) or not path.exists():
+                continue
+            epochs, cols = read_truth_params_csv(path)
+            missing = [c for c in u.components if c not in cols]
+            if missing:
+                raise UserError(f"{path}: expected the column(s) {', '.join(missing)}")
+            t = np.asarray(seconds_since(epochs, p.epoch0), dtype=float)
+            if t[0] > p.t_s[0] + 1e-6 or t[-1] < p.t_s[-1] - 1e-6:
+                raise UserError(f"{path}: does not cover the log's epochs ({t[0]:.1f}..{t[-1]:.1f}"
+                                f" s vs {p.t_s[0]:.1f}..{p.t_s[-1]:.1f} s from {p.epoch0}Z)")
+            out[v.name] = (t, np.column_stack([cols[c] for c in u.components]))
     return out
 
 

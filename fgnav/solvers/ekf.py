@@ -121,6 +121,11 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     if between and not lay.extra:
         raise UserError(f"{p.source}: {', '.join(sorted(between))} rows join two epochs through "
                         f"further variables, and none is estimated")
+    if between and len(lay.orbits) > 1:   # (_propagate_formation takes no rows)
+        raise UserError(f"{p.source}: {', '.join(sorted(between))} rows with --method ekf on a "
+                        f"log of several spacecraft: the formation filter's time update does "
+                        f"not yet take rows between two epochs (they would be left out); use "
+                        f"--method batch, isam2 or fixed-lag")
     if x_start is not None:
         x, P = np.array(x_start, dtype=float), np.array(P_start, dtype=float)
     else:
