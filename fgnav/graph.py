@@ -18,7 +18,8 @@ them equal):
   (:func:`impulses`);
 * the further variables' process (``Variable.process``: random walk, constant rate):
   :func:`process_rows` / :func:`process_factors` (:func:`step_rows`: both families' rows of
-  every step, as the batch solver stacks them);
+  every step, as the batch solver stacks them; :func:`step_factors`: both families' factors
+  of one step, as the incremental solvers add them);
 * the further variables' priors at the first epoch (``Variable.prior_rows``):
   :func:`prior_rows` / :func:`prior_factors`, and a filter's initial covariance
   :func:`prior_block_covariance`.
@@ -375,6 +376,18 @@ def motion_factors(lay, k: int, dt: float, q: float, model: MotionModel,
     return [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s,
                                impulse=impulse if i == 0 else None)
             for i, v in enumerate(lay.orbits)]
+
+
+def step_factors(lay, k: int, dt: float, q: float, model: MotionModel,
+                 t0_j2000_s: float, impulse=None) -> list:
+    """The GTSAM factors from epoch ``k - 1`` to ``k`` (``dt`` s from ``t0_j2000_s``): every
+    orbit's :func:`motion_factors` (with the step's declared ``impulse``, :func:`impulses`)
+    and the further variables' :func:`process_factors` (the factors of :func:`step_rows`'s
+    rows); at ``k = 0`` the further variables' :func:`prior_factors`."""
+    if k == 0:
+        return prior_factors(lay)
+    return (motion_factors(lay, k, dt, q, model, t0_j2000_s, impulse=impulse)
+            + process_factors(lay, k, dt))
 
 
 def step_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,

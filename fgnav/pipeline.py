@@ -612,10 +612,15 @@ def read_measurements(path: str | Path, estimate=()):
         raise UserError(f"{path}: no such file")
     if path.suffix.lower() in (".tdm", ".kvn"):
         return read_tdm(path)
-    log = read_log(path, schema=LOG_SCHEMA)
+    return scheme_preprocessed(read_log(path, schema=LOG_SCHEMA), estimate)
+
+
+def scheme_preprocessed(log, estimate=()):
+    """The log as the smoothers read it: body-frame Sun and Moon directions through the
+    INS/CNS lecture's scheme (TRIAD attitude from the Sun and Moon, Earth direction to ECI:
+    :func:`fgnav.sun_earth_moon.preprocess_log`) unless the attitude is among the variables
+    to ``estimate`` (then the raw rows stay, factors on (orbit, attitude))."""
     if uses_scheme(log) and ATTITUDE_VARIABLE.name not in {variable(n).name for n in estimate}:
-        # The INS/CNS lecture's scheme: TRIAD attitude from the Sun and Moon, Earth direction to
-        # ECI.
         log = preprocess_log(log)[0]
     return log
 

@@ -219,11 +219,12 @@ def test_batch_and_isam2_routes_agree_between_epochs():
 def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
     """The attitude's constant-rate motion (``--attitude-motion constant-rate``): the batch
     route's process rows (``fgnav.solvers.batch.process_blocks``) and the iSAM2 factors of
-    the step (``fgnav.solvers.incremental._process_factors``) give the same whitened blocks
+    the step (``fgnav.graph.step_factors``) give the same whitened blocks
     on the attitude and its rate, at a block off the truth."""
     from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE
     from fgnav.solvers.batch import process_blocks
-    from fgnav.solvers.incremental import _insert_block, _process_factors
+    from fgnav.graph import step_factors
+    from fgnav.solvers.incremental import _insert_block
     from fgnav.solvers.options import SmootherOptions
 
     log, t, x = F.clean("refraction-leo", duration_h=0.1, **CASES["attitude"][1])
@@ -244,7 +245,7 @@ def test_batch_and_isam2_routes_agree_on_the_constant_rate_motion():
         for kk in (k - 1, k):
             _insert_block(values, lay, kk, X_eval[kk])
         dt = p.t_s[k] - p.t_s[k - 1]
-        facs = [f for f in _process_factors(lay, k, dt, opts.q_m2_s3, model, 0.0)
+        facs = [f for f in step_factors(lay, k, dt, opts.q_m2_s3, model, 0.0)
                 if ATTITUDE_RATE.key(k) in f.keys()]
         assert len(facs) == 1                        # one factor joins attitude and rate
         A0, A1, b_i = _two_epoch_blocks(facs[0].linearize(values), lay, k)

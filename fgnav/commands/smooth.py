@@ -320,8 +320,8 @@ def run(args) -> int:
     import json
 
     from fgnav.io.outputs import check_output_paths
-    from fgnav.pipeline import read_measurements, smooth_file
-    from fgnav.results import residual_times, write_outputs
+    from fgnav.pipeline import smooth_file
+    from fgnav.results import write_outputs
 
     # Every option and output path before any solving (the truth in smooth_file).
     resolve_attitude_option(args)
@@ -357,17 +357,9 @@ def run(args) -> int:
         for note in p.warnings:
             if "gap" in note:
                 print(f"fgnav: note: {note}", file=sys.stderr)
-    if args.rerun and p.spacecraft:   # a formation: every orbit, the links, LVLH
-        from fgnav.viz.rerun_log import log_formation_result
-        log_formation_result(args.rerun, res, p, truth=args.truth)
-    elif args.rerun:
-        from fgnav.models.registry import ATTITUDE_VARIABLE
-        from fgnav.viz.rerun_log import log_solution, read_truth_attitude
-        truth_R = (read_truth_attitude(args.truth, res.solution.epoch0, res.solution.t_s)
-                   if args.truth and ATTITUDE_VARIABLE.name in res.solution.variables else None)
-        log_solution(args.rerun, res.solution, truth_x_eci=res.x_true,
-                     measurements=read_measurements(args.log), residual_t_s=residual_times(res, p),
-                     truth_attitude_R=truth_R)
+    if args.rerun:   # (a formation's: every orbit, the links, LVLH)
+        from fgnav.viz.rerun_log import log_result
+        log_result(args.rerun, res, p, log_path=args.log, truth=args.truth)
     integrity = res.summary["integrity"]
     if not args.quiet:
         keys = ["method", "epochs", "iterations", "wall_s", "crb_position_rms_m", "position_rms_m",

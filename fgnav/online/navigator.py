@@ -11,7 +11,8 @@ The newest state comes from a bounded engine:
   the online route does not use it; its QR factorization as in
   :mod:`fgnav.solvers.incremental`;
 - ``ekf``: the extended Kalman filter step of :func:`fgnav.solvers.ekf.run_ekf`
-  (``P <- Phi P Phi^T + Q``, ``K = P A^T (A P A^T + I)^-1`` on whitened rows, Joseph form).
+  (``P <- Phi P Phi^T + Q``, ``K = P A^T (A P A^T + I)^-1`` on whitened rows, Joseph form:
+  :mod:`fgnav.solvers.kalman`, the same functions).
 
 The full history is the batch chain solver over every row received
 (:func:`fgnav.pipeline.smooth_log`, method batch): :meth:`Navigator.smoothed` on demand and
@@ -33,21 +34,21 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from factors.dynamics import process_noise, propagate
 from factors.errors import ModelDomainError
-from factors.motion import make_motion_factor
 from fgnav.chi2 import chi2_logsf
 from fgnav.errors import NotObservableError, UserError
-from fgnav.graph import enters, linearize_family
+from fgnav.graph import enters, layout_of, linearize_family, step_factors
 from fgnav.io.log_csv import EXTRA_COLUMNS, VALUE_COLUMNS, MeasurementLog
 from fgnav.iod.initial import initial_orbit, propagate_orbit
 from fgnav.iod.prior import first_state, has_prior, strip_prior
 from fgnav.measurements import build_pass, prior_covariance
-from fgnav.models.registry import ATTITUDE_VARIABLE, model as model_of, variable
+from fgnav.models.registry import model as model_of
 from fgnav.online.stream import Row
-from fgnav.pipeline import smooth_log
+from fgnav.pipeline import scheme_preprocessed, smooth_log
 from fgnav.robust import RobustKernel, passes_gate
 from fgnav.solvers.incremental import isam2_params
+from fgnav.solvers.kalman import (innovation_covariance, kalman_update, orbit_transition,
+                                  predict_covariance)
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.start import START_INFLATION
 from fgnav.sun_earth_moon import preprocess_log, uses_scheme
@@ -315,8 +316,9 @@ class Navigator:
             x_pred, P_pred = self.x.copy(), self.P.copy()
         else:
             dt = (ns - self.last_ns) / 1e9
-            x_pred, Phi = propagate(self.x, dt, self.model, t_j2000 - dt)
-            P_pred = Phi @ self.P @ Phi.T + process_noise(dt, self.options.q_m2_s3)
+            x_pred, Phi, Q = orbit_transition(self.x, dt, self.options.q_m2_s3, self.model,
+                                              t_j2000 - dt)
+            P_pred = predict_covariance(self.P, Phi, Q)
         families = [(kind, fam) for kind, fam in p.families.items()
                     if enters(p, kind) and not model_of(kind).between
                     and not (model_of(kind).prior and (not first or self.prior is not None
@@ -338,7 +340,7 @@ class Navigator:
             b_all.append(b)
         if A_all:
             A, b = np.vstack(A_all), np.concatenate(b_all)
-            S = A @ P_pred @ A.T + np.eye(len(b))
+            S = innovation_covariance(P_pred, A)
             nis, dof = float(b @ np.linalg.solve(S, b)), len(b)
         try:
             x, P = self.engine.step(p, families, ns, dt, t_j2000, x_pred, P_pred, first, A, b, S)
@@ -366,10 +368,7 @@ class Navigator:
         for them (:func:`fgnav.pipeline.smooth_log`)."""
         if not self.rows.n:
             raise UserError(f"{self.source}: no measurement rows received")
-        log = self.rows.log(self.source, self.centre)
-        if uses_scheme(log) and ATTITUDE_VARIABLE.name not in {
-                variable(n).name for n in self.options.estimate}:
-            log = preprocess_log(log)[0]
+        log = scheme_preprocessed(self.rows.log(self.source, self.centre), self.options.estimate)
         return smooth_log(log, "batch", self.options, ignore_prior=self.ignore_prior)
 
     # ---- checkpoint ----
@@ -411,9 +410,10 @@ def _by_epoch(rows):
 
 
 class _Ekf:
-    """The EKF's measurement update of one epoch (:func:`fgnav.solvers.ekf.run_ekf`), all the
-    epoch's kept rows at once, linearized at the prediction: ``K = P A^T S^-1``, Joseph form
-    ``P = (I - K A) P (I - K A)^T + K K^T`` (whitened rows: unit measurement noise)."""
+    """The EKF's measurement update of one epoch (:func:`fgnav.solvers.kalman.kalman_update`,
+    as :func:`fgnav.solvers.ekf.run_ekf`), all the epoch's kept rows at once, linearized at
+    the prediction: ``K = P A^T S^-1``, Joseph form ``P = (I - K A) P (I - K A)^T + K K^T``
+    (whitened rows: unit measurement noise)."""
 
     def __init__(self, nav: Navigator):
         self.nav = nav
@@ -421,14 +421,13 @@ class _Ekf:
     def step(self, p, families, ns, dt, t_j2000, x, P, first, A=None, b=None, S=None):
         if A is None:
             return x, P
-        K = np.linalg.solve(S, A @ P).T
-        IKA = np.eye(6) - K @ A
-        return x + K @ b, IKA @ P @ IKA.T + K @ K.T
+        x, P, _ = kalman_update(x, P, A, b, S=S)
+        return x, P
 
 
 class _Window:
     """iSAM2 over a bounded window (``gtsam.IncrementalFixedLagSmoother``): the orbit's
-    motion factors and the rows' factors (:meth:`fgnav.models.model.MeasurementModel.factors`),
+    motion factors (:func:`fgnav.graph.step_factors`) and the rows' factors (:meth:`fgnav.models.model.MeasurementModel.factors`),
     the states older than the window marginalized into a prior on the oldest kept one."""
 
     def __init__(self, nav: Navigator):
@@ -452,8 +451,9 @@ class _Window:
                     X(k), np.asarray(x_pred, float),
                     gtsam.noiseModel.Gaussian.Covariance(np.asarray(P_pred, float), False)))
         else:
-            graph.add(make_motion_factor(X(k - 1), X(k), dt, nav.options.q_m2_s3, nav.model,
-                                         t_j2000 - dt))
+            for f in step_factors(layout_of(p), k, dt, nav.options.q_m2_s3, nav.model,
+                                  t_j2000 - dt):
+                graph.add(f)
         for kind, fam in families:
             for f in model_of(kind).factors(fam, np.arange(len(fam)), k, p.layout,
                                             self.kernel, x_pred, p.t_s):

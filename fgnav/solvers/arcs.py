@@ -49,7 +49,7 @@ import dataclasses
 
 import numpy as np
 
-from factors.dynamics import process_noise, propagate, propagate_many
+from factors.dynamics import process_noise, propagate_many
 from fgnav.diagnostics.crb import CrbResult, cramer_rao_bound
 from fgnav.errors import UserError
 from fgnav.measurements import (Pass, covering_sigmas, fill_gaps, format_duration, long_gaps,
@@ -57,6 +57,7 @@ from fgnav.measurements import (Pass, covering_sigmas, fill_gaps, format_duratio
 from fgnav.solution import Solution
 from fgnav.solvers.ekf import run_ekf
 from fgnav.solvers.ekf_numba import numba_supports, run_ekf_numba
+from fgnav.solvers.kalman import orbit_transition, predict_covariance
 from fgnav.time import j2000_seconds
 
 KAPPA_MAX = 1.0
@@ -81,8 +82,8 @@ def predict_across(p: Pass, k: int, x: np.ndarray, P: np.ndarray, options) -> di
     ``k + 1``: predicted state and covariance and the figures of the bridging test."""
     dt = float(p.t_s[k + 1] - p.t_s[k])
     t0 = float(j2000_seconds(p.epoch0)) + float(p.t_s[k])
-    x1, Phi = propagate(x, dt, options.motion_model(), t0)
-    P1 = Phi @ P @ Phi.T + process_noise(dt, options.q_m2_s3)
+    x1, Phi, Q = orbit_transition(x, dt, options.q_m2_s3, options.motion_model(), t0)
+    P1 = predict_covariance(P, Phi, Q)
     lam = np.sqrt(np.maximum(np.linalg.eigvalsh(0.5 * (P1[:3, :3] + P1[:3, :3].T)), 0.0))
     r = float(np.linalg.norm(x1[:3]))
     kappa = float(lam[-1] ** 2 / (2.0 * r * max(lam[0], 1e-9)))

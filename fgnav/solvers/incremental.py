@@ -53,11 +53,11 @@ import gtsam
 import numpy as np
 
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
-from factors.motion import impulse_rows, make_motion_factor, motion_residual
+from factors.motion import impulse_rows, motion_residual
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import (enters, factors_for_rows, initial_block, layout_of, linearize_family,
-                         motion_factors, prior_factors, process_factors, process_predict,
-                         chain_pair, impulse_estimates, impulses)
+                         motion_factors, process_predict, step_factors, chain_pair,
+                         impulse_estimates, impulses)
 from fgnav.models.registry import model as model_of
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
@@ -68,6 +68,7 @@ from fgnav.solvers.batch import linearize_and_eliminate, robust_counts
 from fgnav.solvers.batch import outlier_mask
 from fgnav.solvers.chain import back_substitute, chain_marginals
 from fgnav.iod.prior import first_state
+from fgnav.solvers.kalman import kalman_update, predict_covariance
 from fgnav.solvers.options import IncrementalOptions, SmootherOptions
 from fgnav.solvers.variables import block_variables
 from fgnav.time import j2000_seconds
@@ -104,17 +105,6 @@ def _keys(lay, k):
 def _timestamps(lay, k, t):
     """Fixed-lag timestamps of epoch ``k``'s keys."""
     return {X(k): t, **{v.key(k): t for v in lay.extra}}
-
-
-def _process_factors(lay, k, dt, q, model, t0_j2000_s, impulse=None):
-    """The factors from epoch ``k - 1`` to ``k``: every orbit's motion factor (with the
-    step's declared impulse, :func:`fgnav.graph.impulses`) and the further variables'
-    processes (:func:`fgnav.graph.motion_factors`, :func:`fgnav.graph.process_factors`); at
-    ``k = 0`` the further variables' priors (:func:`fgnav.graph.prior_factors`)."""
-    if k == 0:
-        return prior_factors(lay)
-    return (motion_factors(lay, k, dt, q, model, t0_j2000_s, impulse=impulse)
-            + process_factors(lay, k, dt))
 
 
 def isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
@@ -252,8 +242,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         values = gtsam.Values()
         for k in range(k_start):
             dt = p.t_s[k] - p.t_s[k - 1] if k > 0 else 0.0
-            for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
-                                      t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
+            for f in step_factors(lay, k, dt, options.q_m2_s3, model,
+                                  t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
                 graph.add(f)
             add_epoch_factors(graph, k, x_est[k], kept_only=True)
             _insert_block(values, lay, k, x_est[k])
@@ -296,8 +286,8 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             for i, v in enumerate(lay.extra):
                 if measured[k, i]:
                     guess[lay.slices[v.name]] = V0[k, lay.slices[v.name]]
-            for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
-                                      t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
+            for f in step_factors(lay, k, dt, options.q_m2_s3, model,
+                                  t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
                 graph.add(f)
             if gate is not None:   # [state, covariance] updated by each family's kept rows
                 gated = [guess.copy(), _predicted_covariance(
@@ -464,7 +454,8 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     if p.n_epochs > 1:
         dt = p.t_s[1] - p.t_s[0]
         values.insert(X(1), propagate(x0, dt, model, t0_j2000 + p.t_s[0])[0])
-        graph.add(make_motion_factor(X(0), X(1), dt, options.q_m2_s3, model, t0_j2000 + p.t_s[0]))
+        for f in motion_factors(lay, 1, dt, options.q_m2_s3, model, t0_j2000 + p.t_s[0])[:1]:
+            graph.add(f)   # (the first orbit's: every orbit's is the same kernel)
     graph.linearize(values)
 
 
@@ -707,7 +698,7 @@ def _predicted_covariance(p, lay, k, Phis, online_P, online_V, dt, q, P_start=No
     P = np.zeros((lay.n, lay.n))
     if k == 0 or not lay.extra:
         P[:6, :6] = (prior_covariance(p) if k == 0 else
-                     Phis[0] @ online_P[k - 1] @ Phis[0].T + process_noise(dt, q))
+                     predict_covariance(online_P[k - 1], Phis[0], process_noise(dt, q)))
         for v in lay.extra:
             sl = lay.slices[v.name]
             P[sl, sl] = np.eye(v.dim) * v.prior_sigma ** 2
@@ -715,12 +706,12 @@ def _predicted_covariance(p, lay, k, Phis, online_P, online_V, dt, q, P_start=No
     F = np.eye(lay.n)
     for v, Phi in zip(lay.orbits, Phis):
         F[lay.slices[v.name], lay.slices[v.name]] = Phi
-    P = F @ online_V[k - 1] @ F.T
-    Q = process_noise(dt, q)
+    Q_orbit = process_noise(dt, q)
+    Q = np.zeros((lay.n, lay.n))
     for v in lay.variables:
         sl = lay.slices[v.name]
-        P[sl, sl] += Q if v.orbit else np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
-    return P
+        Q[sl, sl] = Q_orbit if v.orbit else np.eye(v.dim) * float(v.step_sigma(dt)) ** 2
+    return predict_covariance(online_V[k - 1], F, Q)
 
 
 def _read_variable_marginals(estimator, lay, k, online_V):
@@ -740,17 +731,16 @@ def _gate_update(p, lay, kind, rows, x, P):
     further variables alone (attitude rows) at an epoch: a Kalman update, as the EKF's
     sequential processing of an epoch's families does, so that the epoch's attitude rows
     tighten the attitude its body-frame rows are gated with (without it the attitude's
-    predicted spread let 3-degree outliers through). ``(x, P)`` unchanged without rows."""
+    predicted spread let 3-degree outliers through; :func:`fgnav.solvers.kalman.kalman_update`,
+    the EKF's). ``(x, P)`` unchanged without rows."""
     if not len(rows):
         return x, P
     fam = p.families[kind]
     _, A, b, _ = linearize_family(p, kind, fam.subset(np.asarray(rows), 0), x[None])
     A = A.reshape(-1, lay.n)
     b = b.reshape(-1)
-    S = A @ P @ A.T + np.eye(len(b))
-    K = np.linalg.solve(S, A @ P).T
-    P = P - K @ A @ P
-    return lay.retract(x, K @ b), 0.5 * (P + P.T)
+    x, P, _ = kalman_update(x, P, A, b, retract=lay.retract)
+    return x, 0.5 * (P + P.T)
 
 
 def _gate_rows(p, kind, rows, x_pred, P_pred, probability):

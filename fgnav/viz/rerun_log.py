@@ -31,7 +31,8 @@ logs in a fraction of a second (``scripts/bench_rerun.py``).
 Rerun quaternions are scalar-last (x, y, z, w); the conversion happens here and only here.
 
 Several spacecraft (a formation's joint solution with its inter-satellite links):
-:func:`log_formation` (and :func:`log_formation_result` of ``fgnav smooth``) writes one
+:func:`log_formation` (and :func:`log_formation_result`, through :func:`log_result` of
+``fgnav smooth`` for one spacecraft or several) writes one
 ``.rrd`` file holding
 
 * ``world/...`` (3-D, **km**, ECI): the Earth and ECI axes, each spacecraft's estimated
@@ -91,7 +92,8 @@ from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.measurements import orbit_columns, spacecraft_states
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.orbit import truth_at
-from fgnav.results import read_formation_truth, relative_rows
+from fgnav.pipeline import read_measurements
+from fgnav.results import read_formation_truth, relative_rows, residual_times
 from fgnav.time import format_utc
 from fgnav.time import seconds_since
 
@@ -973,6 +975,23 @@ def _tested_residuals(sol) -> dict:
     (:func:`fgnav.diagnostics.integrity.assess`): a filter's innovations normalized
     by their own covariance, else the solution's whitened residuals."""
     return (sol.extras or {}).get("normalized_innovations") or sol.residuals or {}
+
+
+def log_result(rrd_path, res, p, *, log_path=None, truth=None, sigma_scale=3.0) -> dict:
+    """The recording of ``fgnav smooth``'s result (``res``, of the pass ``p``) for S >= 1
+    spacecraft: a formation's :func:`log_formation_result`; one spacecraft's
+    :func:`log_solution` with the measurements of the log ``log_path``, the residuals at
+    their rows' times and, with ``truth`` (the ``--truth`` directory), the true states and
+    the true attitude where the attitude is estimated."""
+    if p.spacecraft:
+        return log_formation_result(rrd_path, res, p, truth=truth, sigma_scale=sigma_scale)
+    sol = res.solution
+    truth_R = (read_truth_attitude(truth, sol.epoch0, sol.t_s)
+               if truth and ATTITUDE_VARIABLE.name in sol.variables else None)
+    return log_solution(rrd_path, sol, truth_x_eci=res.x_true,
+                        measurements=None if log_path is None else read_measurements(log_path),
+                        residual_t_s=residual_times(res, p), truth_attitude_R=truth_R,
+                        sigma_scale=sigma_scale)
 
 
 def log_formation_result(rrd_path, res, p, *, truth=None, sigma_scale=3.0) -> dict:
