@@ -35,7 +35,7 @@ from fgnav.models.isl import isl_values, pair_ids
 from fgnav.models.manoeuvres import MANOEUVRE_KIND, manoeuvre_values
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
-                                   EARTH_DIRECTION_BODY, MODELS, MOON_DIRECTION_BODY,
+                                   EARTH_DIRECTION_BODY, GYRO, GYRO_BIAS, MODELS, MOON_DIRECTION_BODY,
                                    PRIOR_POSITION, PRIOR_VELOCITY, STAR_DIRECTION_BODY,
                                    SUN_DIRECTION_BODY, VARIABLES, variable)
 from fgnav.models.variables import (ORBIT, Layout, ambiguity_variable, clock_variable,
@@ -191,10 +191,11 @@ _PLAIN_REFUSED = "is not yet supported with several spacecraft"
 
 def _check_formation_kinds(log):
     """Refuse the kinds a formation's pass does not yet take (those that need a further
-    variable, body-frame directions, between-epoch rows), naming them."""
+    variable a formation does not bind per spacecraft: star directions, body directions of
+    a near body), naming them."""
     kinds = set(np.unique(np.asarray(log.kind).astype(str)).tolist())
     for kind in sorted(kinds):
-        if kind in ISL_KINDS or kind == ATTITUDE.kind:
+        if kind in ISL_KINDS or kind in (ATTITUDE.kind, GYRO.kind):
             continue
         if kind == MANOEUVRE_KIND:
             raise UserError(f"{log.path}: 'manoeuvre' rows {_PLAIN_REFUSED}: a burn changes "
@@ -205,8 +206,8 @@ def _check_formation_kinds(log):
         if mdl is None or mdl.between or (mdl.requires is not None and mdl.body_frame_of is None):
             raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
                             "may hold priors, ECI and body-frame directions, limb, altitude, "
-                            "refraction and angle rows per spacecraft, attitude rows, and "
-                            "inter-satellite rows)")
+                            "refraction and angle rows per spacecraft, attitude and gyro rows, "
+                            "and inter-satellite rows)")
 
 
 def orbit_columns(lay: Layout) -> np.ndarray:
@@ -239,12 +240,20 @@ def _formation_pass(log) -> Pass:
         if mdl.body_frame_of is not None:
             body_kinds.append((kind, i))
             continue
-        if not mdl.solved or (mdl.requires is not None and mdl is not ATTITUDE):
+        if mdl.between and np.any(k_of_row[i] == 0):   # as build_pass: no interval before
+            p.warnings.append(f"{kind}: {int(np.sum(k_of_row[i] == 0))} row(s) at the first "
+                              f"epoch ignored (no earlier epoch to start the interval)")
+            i = i[k_of_row[i] > 0]
+            if not len(i):
+                continue
+        if not mdl.solved or (mdl.requires is not None and mdl not in (ATTITUDE, GYRO)):
             continue
         values = dict(mdl.values(log, i))
         values[COLUMN_PREFIX + "orbit"] = start[sc[i]]
         fam = Family(k=k_of_row[i], values=values, sigma=sigma[i], line=lines[i])
         if mdl is ATTITUDE:   # known attitudes: the links' lever arms, the body frame's outputs
+            p.deferred[kind] = fam
+        elif mdl is GYRO:   # each spacecraft's gyro: joins with its estimated attitude
             p.deferred[kind] = fam
         else:
             p.families[kind] = fam
@@ -530,7 +539,7 @@ def with_estimates(p: Pass, estimate=()) -> Pass:
     return dataclasses.replace(p, layout=Layout(tuple(variables)))
 
 
-PER_SPACECRAFT = (ATTITUDE_VARIABLE,)
+PER_SPACECRAFT = (ATTITUDE_VARIABLE, GYRO_BIAS)
 """The further variables a formation estimates per spacecraft (``--estimate``), each
 spacecraft's own copy (:func:`fgnav.models.variables.spacecraft_variable`) bound to its rows."""
 
@@ -542,52 +551,85 @@ def check_formation_estimates(estimate=()) -> None:
             raise UserError(
                 f"--estimate {v.cli_name}: a log of several spacecraft estimates, beside the "
                 f"orbits, clocks and ambiguities, each spacecraft's "
-                f"{', '.join(u.cli_name for u in PER_SPACECRAFT)} only (the {v.cli_name} "
+                f"{' and '.join(u.cli_name for u in PER_SPACECRAFT)} only (the {v.cli_name} "
                 f"rows are not yet bound per spacecraft)")
 
 
-def _formation_estimates(p: Pass, estimate=()) -> Pass:
-    """:func:`with_estimates` for a formation: each spacecraft with rows that need the
-    attitude (its attitude rows, its body-frame directions) gets its own attitude variable,
-    after the orbits, clocks and ambiguities (their columns stay), and those rows join the
-    graphs bound to it (``col:attitude``); the rows converted to ECI with the measured
-    attitude leave, as for one spacecraft. The links keep the measured attitude rows for
-    their lever arms (:mod:`fgnav.models.isl`: 1 arcsec on a 0.9 m arm is 4 um, far below a
-    link's noise)."""
-    check_formation_estimates(estimate)
-    requested = [variable(name) for name in estimate or ()]
-    if not requested or any(v.name == ATTITUDE_VARIABLE.name for v in p.layout.extra):
-        return p
-    p = _with_variable(p, ATTITUDE_VARIABLE.name)
+def _spacecraft_with_rows(p: Pass, kinds) -> list[int]:
+    """The spacecraft (0-based, sorted) that have rows of the families ``kinds``."""
     cols = orbit_columns(p.layout)
-    users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables]
-    have = sorted({int(np.searchsorted(cols, c)) for k in users
+    return sorted({int(np.searchsorted(cols, c)) for k in kinds
                    for c in np.unique(p.families[k].values[COLUMN_PREFIX + "orbit"])})
-    if not users:
-        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has no rows that "
-                        f"depend on it (attitude or body-frame rows)")
-    if have[0] != 0:
-        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has attitude or "
-                        f"body-frame rows of spacecraft {', '.join(p.spacecraft[s] for s in have)}"
-                        f" but none of the first, '{p.spacecraft[0]}': give its rows too")
-    for s in have:
-        own = [k for k in users if np.any(p.families[k].values[COLUMN_PREFIX + "orbit"] == cols[s])]
-        if ATTITUDE.kind not in own and len(own) < 2:
-            raise UserError(
-                f"{p.source}: --estimate {ATTITUDE_VARIABLE.cli_name}: spacecraft "
-                f"'{p.spacecraft[s]}''s {', '.join(own)} rows need its attitude, and nothing "
-                f"fixes it: no '{ATTITUDE.kind}' row of it, nor a second body-frame direction")
-    attitudes = tuple(spacecraft_variable(ATTITUDE_VARIABLE, s, p.spacecraft[s]) for s in have)
-    lay = Layout(p.layout.variables + attitudes)
-    att_col = {int(cols[s]): lay.slices[v.name].start for s, v in zip(have, attitudes)}
+
+
+def _bound_per_spacecraft(p: Pass, v, users, have) -> Pass:
+    """The pass with spacecraft ``have``'s own copies of the variable ``v`` after the block's
+    variables (their columns stay) and the rows of the families ``users`` bound to their
+    spacecraft's copy (``col:<v.name>``)."""
+    cols = orbit_columns(p.layout)
+    own = tuple(spacecraft_variable(v, s, p.spacecraft[s]) for s in have)
+    lay = Layout(p.layout.variables + own)
+    col = {int(cols[s]): lay.slices[u.name].start for s, u in zip(have, own)}
     fams = dict(p.families)
     for k in users:
         fam = fams[k]
         values = dict(fam.values)
-        values[COLUMN_PREFIX + ATTITUDE_VARIABLE.name] = np.array(
-            [att_col[int(c)] for c in values[COLUMN_PREFIX + "orbit"]], dtype=int)
+        values[COLUMN_PREFIX + v.name] = np.array(
+            [col[int(c)] for c in values[COLUMN_PREFIX + "orbit"]], dtype=int)
         fams[k] = Family(k=fam.k, values=values, sigma=fam.sigma, line=fam.line)
     return dataclasses.replace(p, families=fams, layout=lay)
+
+
+def _formation_estimates(p: Pass, estimate=()) -> Pass:
+    """:func:`with_estimates` for a formation: each spacecraft with rows that need the
+    attitude (its attitude rows, its body-frame directions, its gyro rows) gets its own
+    attitude variable, after the orbits, clocks and ambiguities (their columns stay), and
+    those rows join the graphs bound to it (``col:attitude``); the rows converted to ECI with
+    the measured attitude leave, as for one spacecraft. With ``gyro-bias`` each spacecraft
+    with gyro rows gets its own bias after the attitudes, its gyro rows bound to it
+    (``col:gyro_bias``). The links keep the measured attitude rows for their lever arms
+    (:mod:`fgnav.models.isl`: 1 arcsec on a 0.9 m arm is 4 um, far below a link's noise)."""
+    check_formation_estimates(estimate)
+    requested = {variable(name).name for name in estimate or ()}
+    if not requested or any(v.name == ATTITUDE_VARIABLE.name for v in p.layout.extra):
+        return p
+    if ATTITUDE_VARIABLE.name not in requested:
+        raise UserError(f"--estimate {GYRO_BIAS.cli_name}: {p.source}: the gyro rows, which "
+                        f"observe the bias, enter with each spacecraft's attitude: add "
+                        f"--estimate {ATTITUDE_VARIABLE.cli_name}")
+    p = _with_variable(p, ATTITUDE_VARIABLE.name)
+    cols = orbit_columns(p.layout)
+    users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables]
+    if not users:
+        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has no rows that "
+                        f"depend on it (attitude or body-frame rows)")
+    have = _spacecraft_with_rows(p, users)
+    if have[0] != 0:
+        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has attitude or "
+                        f"body-frame rows of spacecraft {', '.join(p.spacecraft[s] for s in have)}"
+                        f" but none of the first, '{p.spacecraft[0]}': give its rows too")
+    for s in have:   # a gyro carries the attitude from epoch to epoch, it does not fix it
+        own = [k for k in users if not MODELS[k].between
+               and np.any(p.families[k].values[COLUMN_PREFIX + "orbit"] == cols[s])]
+        if ATTITUDE.kind not in own and len(own) < 2:
+            raise UserError(
+                f"{p.source}: --estimate {ATTITUDE_VARIABLE.cli_name}: spacecraft "
+                f"'{p.spacecraft[s]}''s {', '.join(own) or 'gyro'} rows need its attitude, and "
+                f"nothing fixes it: no '{ATTITUDE.kind}' row of it, nor a second body-frame "
+                f"direction")
+    p = _bound_per_spacecraft(p, ATTITUDE_VARIABLE, users, have)
+    if GYRO_BIAS.name not in requested:
+        return p
+    gyros = [k for k in p.families if GYRO_BIAS in MODELS[k].optional_variables]
+    if not gyros:
+        raise UserError(f"--estimate {GYRO_BIAS.cli_name}: {p.source} has no rows that depend "
+                        f"on it (it is used by {GYRO.kind} rows)")
+    have = _spacecraft_with_rows(p, gyros)
+    if have[0] != 0:
+        raise UserError(f"--estimate {GYRO_BIAS.cli_name}: {p.source} has {GYRO.kind} rows of "
+                        f"spacecraft {', '.join(p.spacecraft[s] for s in have)} but none of "
+                        f"the first, '{p.spacecraft[0]}': give its rows too")
+    return _bound_per_spacecraft(p, GYRO_BIAS, gyros, have)
 
 
 def check_attitude(p: Pass) -> None:

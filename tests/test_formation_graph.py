@@ -48,6 +48,17 @@ def test_joint_graph_without_links_is_the_separate_solutions():
                                    rtol=1e-6)
 
 
+def _ok_but_for_the_curvature(integrity: dict) -> bool:
+    """The verdict is ok, or suspect for the range curvature alone: centre-of-mass links on
+    this 30 min pass leave 6.6 m of relative sigma across a 1.08 km line of sight, which bend
+    the range 2 cm, 7.8 times its 2.6 mm sigma along it (the Cartesian NEES of ~20 below;
+    fgnav.diagnostics.mirror.range_curvature_test says so)."""
+    tests = integrity["tests"]
+    return integrity["status"] == "ok" or (
+        integrity["status"] == "suspect" and tests["range_curvature"]["status"] == "suspect"
+        and all("covariance (linear) understates" in r for r in integrity["reasons"]))
+
+
 def test_links_give_the_relative_state_consistently_over_seeds():
     """Pseudoranges (1 cm) shrink the relative error from hundreds of metres (celestial alone)
     to metres, with a relative position NEES in range, azimuth and elevation (3 dof, the pass
@@ -61,7 +72,7 @@ def test_links_give_the_relative_state_consistently_over_seeds():
         rms_alone.append(_relative_errors(*smooth_log(log, "batch", SmootherOptions()), truth)[0])
         log, truth = formation_log(seed)
         res, p = smooth_log(log, "batch", SmootherOptions())
-        assert res.summary["integrity"]["status"] == "ok"
+        assert _ok_but_for_the_curvature(res.summary["integrity"])
         r, n = _relative_errors(res, p, truth)
         rms_links.append(r)
         nees.append(n)
@@ -80,7 +91,7 @@ def test_lever_arms_with_attitude_rows_match_the_centre_of_mass_case():
     relative accuracy as centre-of-mass links (the lever arms are modelled, not ignored)."""
     log, truth = formation_log(2, lever_arms=True)
     res, p = smooth_log(log, "batch", SmootherOptions())
-    assert res.summary["integrity"]["status"] == "ok"
+    assert _ok_but_for_the_curvature(res.summary["integrity"])
     log0, _ = formation_log(2)
     res0, p0 = smooth_log(log0, "batch", SmootherOptions())
     assert abs(_relative_errors(res, p, truth)[0] - _relative_errors(res0, p0, truth)[0]) < 1.0
@@ -176,14 +187,21 @@ def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
     """The EKF filters both orbits, the clock and the links: with a 3 m prior it tracks the
     relative position to metres and its innovations (normalized by their covariance) pass;
     with 100 m priors on a 1 km formation the first links' linearization error (d^2/2R ~
-    10 m) makes it diverge, and the verdict says so instead of returning a number."""
+    10 m) made it diverge (verdict failed); its rows solved by Gauss-Newton over a start
+    window (fgnav.solvers.ekf.window_update), it stays within twice its own sigma."""
     log, truth = formation_log(1, prior_sigma_m=3.0, prior_sigma_mps=1.5e-3)
     res, p = smooth_log(log, "ekf", SmootherOptions())
     assert res.summary["integrity"]["status"] == "ok", res.summary["integrity"]["reasons"]
     assert _relative_errors(res, p, truth)[0] < 20.0
     log, truth = formation_log(1)
     res, p = smooth_log(log, "ekf", SmootherOptions())
-    assert res.summary["integrity"]["status"] == "failed"
+    verdict = res.summary["integrity"]
+    # the first epochs' covariance, 200 m across the line of sight, is a bent range sphere:
+    # the range-curvature test says so (suspect) and nothing else may fail
+    assert verdict["status"] == "ok" or (verdict["status"] == "suspect" and all(
+        "is bent" in why for why in verdict["reasons"])), verdict["reasons"]
+    sigma = res.summary["relative"]["sigma_position_rms_m"]
+    assert _relative_errors(res, p, truth)[0] <= 2.0 * sigma
 
 
 def test_batch_covariance_is_the_dense_bound_at_the_truth():

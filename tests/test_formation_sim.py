@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from factors.constants import C_LIGHT_M_S
-from factors.geometry import so3_exp
+from factors.geometry import so3_exp, so3_log
 from fgnav.cli import main
 from fgnav.constants import MU_EARTH_M3_S2
 from fgnav.errors import InputFormatError, UserError
@@ -237,3 +237,26 @@ def test_formation_options_and_limits(tmp_path, capsys):
     path.write_text(_bad("sigma_m = 0.01", "sigma_m = nan"))
     with pytest.raises(InputFormatError):
         load_scenario(str(path))
+
+
+def test_gyros_add_their_rows_and_change_no_other():
+    """``gyro=True``: each spacecraft's gyro rows at every epoch of the log but the first, from
+    streams of their own (the ``--body-frame`` log's rows unchanged), their rates the true
+    attitude law's over each interval plus the spacecraft's bias (within 6 sigma of the
+    noise), the biases of the two spacecraft different."""
+    scn = load_scenario("formation-gto").with_options(duration_h=0.5, step_s=60)
+    a = simulate_formation_pass(scn, 0, body_frame=True)
+    b = simulate_formation_pass(scn, 0, body_frame=True, gyro=True)
+    gyro = np.asarray(b.log.kind) == "gyro"
+    assert np.array_equal(a.log.xyz, b.log.xyz[~gyro], equal_nan=True)
+    assert np.array_equal(a.log.t_s, b.log.t_s[~gyro]) and not a.gyro_bias
+    t_log = np.unique(b.log.t_s)
+    sc = spacecraft_index(b.log)
+    for k, i in enumerate(b.ids):
+        rows = np.flatnonzero(gyro & (sc == k))
+        assert np.array_equal(b.log.t_s[rows], t_log[1:])
+        R = b.R_eci_from_body[i][np.searchsorted(b.t_s, t_log)]
+        rate = so3_log(np.swapaxes(R[:-1], 1, 2) @ R[1:]) / np.diff(t_log)[:, None]
+        noise = b.log.xyz[rows] - rate - b.gyro_bias[i]
+        assert np.max(np.abs(noise)) < 6 * b.log.sigma[rows][0]
+    assert np.min(np.abs(b.gyro_bias[b.ids[0]] - b.gyro_bias[b.ids[1]])) > 1e-6

@@ -51,6 +51,12 @@ def register(sub):
                    help="a formation's direction sensors measure in each spacecraft's body "
                         "frame (earth_direction_body rows, with attitude rows of each "
                         "spacecraft); solve with `fgnav smooth --estimate attitude`")
+    p.add_argument("--gyro", action="store_true", dest="with_gyro",
+                   help="each spacecraft of a formation carries a rate gyro: gyro rows (its body "
+                        "rate over each interval, a constant bias of 1e-4 rad/s 1-sigma per axis "
+                        "drawn per spacecraft, 1e-6 rad/s noise), attitude rows and "
+                        "truth_gyro_bias-<id>.csv; solve with `fgnav smooth --estimate "
+                        "attitude --estimate gyro-bias`")
     p.add_argument("--gravity", choices=["j2", "point-mass"],
                    help="the Earth's gravity in the truth, overrides the scenario's [truth] j2: "
                         "point-mass (Keplerian; smooth it with --gravity point-mass) or j2 "
@@ -116,6 +122,9 @@ def run(args) -> int:
     if getattr(args, "body_frame", False) and scn.formation is None:
         raise UserError(f"--body-frame: scenario {scn.name} has one spacecraft (use --raw-stars "
                         "for body-frame rows of one spacecraft)")
+    if getattr(args, "with_gyro", False) and scn.formation is None:
+        raise UserError(f"--gyro: scenario {scn.name} has one spacecraft; --gyro simulates the "
+                        "gyros of a formation's spacecraft")
     if scn.formation is not None:
         for opt, on in (("--stream", stream), ("--raw-stars", getattr(args, "raw_stars", False)),
                         ("--images", getattr(args, "images", False))):
@@ -136,7 +145,8 @@ def run(args) -> int:
 
         fsim = simulate_formation_pass(scn, seed=args.seed, max_epochs=args.max_epochs,
                                        max_duration_h=args.max_duration_h,
-                                       body_frame=getattr(args, "body_frame", False))
+                                       body_frame=getattr(args, "body_frame", False),
+                                       gyro=getattr(args, "with_gyro", False))
         written = write_formation_files(out, fsim)
         if not args.quiet:
             print(f"{scn.name}: {len(fsim.ids)} spacecraft ({', '.join(fsim.ids)}), "

@@ -84,6 +84,8 @@ ADVICE = {
                   "for comparison only",
     "mirror": "links through more receive antennas per spacecraft (their lever arms fix the "
               "direction), or a prior on the relative position",
+    "mirror_better": "--method batch, which solves again from the geometry that fits better",
+    "agreement": "--method batch (every row at once) for this formation",
     "curvature": "links through more receive antennas per spacecraft (their lever arms fix the "
                  "direction across the line of sight), a longer pass, or read the relative "
                  "position as range and directions (--relative spherical)",
@@ -399,7 +401,17 @@ def _joint_assess(sol, p) -> dict:
                   f"{'fits the data better' if better else 'fits the data as well'} "
                   f"(chi-square {mirror['chi2_mirrored']:.6g} against {mirror['chi2']:.6g}, "
                   f"{mirror['largest_difference_m']:.3g} m apart): the links cannot tell the "
-                  f"relative position from its mirror image", "mirror")
+                  f"relative position from its mirror image",
+                  "mirror_better" if better and sol.method != "batch" else "mirror")
+    agreement = sol.extras.get("batch_agreement")
+    if agreement is not None and "spacecraft" in agreement:
+        tests["batch_agreement"] = agreement
+        if agreement["status"] != "ok":
+            worse(agreement["status"], f"the {sol.method} relative state of "
+                  f"{agreement['spacecraft']} departs from the batch solution's by "
+                  f"{agreement['normalized']:.3g} times its own covariance per dimension (up to "
+                  f"{agreement['largest_position_difference_m']:.3g} m): its covariance is "
+                  f"optimistic", "agreement")
     curvature = range_curvature_test(p, sol)
     tests["range_curvature"] = curvature
     if curvature["status"] != "ok":

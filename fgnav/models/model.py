@@ -85,6 +85,39 @@ def _variables_by_start(layout: Layout) -> dict:
     return {layout.slices[v.name].start: v for v in layout.variables}
 
 
+def _row_values(fam, X: np.ndarray, k: np.ndarray, layout: Layout, roles=None) -> dict:
+    """The values of each row's variables at epochs ``k`` (M,) of the block values ``X``, by
+    role, for rows that bind their variables row by row (``values["col:<role>"]``: the first
+    block column of the row's variable; ``roles``: those roles only, all by default). A role's
+    variables share a dimension and manifold (a spacecraft's attitude: Rot3, whose values
+    reach the residual as matrices, as :meth:`Layout.values_at` gives them)."""
+    M = len(fam)
+    vals = {}
+    for key, start in fam.values.items():
+        if not key.startswith(COLUMN_PREFIX):
+            continue
+        name = key[len(COLUMN_PREFIX):]
+        if roles is not None and name not in roles:
+            continue
+        v = _variables_by_start(layout).get(int(start[0])) if M else None
+        d = ROLE_DIMS.get(name, 1) if v is None else v.dim
+        vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
+        if v is not None and not v.manifold.additive:
+            vals[name] = v.manifold.exp(vals[name])
+    return vals
+
+
+def _place_per_row(H: np.ndarray, fam, jac: dict) -> None:
+    """Write the Jacobians ``jac`` (role -> (M, m, d); ``"position"``: the orbit's first three
+    columns) into ``H`` (M, m, n) at each row's own columns (``values["col:<role>"]``)."""
+    M, m = H.shape[:2]
+    rows = np.arange(M)
+    for name, h in jac.items():
+        role = "orbit" if name == "position" else name
+        cols = np.asarray(fam.values[COLUMN_PREFIX + role])[:, None] + np.arange(h.shape[-1])
+        H[rows[:, None, None], np.arange(m)[None, :, None], cols[:, None, :]] = h
+
+
 @dataclass(frozen=True, eq=False)
 class MeasurementModel:
     kind: str
@@ -170,19 +203,7 @@ class MeasurementModel:
         holds, per variable role ``name``, the first column of that row's variable in the
         block, ``values["col:<name>"]`` (M,) (:func:`fgnav.measurements.build_pass`)."""
         M, m = len(fam), self.dim
-        k = np.asarray(fam.k)
-        rows = np.arange(M)
-        vals = {}
-        for key, start in fam.values.items():
-            if key.startswith(COLUMN_PREFIX):
-                name = key[len(COLUMN_PREFIX):]
-                # a role's variables share a dimension and manifold (a spacecraft's attitude:
-                # Rot3, whose values reach the residual as matrices, as values_at gives them)
-                v = _variables_by_start(layout).get(int(start[0])) if M else None
-                d = ROLE_DIMS.get(name, 1) if v is None else v.dim
-                vals[name] = X[k[:, None], np.asarray(start)[:, None] + np.arange(d)]
-                if v is not None and not v.manifold.additive:
-                    vals[name] = v.manifold.exp(vals[name])
+        vals = _row_values(fam, X, np.asarray(fam.k), layout)
         try:
             e, jac = self.residual(fam, vals)
         except ModelDomainError as exc:   # name the row's log line
@@ -192,28 +213,40 @@ class MeasurementModel:
                                    f"{exc}", row=exc.row) from exc
         e = np.asarray(e, dtype=float).reshape(M, m)
         H = np.zeros((M, m, layout.n))
-        for name, h in jac.items():
-            role = "orbit" if name == "position" else name
-            cols = np.asarray(fam.values[COLUMN_PREFIX + role])[:, None] + np.arange(h.shape[-1])
-            H[rows[:, None, None], np.arange(m)[None, :, None], cols[:, None, :]] = h
+        _place_per_row(H, fam, jac)
         return e, H
 
     def evaluate_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
         """A between model's residuals and Jacobians at the block values ``X`` (N, n):
         ``e (M, m)``, ``H0``, ``H1`` (M, m, n) on the blocks of epochs ``k - 1`` and ``k``,
         and the intervals ``dt_s`` (M,)."""
-        names = self.variables_in(layout)
-        v0 = layout.values_at(X, fam.k - 1)
-        v1 = layout.values_at(X, fam.k)
         dt = np.asarray(t_s, dtype=float)[fam.k] - np.asarray(t_s, dtype=float)[fam.k - 1]
+        if COLUMN_PREFIX + "orbit" in fam.values:   # a formation's: each row its own variables
+            names = self._bound_roles(fam)
+            v0 = _row_values(fam, X, np.asarray(fam.k) - 1, layout, names)
+            v1 = _row_values(fam, X, np.asarray(fam.k), layout, names)
+        else:
+            names = self.variables_in(layout)
+            v0 = layout.values_at(X, fam.k - 1)
+            v1 = layout.values_at(X, fam.k)
         e, jac0, jac1 = self.residual(fam, {n: v0[n] for n in names}, {n: v1[n] for n in names}, dt)
         e = np.asarray(e, dtype=float).reshape(len(fam), self.dim)
         H0 = np.zeros((len(fam), self.dim, layout.n))
         H1 = np.zeros_like(H0)
         for H, jac in ((H0, jac0), (H1, jac1)):
+            if COLUMN_PREFIX + "orbit" in fam.values:
+                _place_per_row(H, fam, jac)
+                continue
             for name, h in jac.items():
                 H[..., layout.slices[name]] = h
         return e, H0, H1, dt
+
+    def _bound_roles(self, fam) -> tuple[str, ...]:
+        """The variable roles a formation's row of this model binds (its ``col:`` values among
+        the model's variables and optional variables: ``attitude``, ``gyro_bias``)."""
+        known = set(self.variables) | {v.name for v in self.optional_variables}
+        return tuple(key[len(COLUMN_PREFIX):] for key in fam.values
+                     if key.startswith(COLUMN_PREFIX) and key[len(COLUMN_PREFIX):] in known)
 
     def linearize_between(self, fam, X: np.ndarray, layout: Layout, t_s: np.ndarray):
         """Whitened rows of a between model: ``A0, A1 (M, m, n)``, ``b (M, m)``, and ``e``."""
@@ -283,6 +316,10 @@ class MeasurementModel:
             keys0 = self.keys(layout, k - 1)
             dt = float(t_s[k] - t_s[k - 1])
             sigmas = np.asarray(self.sigma(fam.subset(rows, k), np.full(len(rows), dt)), float)
+            if COLUMN_PREFIX + "orbit" in fam.values:   # each row its own variables
+                return [self.factor(fam, j, self.keys(layout, k - 1, fam, j),
+                                    self.keys(layout, k, fam, j), self._noise(sig, robust), dt)
+                        for j, sig in zip(rows.tolist(), sigmas.tolist())]
             return [self.factor(fam, j, keys0, keys, self._noise(sig, robust), dt)
                     for j, sig in zip(rows.tolist(), sigmas.tolist())]
         if self.sigma is None:   # the online route's hot path: no per-row family copies

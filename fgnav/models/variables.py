@@ -504,6 +504,16 @@ class Layout:
                 out[..., sl] = v.manifold.retract(X[..., sl], dX[..., sl])
         return out
 
+    def local(self, X_ref: np.ndarray, X: np.ndarray) -> np.ndarray:
+        """The tangent vector from ``X_ref`` to ``X`` per variable, the inverse of
+        :meth:`retract` (vectors subtract, rotations ``Log(R_ref^T R)``)."""
+        out = X - X_ref
+        for v in self.variables:
+            if not v.manifold.additive:
+                sl = self.slices[v.name]
+                out[..., sl] = v.manifold.local(X_ref[..., sl], X[..., sl])
+        return out
+
     def values_at(self, X: np.ndarray, k: np.ndarray) -> dict[str, np.ndarray]:
         """Each variable's values at the epochs ``k``: name -> (M, dim) (rotations as (M, 3, 3))."""
         out = {}

@@ -28,14 +28,21 @@ attitude at every link epoch is written as ``attitude`` rows (rotation vector of
 ``earth_direction_body``, ...) measure in each spacecraft's own body frame: the noisy ECI
 direction turned by the true attitude, ``u_body = R_eci_from_body^T u_eci`` (an isotropic
 angular noise stays isotropic under a rotation, so the draws are those of the ECI rows), and
-the attitude rows are written whether or not a link uses an antenna.
+the attitude rows are written whether or not a link uses an antenna. With ``gyro`` each
+spacecraft carries a rate gyro: at every epoch of the log but the first, a ``gyro`` row of
+the mean body rate over the interval since the log's previous epoch,
+``omega = Log(R_(k-1)^T R_k) / dt + b + n`` (the true attitude law, its constant bias ``b``
+drawn once per spacecraft, 1-sigma :data:`GYRO_BIAS_SIGMA_RAD_S` per axis, and white noise
+``n`` of :data:`GYRO_SIGMA_RAD_S`; the gyro model of ``factors.gyro``), and the attitude rows
+are written too.
 
 Random streams (one seed, independent draws): the first spacecraft's celestial rows draw
 from ``default_rng(seed)`` exactly as a one-spacecraft pass of the same scenario would (so its
 rows equal that pass's), spacecraft k >= 1 from ``default_rng([seed, FORMATION_STREAM, k])``,
 the links (the first pair's clock, noise, ambiguities, attitude noise) from
 ``[seed, FORMATION_STREAM, 0]``, the clock of each further pair q >= 1 (in the order of
-:func:`linked_pairs`) from ``[seed, FORMATION_STREAM, 0, q]``.
+:func:`linked_pairs`) from ``[seed, FORMATION_STREAM, 0, q]``, spacecraft k's gyro (bias,
+then noise) from ``[seed, FORMATION_STREAM, GYRO_STREAM, k + 1]``.
 """
 
 from __future__ import annotations
@@ -52,7 +59,7 @@ from fgnav.io.log_csv import MeasurementLog, write_log
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.io.oem import oem_frame, write_oem
 from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, write_truth_params_csv
-from fgnav.models.registry import ATTITUDE, MODELS
+from fgnav.models.registry import ATTITUDE, GYRO, GYRO_BIAS, MODELS
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
 from fgnav.simulate.body_directions import lvlh_R_eci_from_body
 from fgnav.simulate.pass_sim import (chunks_to_log, check_seed, integrate_scenario_truth,
@@ -62,10 +69,19 @@ from fgnav.time import parse_utc
 
 __all__ = ["FORMATION_STREAM", "FormationPass", "initial_states", "attitude_law",
            "light_time_range", "simulate_formation_pass", "write_formation_files",
-           "TRUTH_CLOCK_CSV", "linked_pairs"]
+           "TRUTH_CLOCK_CSV", "linked_pairs", "GYRO_STREAM", "GYRO_SIGMA_RAD_S",
+           "GYRO_BIAS_SIGMA_RAD_S", "gyro_rates"]
 
 FORMATION_STREAM = 3
 """Second entropy word of a formation's streams (module docstring)."""
+GYRO_STREAM = 7
+"""Third entropy word of the gyros' streams (module docstring)."""
+GYRO_SIGMA_RAD_S = 1e-6
+"""White noise of a simulated gyro row (rad/s, 1-sigma per axis): 0.2 deg/h, a tactical-grade
+gyro averaged over the interval."""
+GYRO_BIAS_SIGMA_RAD_S = 1e-4
+"""1-sigma per axis of the constant gyro bias drawn for each spacecraft (rad/s; 20 deg/h, an
+uncalibrated MEMS gyro, inside the estimator's 1e-3 rad/s prior, ``fgnav.models.gyro``)."""
 TRUTH_CLOCK_CSV = "truth_clock.csv"
 """The relative clock ``clock_m`` = c (dt_A - dt_B) at the link epochs, m."""
 LIGHT_TIME_TOL_M = 1e-7
@@ -96,6 +112,8 @@ class FormationPass:
     """Link index -> (K,) light times, s."""
     clocks: dict = field(default_factory=dict)
     """(id a, id b) -> (K,) relative clock c (dt_a - dt_b), m, per linked pair."""
+    gyro_bias: dict = field(default_factory=dict)
+    """id -> (3,) the constant bias of its gyro, rad/s (``gyro``: empty without)."""
 
 
 def linked_pairs(scn: Scenario) -> list:
@@ -174,10 +192,10 @@ def _check_formation_sensors(scn: Scenario) -> None:
 
 def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                             max_duration_h: float = MAX_DURATION_H,
-                            body_frame: bool = False) -> FormationPass:
+                            body_frame: bool = False, gyro: bool = False) -> FormationPass:
     """Truth and one measurement log for a formation scenario; the same seed gives the same
-    numbers (module docstring: the link model, the attitude law, ``body_frame`` and the random
-    streams)."""
+    numbers (module docstring: the link model, the attitude law, ``body_frame``, ``gyro`` and
+    the random streams)."""
     check_seed(seed)
     if scn.formation is None:
         raise UserError(f"scenario {scn.name}: one spacecraft (no [[spacecraft]] tables)")
@@ -222,7 +240,7 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     order = {i: k for k, i in enumerate(ids)}
     arms = {(a, n): np.array(arm) for a, n, arm in f.antennas}
     zero = np.zeros(3)
-    attitude_rows = body_frame or any(ln.rx_antenna or ln.tx_antenna for ln in f.links)
+    attitude_rows = body_frame or gyro or any(ln.rx_antenna or ln.tx_antenna for ln in f.links)
     if attitude_rows:
         for i in ids:
             noise = rs.attitude_sigma_rad * rng.standard_normal((K, 3))
@@ -251,13 +269,34 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
             phi = clean[j] + amb[j] + rs.carrier_sigma_m * rng.standard_normal(K)
             chunks.append((ISL_KINDS[1], t_link, np.column_stack([phi, np.full((K, 2), np.nan)]),
                            rs.carrier_sigma_m, extras[j]))
+    bias = {}
+    if gyro:
+        t_log = np.unique(np.concatenate([c[1] for c in chunks]))
+        for k, i in enumerate(ids):
+            g = np.random.default_rng([seed, FORMATION_STREAM, GYRO_STREAM, k + 1])
+            bias[i] = GYRO_BIAS_SIGMA_RAD_S * g.standard_normal(3)
+            chunks.append((GYRO.kind, t_log[1:], gyro_rates(R[i], t_all, t_log, bias[i], g),
+                           GYRO_SIGMA_RAD_S, {"spacecraft": np.full(len(t_log) - 1, i,
+                                                                     dtype=object)}))
     log = chunks_to_log(epoch0, chunks, spacecraft=ids,
                         antennas={(a, n): arm for (a, n), arm in arms.items()},
                         centre=scn.centre)
     return FormationPass(scenario=scn, seed=seed, epoch0=epoch0, ids=ids, t_s=t_all,
                          x_true=x_true, R_eci_from_body=R, t_link=t_link, clock_m=clock, log=log,
                          ambiguity_m=amb, attitude_rows=attitude_rows, light_time_s=light,
-                         clocks=clocks)
+                         clocks=clocks, gyro_bias=bias)
+
+
+def gyro_rates(R_eci_from_body, t_all, t_log, bias_rad_s, rng) -> np.ndarray:
+    """A gyro's rows (K - 1, 3) at the epochs ``t_log[1:]`` (K,) of the log: the mean body rate
+    over each interval since the previous epoch, ``Log(R_(k-1)^T R_k) / dt`` of the true
+    attitudes ``R_eci_from_body`` (N, 3, 3) at ``t_all`` (N,), plus ``bias_rad_s`` (3,) and
+    white noise of :data:`GYRO_SIGMA_RAD_S` drawn from ``rng`` (``factors.gyro``: the row's
+    model ``R_k = R_(k-1) Exp((omega - b) dt)``)."""
+    Rk = R_eci_from_body[np.searchsorted(t_all, t_log)]
+    dt = np.diff(t_log)
+    w = so3_log(np.swapaxes(Rk[:-1], 1, 2) @ Rk[1:]) / dt[:, None]
+    return w + bias_rad_s + GYRO_SIGMA_RAD_S * rng.standard_normal((len(dt), 3))
 
 
 BODY_KIND_OF = {m.body_frame_of: kind for kind, m in MODELS.items() if m.body_frame_of}
@@ -283,7 +322,7 @@ def write_formation_files(out_dir, sim: FormationPass) -> list:
     ``truth_clock.csv`` (epoch, clock_m: the first pair's; with more than one linked pair
     also ``clock_<a>_<b>_m`` per pair) and, when attitude rows are written (or body-frame
     rows exist), ``truth_attitude-<id>.csv`` (the true ``R_eci_from_body`` as a rotation
-    vector). Returns the paths written; an unwritable directory is a :class:`UserError`."""
+    vector), with gyros ``truth_gyro_bias-<id>.csv``. Returns the paths written; an unwritable directory is a :class:`UserError`."""
     out, scn = Path(out_dir), sim.scenario
     written = [out / "measurements.csv"]
     try:
@@ -318,6 +357,13 @@ def write_formation_files(out_dir, sim: FormationPass) -> list:
                     dict(zip(TRUTH_ATTITUDE_COLUMNS, so3_log(sim.R_eci_from_body[i]).T)),
                     comments=(f"scenario {scn.name}, seed {sim.seed}: spacecraft {i}'s true "
                               "R_eci_from_body as a rotation vector, rad",))
+        for i, b in sim.gyro_bias.items():
+            written.append(out / f"truth_{GYRO_BIAS.name}-{i}.csv")
+            write_truth_params_csv(
+                written[-1], sim.epoch0, sim.t_s,
+                {c: np.full(len(sim.t_s), b[j]) for j, c in enumerate(GYRO_BIAS.components)},
+                comments=(f"scenario {scn.name}, seed {sim.seed}: spacecraft {i}'s gyro bias "
+                          "(constant), rad/s",))
     except OSError as exc:
         raise UserError(f"--out {out}: cannot write: {exc.strerror or exc}") from None
     return written

@@ -121,6 +121,11 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     if between and not lay.extra:
         raise UserError(f"{p.source}: {', '.join(sorted(between))} rows join two epochs through "
                         f"further variables, and none is estimated")
+    if between and len(lay.orbits) > 1:   # (_propagate_formation takes no rows)
+        raise UserError(f"{p.source}: {', '.join(sorted(between))} rows with --method ekf on a "
+                        f"log of several spacecraft: the formation filter's time update does "
+                        f"not yet take rows between two epochs (they would be left out); use "
+                        f"--method batch, isam2 or fixed-lag")
     if x_start is not None:
         x, P = np.array(x_start, dtype=float), np.array(P_start, dtype=float)
     else:
@@ -142,6 +147,13 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
         P = T @ P @ T.T
     xs = np.empty((N, n))
     Ps = np.empty((N, n, n))
+    # Gauss-Newton on the rows (window_update) where rows relate two orbits (a formation's
+    # links, linear across metres only): the compiled EKF, one spacecraft's, does not iterate,
+    # and this one gives its numbers where both apply (tests/test_ekf_numba.py)
+    iterate = len(lay.orbits) > 1 and chart is None and not between
+    window = iterate
+    x_start0, P_start0, used_by_epoch, X_win = x, P, [], np.zeros((0, n))
+    flows, linear, k0_win = {}, 0, 0
     latency = np.empty(N)
     x_prev = x
 
@@ -186,6 +198,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 x[:6] += mean
                 P[:6, :6] += cov
                 burns.predict(np.eye(n), k)
+        x_pred, P_pred, used = x, P, []
         for kind, rows in per_epoch[k]:
             if not enters(p, kind) or kind in between:
                 continue   # (rows between two epochs: in the propagation above)
@@ -222,6 +235,24 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 if kind not in normalized:
                     normalized[kind] = np.full((len(fam), len(b)), np.nan)
                 normalized[kind][j] = nu
+                used.append((kind, j))
+        used_by_epoch.append(used)
+        if window:   # the start: Gauss-Newton on epochs 0..k while they are not linear
+            X_win = np.concatenate([X_win, x[None]])
+            out = window_update(p, lay, X_win, x_start0, P_start0, used_by_epoch[k0_win:],
+                                model, options.q_m2_s3, t0_j2000, T, T_inv, k0=k0_win,
+                                flows=flows)
+            linear = 0 if out is not None else linear + 1
+            window = linear < WINDOW_LINEAR and k + 1 < WINDOW_MAX
+            if out is not None:
+                x, P, X_win, second = out
+                if len(X_win) >= WINDOW_LENGTH:   # the first epoch marginalized
+                    (x_start0, P_start0), X_win, k0_win = second, X_win[1:], k0_win + 1
+        elif used and iterate:
+            out = window_update(p, lay, x[None], x_pred, P_pred, [used], model,
+                                options.q_m2_s3, t0_j2000, T, T_inv, k0=k)
+            if out is not None:
+                x, P = out[:2]
         xs[k] = x
         Ps[k] = P if chart is None else chart.covariance_to_cartesian(x, P)
         if T is not None:
@@ -249,6 +280,129 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                                 "row_weights": weights}
                                if options.gate_probability is not None else {}),
                             "latency_p50_s": float(np.median(latency))})
+
+
+ITERATE_ABOVE = 0.1
+"""The Gauss-Newton step, in sigmas of the filter's covariance, above which
+:func:`window_update` relinearizes the rows (below: the sequential update stands)."""
+ITERATE_TOLERANCE = 1e-3
+"""The step, in sigmas, at which its Gauss-Newton stops."""
+ITERATE_MAX = 10
+WINDOW_LENGTH = 30
+"""Epochs the start's window holds (:func:`window_update`); the first is marginalized (its
+filtered covariance at the window's minimum becomes the next epoch's prior, the
+sliding-window filter: Sibley, Matthies & Sukhatme 2010) when the window is full."""
+WINDOW_LINEAR = 20
+"""Consecutive epochs whose window step is below :data:`ITERATE_ABOVE` that end the start's
+window: from there the filter runs recursively (each epoch's update still iterated where
+it is not linear)."""
+WINDOW_MAX = 200
+"""The epoch at which the start's window ends in any case."""
+
+
+def _epoch_rows(p: Pass, lay, used, x, T_inv):
+    """Whitened rows ``A dx ~ b`` of the rows ``used`` ((kind, row)) at the block ``x``, ``A``
+    in the filter's coordinates (``dx = T (x' (-) x)``)."""
+    by_kind: dict[str, list[int]] = {}
+    for kind, j in used:
+        by_kind.setdefault(kind, []).append(j)
+    As, bs = [np.zeros((0, lay.n))], [np.zeros(0)]
+    for kind, js in by_kind.items():
+        _, A, b, _ = linearize_family(p, kind, p.families[kind].subset(np.array(js), 0), x[None])
+        As.append(A.reshape(-1, lay.n) @ T_inv)
+        bs.append(b.reshape(-1))
+    return np.concatenate(As), np.concatenate(bs)
+
+
+def _sigmas(d, P) -> float:
+    """``sqrt(d^T P^+ d)``: a step in sigmas of ``P`` (a pseudo-inverse: a covariance that
+    rounding left semi-definite, a formation's ambiguities, measures it too)."""
+    P = 0.5 * (P + P.T)
+    return float(np.sqrt(max(d @ np.linalg.lstsq(P, d, rcond=None)[0], 0.0)))
+
+
+def _transition(lay, x, dt, model, q_m2_s3, t_j2000_s, T, T_inv):
+    """The block at ``t + dt`` from ``x`` and the transition and process noise in the filter's
+    coordinates: ``(x, F, Q)`` (one orbit: its flow and STM; several: every orbit's,
+    :func:`_propagate_formation`)."""
+    x = np.array(x, dtype=float)
+    x[:6], Phi6, Q6 = orbit_transition(x[:6], dt, q_m2_s3, model, t_j2000_s)
+    if len(lay.orbits) == 1:
+        return x, Phi6, Q6
+    x, F, Q = _propagate_formation(lay, x, Phi6, Q6, dt, model, t_j2000_s)
+    return x, T @ F @ T_inv, T @ Q @ T.T
+
+
+def window_update(p: Pass, lay, X, x_prior, P_prior, used_by_epoch, model, q_m2_s3, t0_j2000_s,
+                  T=None, T_inv=None, k0: int = 0, flows=None):
+    """The filtered block at the window's last epoch by Gauss-Newton on the window's rows, or
+    None where the filter's own update already is the minimum: ``(x, P, X, (x1, P1))``
+    (``X``: the window's blocks at the minimum, ``x1, P1``: its second epoch filtered, the
+    prior when the first is marginalized) or None.
+
+    ``X`` (W, n): the epochs ``k0 .. k0 + W - 1``, the last one the sequential update of its
+    rows (each row linearized where the rows before it left the state), the others their
+    filtered blocks; ``x_prior``, ``P_prior``: the prior of epoch ``k0`` (``P`` in the
+    filter's coordinates, :func:`relative_coordinates`); ``used_by_epoch[j]``: the rows
+    (kind, row) accepted at the window's epoch ``j``; ``flows``: epoch -> (reference, flow,
+    transition, noise), kept across calls (the motion over one step is linear to < 0.1 mm
+    across the window's steps: its flow is propagated once, then moved by its transition).
+    The minimum of prior + motion + rows over the window is Gauss-Newton whose step is the Kalman filter and Rauch-Tung-Striebel smoother of the
+    problem linearized about ``X`` (the iterated Kalman smoother, Bell 1994); its last epoch
+    is the filter's estimate there. With ``W = 1`` and the prediction as the prior this is
+    the iterated EKF update (Bar-Shalom, Li & Kirubarajan 2001, sec. 10.3.2); over epochs
+    ``0..k`` it is the filter's start while the state is too uncertain for its rows to be
+    linear. Returns None when the first step at the last epoch is below
+    :data:`ITERATE_ABOVE` sigma of its covariance: celestial rows over a km prior are linear to far
+    less. Links of 1 cm on a 1 km baseline are not: a transverse error ``d`` of the
+    linearization point puts ``d^2 / 2R`` (5 cm at 10 m) in each range, and with the prior's
+    2 m/s the prediction is tens of metres off; a formation's EKF linearized there diverged
+    (2 h formation-gto: relative error 28 times its sigma)."""
+    W, n = X.shape
+    T = np.eye(n) if T is None else T
+    T_inv = np.eye(n) if T_inv is None else T_inv
+    X = np.array(X, dtype=float)
+    t = p.t_s
+    flows = {} if flows is None else flows
+
+    def forward(X):
+        d = np.empty((W, n)); P = np.empty((W, n, n))
+        d_pred = np.empty((W, n)); P_pred = np.empty((W, n, n)); Fs = np.empty((W, n, n))
+        d_pred[0], P_pred[0] = T @ lay.local(X[0], x_prior), P_prior
+        for j in range(W):
+            if j > 0:
+                k = k0 + j
+                if k not in flows:   # the flow from the first reference, then its STM
+                    flows[k] = (X[j - 1], *_transition(lay, X[j - 1], t[k] - t[k - 1], model,
+                                                       q_m2_s3, t0_j2000_s + t[k - 1], T, T_inv))
+                x_ref, f, F, Q = flows[k]
+                f = lay.retract(f, T_inv @ (F @ (T @ lay.local(x_ref, X[j - 1]))))
+                Fs[j] = F
+                d_pred[j] = F @ d[j - 1] + T @ lay.local(X[j], f)
+                P_pred[j] = predict_covariance(P[j - 1], F, Q)
+            A, b = _epoch_rows(p, lay, used_by_epoch[j], X[j], T_inv)
+            if not len(b):
+                d[j], P[j] = d_pred[j], P_pred[j]
+                continue
+            d[j], P[j], _ = kalman_update(d_pred[j], P_pred[j], A, b - A @ d_pred[j])
+        return d, P, d_pred, P_pred, Fs
+
+    for i in range(ITERATE_MAX):
+        d, P, d_pred, P_pred, Fs = forward(X)
+        for j in range(W - 2, -1, -1):   # Rauch-Tung-Striebel
+            C = np.linalg.solve(P_pred[j + 1], Fs[j + 1] @ P[j]).T
+            d[j] = d[j] + C @ (d[j + 1] - d_pred[j + 1])
+        size = _sigmas(d[-1], P[-1])
+        if i == 0 and size < ITERATE_ABOVE:
+            return None      # linear enough: the filter's own update
+        if i > 0 and W > 1:  # (the earlier epochs' steps: those of the smoother)
+            size = max(size, max(_sigmas(d[j], P[j]) for j in range(W - 1)))
+        X = np.stack([lay.retract(X[j], T_inv @ d[j]) for j in range(W)])
+        if size < ITERATE_TOLERANCE:
+            break
+    d, P = forward(X)[:2]
+    return (lay.retract(X[-1], T_inv @ d[-1]), P[-1], X,
+            (lay.retract(X[min(1, W - 1)], T_inv @ d[min(1, W - 1)]), P[min(1, W - 1)]))
 
 
 def relative_coordinates(lay):
