@@ -13,7 +13,9 @@ Neither route names a measurement kind: each asks the family's model. The other 
 families are built here too, each with both adapters (``tests/test_routes_agree.py`` holds
 them equal):
 
-* orbit motion (``factors.motion``): :func:`motion_rows` / :func:`motion_factors`;
+* orbit motion (``factors.motion``): :func:`motion_rows` / :func:`motion_factors`, with the
+  pass's declared impulses (manoeuvres) in the steps that end at their epochs
+  (:func:`impulses`);
 * the further variables' process (``Variable.process``: random walk, constant rate):
   :func:`process_rows` / :func:`process_factors` (:func:`step_rows`: both families' rows of
   every step, as the batch solver stacks them);
@@ -32,10 +34,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.dynamics import MotionModel, process_noise_sqrt_information, propagate_many
-from factors.motion import make_motion_factor
+from factors.motion import impulse_rows, make_motion_factor
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import model, prior_kinds
 from fgnav.models.variables import Layout
+from fgnav.time import add_seconds, format_utc
 
 PRIOR_KINDS = prior_kinds()
 
@@ -209,6 +212,88 @@ def process_predict(lay, x_prev: np.ndarray, guess: np.ndarray, dt: float) -> np
     return guess
 
 
+def impulses(p) -> dict:
+    """The declared impulses of a pass (``Pass.manoeuvres``: a delta-v ``dv`` planned at an
+    epoch, 1-sigma ``sigma`` per axis), by the step they end: ``{k: (mean (6,), cov (6, 6))}``
+    for the step ``k - 1 -> k``, ``mean = [0; sum dv]``, ``cov = [0, 0; 0, sum sigma^2 I]``
+    (several at one epoch add: independent Gaussians). Empty without manoeuvres."""
+    fam = getattr(p, "manoeuvres", None)
+    out = {}
+    if fam is None:
+        return out
+    for j, k in enumerate(np.asarray(fam.k, dtype=int).tolist()):
+        mean, cov = out.get(k, (np.zeros(6), np.zeros((6, 6))))
+        mean = mean.copy()
+        cov = cov.copy()
+        mean[3:] += fam.values["dv_mps"][j]
+        cov[3:, 3:] += np.eye(3) * float(fam.sigma[j]) ** 2
+        out[k] = (mean, cov)
+    return out
+
+
+def impulse_estimates(p, q: float, model: MotionModel, t0_j2000_s: float, pair) -> list:
+    """Each declared manoeuvre's delta-v estimate and 1-sigma, from the solution's two states
+    around it and their joint marginal: ``pair(k) -> (x_{k-1} (6,), x_k (6,), Pj (12, 12))``
+    (the orbit states of epochs ``k - 1`` and ``k`` and their joint covariance; a chain's:
+    :func:`chain_pair`).
+
+    The step ``x_k = f(x_{k-1}) + G d + w`` (``G = [0; I]``, ``d = sum dv_j``, each
+    ``dv_j ~ N(planned_j, S_j)``, ``w ~ N(0, Q)``) gives, for the residual
+    ``r = x_k - f(x_{k-1}) - G sum planned``, the Gaussian conditional (Bar-Shalom, Li &
+    Kirubarajan 2001, sec. 1.4: conditional mean and covariance of jointly Gaussian vectors)
+    ``E[dv_j | r] = planned_j + K_j r``, ``K_j = S_j G^T C^-1``, ``C = Q + G (sum S) G^T``,
+    ``Cov[dv_j | r] = S_j - K_j G S_j``; with ``r`` itself uncertain,
+    ``r ~ N(r_hat, J Pj J^T)``, ``J = [-Phi, I]``:
+    ``Cov = S_j - K_j G S_j + K_j J Pj J^T K_j^T`` (the covariance of a linear function,
+    ibid.). Returns one dict per manoeuvre row (in log order): ``epoch``, ``t_s``, ``line``,
+    ``planned_mps``, ``estimated_mps``, ``sigma_mps``, ``covariance_m2_s2``."""
+    fam = getattr(p, "manoeuvres", None)
+    if fam is None or not len(fam):
+        return []
+    imp = impulses(p)
+    G = np.zeros((6, 3))
+    G[3:] = np.eye(3)
+    out = []
+    for j in np.argsort(np.asarray(fam.line), kind="stable").tolist():
+        k = int(fam.k[j])
+        s = k - 1
+        mean, cov = imp[k]
+        x0, x1, Pj = pair(k)
+        dt = float(p.t_s[k] - p.t_s[s])
+        _, W, b, Phi = impulse_rows(x0, x1, dt, q, model, t0_j2000_s + p.t_s[s], mean, cov)
+        r = -np.linalg.solve(W, b)
+        Sj = np.eye(3) * float(fam.sigma[j]) ** 2
+        K = Sj @ G.T @ (W.T @ W)
+        dv = fam.values["dv_mps"][j]
+        est = dv + K @ r
+        J = np.hstack([-Phi, np.eye(6)])
+        Cov = Sj - K @ G @ Sj + K @ J @ Pj @ J.T @ K.T
+        Cov = 0.5 * (Cov + Cov.T)
+        out.append({"epoch": format_utc(add_seconds(p.epoch0, float(p.t_s[k]))),
+                    "t_s": float(p.t_s[k]), "line": int(fam.line[j]),
+                    "planned_mps": [float(v) for v in dv],
+                    "estimated_mps": [float(v) for v in est],
+                    "sigma_mps": [float(v) for v in np.sqrt(np.maximum(np.diag(Cov), 0.0))],
+                    "covariance_m2_s2": [[float(v) for v in row] for row in Cov]})
+    return out
+
+
+def chain_pair(X, R, S, P):
+    """``pair(k)`` of :func:`impulse_estimates` for a chain solution: the states ``X``
+    (N, >= 6) and the joint marginal of epochs ``k - 1`` and ``k`` from the chain's
+    conditionals ``R_k dx_k + S_k dx_{k+1} = d_k`` (:mod:`fgnav.solvers.chain`) and marginals
+    ``P`` (N, n, n): ``dx_{k-1} = R^-1 (d - S dx_k + w)`` gives
+    ``Cov(dx_{k-1}, dx_k) = -R_{k-1}^-1 S_{k-1} P_k``."""
+    def pair(k):
+        Pj = np.zeros((12, 12))
+        Pj[:6, :6] = P[k - 1][:6, :6]
+        Pj[6:, 6:] = P[k][:6, :6]
+        Pj[:6, 6:] = -np.linalg.solve(R[k - 1], S[k - 1] @ P[k])[:6, :6]
+        Pj[6:, :6] = Pj[:6, 6:].T
+        return np.asarray(X[k - 1, :6], float), np.asarray(X[k, :6], float), Pj
+    return pair
+
+
 PROCESS_CHUNK = 65_536
 """Steps whose motion rows :func:`motion_rows` forms at a time: the state transition matrices
 and the products with them live per chunk (30 MB), not for the whole pass (3 x 288 MB at
@@ -224,7 +309,10 @@ def motion_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: flo
 
     Orbit rows ``W [-Phi_k, I]``, ``b = -W (x_{k+1} - f(x_k))`` with ``W^T W = Q_k^-1`` (the
     motion factor, ``factors.motion``). With the orbit alone and steps of one length, ``A1``
-    is that step's ``W`` broadcast (read-only, no memory per step).
+    is that step's ``W`` broadcast (read-only, no memory per step). A step that ends with a
+    declared impulse (:func:`impulses`, the first orbit's) has the rows of
+    ``factors.motion.impulse_rows`` instead: ``b = -W (x_{k+1} - f(x_k) - mean)``,
+    ``W^T W = (Q_k + cov)^-1``.
 
     ``chunked``: ``A0`` as a list of arrays of ``2 * PROCESS_CHUNK`` steps each (the same
     chunks of the computation, so the same values), so that its parts can be freed as they
@@ -241,6 +329,7 @@ def motion_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: flo
         return ([A0] if chunked else A0), np.zeros_like(A0), b
     dt = np.diff(p.t_s)
     W = _step_sqrt_information(dt, q)
+    imp = impulses(p)
     if chunked and n == 6:   # the orbit alone
         A0, part = [], 2 * PROCESS_CHUNK
         for c0 in range(0, N - 1, part):
@@ -248,6 +337,12 @@ def motion_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: flo
             A0.append(np.zeros((c1 - c0, n, n)))
             _orbit_rows(Xs[c0:c1, :6], Xs[c0 + 1:c1 + 1, :6], dt[c0:c1],
                         t0_j2000_s + p.t_s[c0:c1], W[c0:c1], model, A0[-1], b[c0:c1])
+        if imp:
+            W = np.array(W)   # (a broadcast view: the impulses' steps differ)
+            for k, (mean, cov) in imp.items():
+                s = k - 1
+                A0[s // part][s % part], W[s], b[s] = impulse_rows(
+                    Xs[s, :6], Xs[k, :6], dt[s], q, model, t0_j2000_s + p.t_s[s], mean, cov)[:3]
         return A0, W, b
     A0 = np.zeros((N - 1, n, n))
     _orbit_rows(Xs[:-1, :6], Xs[1:, :6], dt, t0_j2000_s + p.t_s[:-1], W, model,
@@ -262,15 +357,24 @@ def motion_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: flo
         _orbit_rows(Xs[:-1, sl], Xs[1:, sl], dt, t0_j2000_s + p.t_s[:-1], W, model,
                     A0[:, sl, sl], b[:, sl])
         A1[:, sl, sl] = W
+    if imp:
+        if A1 is W:
+            A1 = np.array(W)   # (a broadcast view: the impulses' steps differ)
+        for k, (mean, cov) in imp.items():
+            s = k - 1
+            A0[s, :6, :6], A1[s, :6, :6], b[s, :6] = impulse_rows(
+                Xs[s, :6], Xs[k, :6], dt[s], q, model, t0_j2000_s + p.t_s[s], mean, cov)[:3]
     return ([A0] if chunked else A0), A1, b
 
 
 def motion_factors(lay, k: int, dt: float, q: float, model: MotionModel,
-                   t0_j2000_s: float) -> list:
+                   t0_j2000_s: float, impulse=None) -> list:
     """The GTSAM motion factors of every orbit over the step ``k - 1 -> k`` of ``dt`` s from
-    ``t0_j2000_s`` (``factors.motion.make_motion_factor``)."""
-    return [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s)
-            for v in lay.orbits]
+    ``t0_j2000_s`` (``factors.motion.make_motion_factor``); ``impulse``: the step's
+    ``(mean, cov)`` of :func:`impulses` (the first orbit's), or None."""
+    return [make_motion_factor(v.key(k - 1), v.key(k), dt, q, model, t0_j2000_s,
+                               impulse=impulse if i == 0 else None)
+            for i, v in enumerate(lay.orbits)]
 
 
 def step_rows(p, Xs: np.ndarray, q: float, model: MotionModel, t0_j2000_s: float,

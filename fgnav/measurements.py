@@ -32,6 +32,7 @@ import numpy as np
 from fgnav.errors import UserError
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
 from fgnav.models.isl import isl_values, pair_ids
+from fgnav.models.manoeuvres import MANOEUVRE_KIND, manoeuvre_values
 from fgnav.models.model import COLUMN_PREFIX
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE,
                                    EARTH_DIRECTION_BODY, MODELS, MOON_DIRECTION_BODY,
@@ -94,6 +95,9 @@ class Pass:
     # the formation's start (fgnav.start.link_fixes, set by fgnav.pipeline.smooth_log), not by build_pass
     link_fixes: tuple | None = None
     centre: str = "earth"   # the log's central body (its "# centre:" line): the motion model's
+    # declared manoeuvres (``manoeuvre`` rows, values ``dv_mps`` (M, 3), sigma m/s): each
+    # enters the motion of the step that ends at its epoch (fgnav.graph.impulses); None: none
+    manoeuvres: Family | None = None
 
     @property
     def n_epochs(self) -> int:
@@ -156,6 +160,16 @@ def build_pass(log) -> Pass:
             p.deferred[kind] = fam
         elif mdl.solved:
             p.families[kind] = fam
+    i = np.flatnonzero(kinds == MANOEUVRE_KIND)
+    if len(i):
+        if np.any(k_of_row[i] == 0):
+            j = i[np.flatnonzero(k_of_row[i] == 0)[0]]
+            raise UserError(f"{log.path}: line {int(lines[j])}: a manoeuvre at the first epoch "
+                            "of the log has no step before it to enter; expected a manoeuvre "
+                            "after the first epoch (the a-priori state is the state after any "
+                            "earlier burn)")
+        p.manoeuvres = Family(k=k_of_row[i], values=manoeuvre_values(log, i), sigma=sigma[i],
+                              line=lines[i])
     att = p.deferred.get(ATTITUDE.kind)
     if att is not None:
         p.families[ATTITUDE.kind] = att   # rows of their own kind (used for body -> ECI)
@@ -182,6 +196,11 @@ def _check_formation_kinds(log):
     for kind in sorted(kinds):
         if kind in ISL_KINDS or kind == ATTITUDE.kind:
             continue
+        if kind == MANOEUVRE_KIND:
+            raise UserError(f"{log.path}: 'manoeuvre' rows {_PLAIN_REFUSED}: a burn changes "
+                            "one spacecraft's orbit, and a formation's graph does not yet put "
+                            "an impulse into one spacecraft's motion (solve each spacecraft's "
+                            "rows on their own, or leave the rows out)")
         mdl = MODELS.get(kind)
         if mdl is None or mdl.between or (mdl.requires is not None and mdl.body_frame_of is None):
             raise UserError(f"{log.path}: '{kind}' rows {_PLAIN_REFUSED} (a formation's log "
@@ -211,7 +230,7 @@ def _formation_pass(log) -> Pass:
     lay = Layout(orbits + tuple(extra_vars))
     start = orbit_columns(lay)
     p = Pass(epoch0=log.epoch0, t_s=t_unique, source=str(log.path), warnings=list(log.warnings),
-             layout=lay, spacecraft=ids)
+             layout=lay, spacecraft=ids, centre=getattr(log, "centre", "earth"))
     body_kinds = []
     for kind, mdl in MODELS.items():
         i = np.flatnonzero(kinds == kind)
@@ -686,8 +705,11 @@ def fill_gaps(p: Pass, gap_factor: float = 10.0,
                        for kind, f in group.items()} for group in (p.families, p.deferred))
     n_ins = len(t_new) - p.n_epochs
     longest = float(dt[gaps].max())
+    man = p.manoeuvres
+    if man is not None:
+        man = Family(k=remap[man.k], values=man.values, sigma=man.sigma, line=man.line)
     return dataclasses.replace(
-        p, t_s=t_new, families=fams, deferred=deferred, inserted=inserted,
+        p, t_s=t_new, families=fams, deferred=deferred, inserted=inserted, manoeuvres=man,
         breaks=tuple(int(remap[b]) for b in p.breaks),
         warnings=p.warnings + [f"{n_ins} state epochs inserted across {len(gaps)} gap(s) "
                                f"longer than {gap_factor * step:g} s (longest "
@@ -709,7 +731,9 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
     and for each family the indices of its rows in ``p`` (-1 for added rows).
 
     ``prior = (x (6,), sigma_position_m, sigma_velocity_mps)`` adds ``prior_position`` /
-    ``prior_velocity`` rows at the first epoch (placed first in their families).
+    ``prior_velocity`` rows at the first epoch (placed first in their families); a
+    formation's ``prior`` is one such tuple per spacecraft (rows bound to its orbit). A
+    formation's arc keeps its spacecraft, centre and the link fixes within its epochs.
     """
     fams, rows_of, deferred = {}, {}, {}
     for kind, f in p.families.items():
@@ -724,19 +748,41 @@ def slice_pass(p: Pass, k0: int, k1: int, prior: tuple | None = None) -> tuple[P
             deferred[kind] = f.subset(rows, None)
             deferred[kind].k = deferred[kind].k - k0
     if prior is not None:
-        x, s_r, s_v = prior
-        for kind, xyz, s in ((PRIOR_POSITION.kind, x[:3], s_r), (PRIOR_VELOCITY.kind, x[3:], s_v)):
-            new = Family(k=np.array([0]), values={"xyz": np.asarray(xyz, float)[None]},
-                         sigma=np.array([float(s)]), line=np.array([0]))
+        per = list(prior) if p.spacecraft else [prior]   # one (x, s_r, s_v) per spacecraft
+        cols = orbit_columns(p.layout) if p.spacecraft else None
+        for j, kind in enumerate((PRIOR_POSITION.kind, PRIOR_VELOCITY.kind)):
+            values = {"xyz": np.array([np.asarray(x, float)[3 * j:3 * j + 3] for x, *_ in per])}
+            if cols is not None:
+                values[COLUMN_PREFIX + "orbit"] = cols[:len(per)].copy()
+            n = len(per)
+            new = Family(k=np.zeros(n, dtype=int), values=values,
+                         sigma=np.array([float(sig[j]) for _, *sig in per]),
+                         line=np.zeros(n, dtype=int))
             old = fams.get(kind)
             if old is not None:
-                new = Family(k=np.r_[new.k, old.k], values={"xyz": np.r_[new.values["xyz"], old.values["xyz"]]},
+                new = Family(k=np.r_[new.k, old.k],
+                             values={c: np.concatenate([new.values[c], old.values[c]])
+                                     for c in new.values},
                              sigma=np.r_[new.sigma, old.sigma], line=np.r_[new.line, old.line])
             fams[kind] = new
-            rows_of[kind] = np.r_[-1, rows_of.get(kind, np.zeros(0, dtype=int))]
+            rows_of[kind] = np.r_[np.full(n, -1), rows_of.get(kind, np.zeros(0, dtype=int))]
+    man = None
+    if p.manoeuvres is not None:   # a burn on an arc's first epoch: before its prior, left out
+        rows = np.flatnonzero((p.manoeuvres.k > k0) & (p.manoeuvres.k < k1))
+        if len(rows):
+            man = p.manoeuvres.subset(rows)
+            man.k = man.k - k0
+    formation = {}
+    if p.spacecraft:
+        fixes = None
+        if p.link_fixes is not None:   # (the arc's own: the start places sat2 from them)
+            t_f, dr = p.link_fixes
+            keep = (t_f >= p.t_s[k0]) & (t_f <= p.t_s[k1 - 1])
+            fixes = (t_f[keep], dr[keep]) if keep.sum() >= 2 else None
+        formation = {"spacecraft": p.spacecraft, "centre": p.centre, "link_fixes": fixes}
     sub = Pass(epoch0=p.epoch0, t_s=p.t_s[k0:k1], families=fams, source=p.source, layout=p.layout,
-               deferred=deferred,
-               inserted=None if p.inserted is None else p.inserted[k0:k1])
+               deferred=deferred, manoeuvres=man,
+               inserted=None if p.inserted is None else p.inserted[k0:k1], **formation)
     return sub, rows_of
 
 

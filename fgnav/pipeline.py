@@ -26,7 +26,7 @@ from fgnav.io.log_csv import read_log
 from fgnav.io.truth_params import read_truth_params_csv
 from fgnav.io.tdm import read_tdm
 from fgnav.measurements import (PER_SPACECRAFT, Pass, build_pass, check_formation_estimates,
-                                check_observable, covering_sigmas, fill_gaps, format_duration,
+                                check_observable, covering_sigmas, fill_gaps,
                                 spacecraft_pass, spacecraft_states, with_estimates)
 from fgnav.models.registry import (ATTITUDE, ATTITUDE_VARIABLE, LOG_SCHEMA, MODELS, VARIABLES,
                                    variable)
@@ -40,7 +40,8 @@ from fgnav.sun_earth_moon import preprocess_log, uses_scheme
 from fgnav.solution import Solution
 from fgnav.start import (START_INFLATION, Start, batch_first_guess, check_prior_centre,
                          link_fixes, start_point)
-from fgnav.solvers.arcs import arcs_bound, gap_summary, long_gaps, plan_gaps, solve_arcs
+from fgnav.solvers.arcs import (arc_priors, arcs_bound, gap_summary, long_gaps, plan_gaps,
+                               solve_arcs)
 from factors.interpret import active as interpret_active, interpreted
 from fgnav.solvers.batch import smooth_batch
 from fgnav.solvers.ekf import run_ekf
@@ -101,6 +102,10 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
+    if p.manoeuvres is not None and options.state != "cartesian":
+        raise UserError(f"{p.source}: manoeuvre rows (line {int(p.manoeuvres.line[0])}, ...) "
+                        f"with --state {options.state}: a declared burn enters the Cartesian "
+                        "velocity of its step; solve with --state cartesian (the default)")
     from_data = ignore_prior or not has_prior(p)
     if p.breaks:  # gaps too long to bridge: separate arcs (fgnav.solvers.arcs)
         if checkpoint or resume:
@@ -177,16 +182,13 @@ def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False
                          checkpoint=None, resume: bool = False, method: str = "batch") -> None:
     """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
     is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
-    wired to it), and its graph holds the orbits, clocks and ambiguities only, solved about
-    the Earth in Cartesian states."""
+    wired to it), and its graph holds the orbits, clocks and ambiguities only, in Cartesian
+    states (about the log's centre, the Earth or the Sun)."""
     if ignore_prior and method != "batch":
         raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
                         "several spacecraft (their online start is each spacecraft's prior); "
                         "--method batch starts from the measurements alone")
     check_formation_estimates(options.estimate)
-    if getattr(options, "centre", "earth") != "earth":
-        raise UserError(f"centre {options.centre}: a log of several spacecraft is solved about "
-                        "the Earth in this version")
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(
             f"--state {options.state}: a log of several spacecraft is solved in Cartesian "
@@ -301,32 +303,76 @@ def prepare_pass(p: Pass, options: SmootherOptions, gap_factor: float | None = 1
 
     start = None
     if from_data and len(long_gaps(p, gap_factor)):
-        model = options.motion_model()
-        t0 = float(j2000_seconds(p.epoch0))
         p = replace(p, families=strip_prior(p).families) if p.spacecraft else strip_prior(p)
         first = spacecraft_pass(p, 0) if p.spacecraft else p   # (the gaps' plan's start)
-        x0, P0 = propagate_orbit(initial_orbit(first, model, t0), first, model, t0, 0)
-        start = (x0, *covering_sigmas(START_INFLATION * P0))
+        start = _plan_start(first, options)
     if len(p.spacecraft) > 1 and len(long_gaps(p, gap_factor)):
         return formation_gaps(p, options, gap_factor, start)
     return plan_gaps(p, options, gap_factor, start=start)
+
+
+def _plan_start(p: Pass, options: SmootherOptions) -> tuple:
+    """The gap planning filter's a-priori state of a pass without prior rows: its initial
+    orbit at epoch 0, covariance inflated as for the online methods (``(x, sigma_r,
+    sigma_v)``, :func:`fgnav.solvers.arcs.plan_gaps`)."""
+    model = options.motion_model()
+    t0 = float(j2000_seconds(p.epoch0))
+    x0, P0 = propagate_orbit(initial_orbit(p, model, t0), p, model, t0, 0)
+    return (x0, *covering_sigmas(START_INFLATION * P0))
+
+
+def _placed_by_links(p: Pass, k0: int, k1: int):
+    """The second spacecraft's state relative to the first (6,) at epoch ``k0`` from the link
+    fixes (:func:`fgnav.start.link_fixes`) at the epochs ``k0 <= k < k1`` (an arc's), or None
+    where fewer than two fall there: position interpolated (held before the first fix),
+    velocity from their differences, as :func:`fgnav.start.formation_guess` places it."""
+    if p.link_fixes is None:
+        return None
+    t_f, dr = p.link_fixes
+    keep = (t_f >= p.t_s[k0]) & (t_f <= p.t_s[k1 - 1])
+    if keep.sum() < 2:
+        return None
+    t_a, d_a = t_f[keep], dr[keep]
+    dv = np.gradient(d_a, t_a, axis=0)
+    t = p.t_s[k0]
+    return np.array([np.interp(t, t_a, d_a[:, i]) for i in range(3)]
+                    + [np.interp(t, t_a, dv[:, i]) for i in range(3)])
 
 
 def formation_gaps(p: Pass, options: SmootherOptions, gap_factor: float, start=None) -> Pass:
     """A formation's long gaps planned on its first spacecraft's own rows (whether the orbit's
     prediction across a gap stays linear, :func:`fgnav.solvers.arcs.plan_gaps`: the links
     fix the relative state, not the absolute orbit across the gap) and bridged for every
-    spacecraft (:func:`fgnav.measurements.fill_gaps`). A gap too long to bridge is refused,
-    naming it: separate arcs of several spacecraft are not solved in this version."""
+    spacecraft (:func:`fgnav.measurements.fill_gaps`). A gap too long to bridge separates
+    arcs, as for one spacecraft, for every spacecraft at once: each further spacecraft's
+    a-priori state of a later arc predicted across the gap from its own rows
+    (:func:`fgnav.solvers.arcs.arc_priors`; ``start``: the first's a-priori state of a pass
+    without prior rows, the others' from their own initial orbits). The second's mean is
+    the first's plus the relative state the later arc's links fix alone, where they do
+    (:func:`_placed_by_links`), its sigma the larger of the two: two orbits predicted 100 km
+    off each (formation-gto, 2 h, an 8 h gap), independently, put the pair 300 km apart
+    against links that say 1 km, and iSAM2, linearized at the prior, ended 28,000 km off."""
     plan = plan_gaps(spacecraft_pass(p, 0), options, gap_factor, start=start)
-    if plan.breaks:
-        g = next(g for g in plan.gap_notes if not g["bridged"])
-        raise UserError(
-            f"{p.source}: a gap of {format_duration(g['length_s'])} from t = "
-            f"{g['t_start_s']:.0f} s is too long to bridge (the orbit's prediction across it "
-            "leaves the linear regime), and a log of several spacecraft is not yet solved as "
-            "separate arcs: split the log at the gap and solve the parts")
-    return fill_gaps(replace(p, gap_notes=plan.gap_notes), gap_factor)
+    if not plan.breaks:
+        return fill_gaps(replace(p, gap_notes=plan.gap_notes), gap_factor)
+    # (the plan's breaks are renumbered to its filled epochs: the unfilled ones from its notes)
+    breaks = tuple(int(np.searchsorted(p.t_s, g["t_end_s"])) for g in plan.gap_notes
+                   if not g["bridged"])
+    priors = [[prior] for prior in plan.arc_priors]
+    for s in range(1, len(p.spacecraft)):
+        sub = spacecraft_pass(p, s)
+        for j, prior in enumerate(arc_priors(sub, breaks, options,
+                                             None if start is None else _plan_start(sub, options))):
+            priors[j].append(prior)
+    for j, (b, e) in enumerate(zip(breaks, (*breaks[1:], p.n_epochs))):
+        placed = _placed_by_links(p, b, e)
+        if placed is not None:   # the second's mean: the first's and the links' relative state
+            (x1, sr1, sv1), (_, sr2, sv2) = priors[j][:2]
+            priors[j][1] = (x1 + placed, max(sr1, sr2), max(sv1, sv2))
+    out = fill_gaps(replace(p, breaks=breaks, arc_priors=[tuple(x) for x in priors],
+                            gap_notes=plan.gap_notes), gap_factor)
+    out.warnings = out.warnings + [w for w in plan.warnings if "too long to bridge" in w]
+    return out
 
 
 def accuracy_metrics(sol: Solution, x_true: np.ndarray) -> dict:
@@ -469,6 +515,8 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     if formation:
         if ignore_prior:   # (the summary's counts and tests: the rows the solution used)
             p = replace(p, families=strip_prior(p).families)
+        if centre != "earth":   # the outputs' frame (write_outputs)
+            sol.extras["centre"] = centre
         sol.wall_s = time.perf_counter() - t0
         summary = summarize(sol, p, options, truths=truths, relative=relative or "cartesian",
                             truth_vars=None if truth_path is None else
@@ -598,6 +646,14 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
             s["variables"] = variable_summary(
                 sol, truth_variables(truth_vars or {}, sol), layout=Layout(
                     (ORBIT,) + tuple(own)))
+        if p.inserted is not None and p.inserted.any():   # (the gaps, as one spacecraft's)
+            s["inserted_epochs"] = int(p.inserted.sum())
+        if p.gap_notes:
+            s["gaps"] = gap_summary(p)
+        if p.breaks:
+            s["arcs"] = len(p.breaks) + 1
+        if p.warnings:
+            s["warnings"] = list(p.warnings)
         s["integrity"] = assess(sol, p, options.motion_model())
         return s
     if options.state != "cartesian":

@@ -97,7 +97,7 @@ def read_formation_truth(truth: str | Path, p: Pass) -> list[tuple[np.ndarray, n
         if not path.exists():
             raise UserError(f"--truth {truth}: expected {path.name} (the truth of spacecraft "
                             f"'{sc}') in {path.parent}")
-        out.append(read_truth(path, p))
+        out.append(read_truth(path, p, p.centre))
     return out
 
 
@@ -305,22 +305,22 @@ def _write_trajectories(stage: Path, sol: Solution, p: Pass) -> list[str]:
     ``trajectory-<id>.oem`` (+ ``online-<id>.oem``) per spacecraft of a formation."""
     names = []
     online = online_states(sol, p) if sol.method != "ekf" else []
+    frame = oem_frame(sol.extras.get("centre", p.centre))
     if len(p.spacecraft) > 1:
         for s, (sc, (x, P)) in enumerate(zip(p.spacecraft, spacecraft_states(sol, p.layout))):
             name = f"trajectory-{sc}.oem"
             write_oem(stage / name, sol.epoch0, sol.t_s, x, P,
                       comments=(f"fgnav {sol.method} solution of a formation: spacecraft {sc}",
                                 "states and marginal covariances at every epoch"),
-                      object_name=sc)
+                      object_name=sc, **frame)
             names.append(name)
             if s < len(online) and online[s] is not None:
                 name = f"online-{sc}.oem"
                 write_oem(stage / name, sol.epoch0, sol.t_s, *online[s],
                           comments=(f"fgnav {sol.method}: spacecraft {sc}'s state at each epoch "
-                                    "as estimated when it arrived",), object_name=sc)
+                                    "as estimated when it arrived",), object_name=sc, **frame)
                 names.append(name)
         return names
-    frame = oem_frame(sol.extras.get("centre", "earth"))
     write_oem(stage / "trajectory.oem", sol.epoch0, sol.t_s, sol.x_eci, sol.P_eci,
               **frame, comments=(f"fgnav {sol.method} solution",
                                  "states and marginal covariances at every epoch"))

@@ -83,6 +83,22 @@ class SensorSpec:
     mounting_sigma_arcsec: float = 0.0
 
 
+MANOEUVRE_SIGMA_MPS = 0.01
+"""Default execution error of a declared manoeuvre, 1-sigma per axis (m/s)."""
+
+
+@dataclass(frozen=True)
+class ManoeuvreSpec:
+    """A declared impulsive manoeuvre (``[[manoeuvres]]``, ``fgnav simulate --manoeuvre``):
+    at ``t_s`` after the pass start the truth's velocity changes by ``dv_mps`` (EME2000,
+    m/s) plus an execution error ``N(0, sigma_mps^2 I)`` drawn from the seed, and the log
+    carries the declared row (``manoeuvre``: the planned delta-v and ``sigma_mps``)."""
+
+    t_s: float
+    dv_mps: tuple
+    sigma_mps: float = MANOEUVRE_SIGMA_MPS
+
+
 @dataclass(frozen=True)
 class SpacecraftSpec:
     """One spacecraft of a formation (``[[spacecraft]]``). Its orbit: ``x0_eci`` (its own
@@ -162,6 +178,7 @@ class Scenario:
     """Several spacecraft with inter-satellite links (``[[spacecraft]]``, ``[[antenna]]``,
     ``[[link]]``, ``[ranging]``); None: one spacecraft on ``[orbit]``."""
     centre: str = "earth"              # "earth" | "sun": the centre of x0_eci and of the log
+    manoeuvres: tuple = ()             # ManoeuvreSpec, declared impulsive burns
 
     def with_options(self, **kw) -> "Scenario":
         """A copy with the given fields replaced (``None`` keeps a field); ``step_s`` and
@@ -186,8 +203,9 @@ TOP_KEYS = {
     "step_s": ("number", "s", 0.0, _INF, False, False),
     "centre": ("choice", "", CENTRES, None, True, True),
 }
-TOP_TABLES = ("orbit", "truth", "prior", "sensor", "spacecraft", "antenna", "link", "ranging")
-_ARRAY_TABLES = ("sensor", "spacecraft", "antenna", "link")
+TOP_TABLES = ("orbit", "truth", "prior", "sensor", "spacecraft", "antenna", "link", "ranging",
+              "manoeuvres")
+_ARRAY_TABLES = ("sensor", "spacecraft", "antenna", "link", "manoeuvres")
 """The ``[[...]]`` arrays of tables (errors count their elements)."""
 ORBIT_KEYS = {
     "r_eci_m": ("vec3", "m", None, None, True, True),
@@ -231,6 +249,15 @@ SENSOR_KEYS = {
     "star_spread": ("choice", "", ("sky", "axes"), None, True, True),
     "mounting_sigma_arcsec": ("number", "arcsec", 0.0, 3600.0, True, True),
 }
+MANOEUVRE_KEYS = {
+    "t_h": ("number", "h", 0.0, _INF, False, True),
+    "dv_mps": ("vec3", "m/s", None, None, True, True),
+    "sigma_mps": ("number", "m/s", 1e-6, 1e3, True, True),
+}
+"""A ``[[manoeuvres]]`` table (:class:`ManoeuvreSpec`): the burn's time ``t_h`` after the
+pass start (h, > 0), its planned delta-v ``dv_mps`` (EME2000, m/s) and its execution error
+``sigma_mps`` (1-sigma per axis, m/s; default :data:`MANOEUVRE_SIGMA_MPS`)."""
+
 SPACECRAFT_KEYS = {
     "id": ("id", "", None, None, True, True),
     "lead_s": ("number", "s", -86400.0, 86400.0, True, True),
@@ -363,8 +390,9 @@ def _array(src: TomlSource, d: dict, name: str) -> list:
     return a
 
 
-def _formation(src: TomlSource, d: dict) -> FormationSpec | None:
-    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them."""
+def _formation(src: TomlSource, d: dict, centre: str = "earth") -> FormationSpec | None:
+    """The formation tables of a scenario (:data:`RANGING_KEYS`), or None without them; a
+    spacecraft's own orbit about the scenario's ``centre``."""
     present = [k for k in ("spacecraft", "antenna", "link", "ranging") if k in d]
     if not present:
         return None
@@ -384,7 +412,7 @@ def _formation(src: TomlSource, d: dict) -> FormationSpec | None:
                             "[orbit]) or an own [spacecraft.orbit] table, not both", "both",
                             label=f"{label}.lead_s")
         x0 = (None if "orbit" not in v else
-              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit"))
+              _orbit_state(src, v["orbit"], "spacecraft", i, f"{label}.orbit", centre))
         ids.append(v["id"])
         spacecraft.append(SpacecraftSpec(id=v["id"], x0_eci=x0, lead_s=v.get("lead_s", 0.0),
                                          yaw_deg=v.get("yaw_deg", 0.0)))
@@ -497,10 +525,11 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
     specs = tuple(_sensor(src, i, s) for i, s in enumerate(sensors))
     centre = top.get("centre", "earth")
     if centre != "earth":
+        helio = [k for k in HELIOCENTRIC_KINDS if k in SENSOR_KINDS]   # (not priors, links)
         for i, spec in enumerate(specs):
-            if spec.kind not in HELIOCENTRIC_KINDS:
+            if spec.kind not in helio:
                 raise src.error("sensor", i, "kind", f"a kind a heliocentric pass can hold "
-                                f"(centre = {centre!r}): {', '.join(HELIOCENTRIC_KINDS[2:])}",
+                                f"(centre = {centre!r}): {', '.join(helio)}",
                                 spec.kind, label=f"sensor[{i + 1}].kind")
         for k in ("drag", "srp"):
             if tv.get(k):
@@ -524,7 +553,51 @@ def scenario_from_dict(d: dict, path, text: str = "") -> Scenario:
         prior_position_sigma_m=pv.get("position_sigma_m", 10000.0),
         prior_velocity_sigma_mps=pv.get("velocity_sigma_mps", 2.0),
         prior_mode=pv.get("mode", "random"), sensors=specs, source=str(path),
-        formation=_formation(src, d), centre=centre)
+        formation=_formation(src, d, centre), centre=centre, manoeuvres=_manoeuvres(src, d))
+
+
+def parse_manoeuvre(text: str, scn: Scenario) -> ManoeuvreSpec:
+    """``fgnav simulate --manoeuvre "T,dvx,dvy,dvz[,sigma]"``: T in hours after the pass
+    start or an ISO-8601 UTC epoch, the planned delta-v in m/s (EME2000), sigma its 1-sigma
+    execution error per axis (m/s, default :data:`MANOEUVRE_SIGMA_MPS`)."""
+    what = ("T,DVX,DVY,DVZ[,SIGMA] (T: hours after the pass start or an ISO-8601 UTC "
+            "epoch; delta-v in m/s; SIGMA in m/s)")
+    parts = [x.strip() for x in str(text).split(",")]
+    if len(parts) not in (4, 5):
+        raise UserError(f"--manoeuvre {text!r}: expected {what}")
+    try:
+        t_s = float(parts[0]) * 3600.0
+    except ValueError:
+        try:
+            t_s = float(seconds_since(parse_utc(parts[0]), parse_utc(scn.epoch)))
+        except (ValueError, UserError):
+            raise UserError(f"--manoeuvre {text!r}: the time {parts[0]!r} is neither a number "
+                            f"of hours nor an ISO-8601 UTC epoch; expected {what}") from None
+    try:
+        vals = [float(x) for x in parts[1:]]
+    except ValueError:
+        raise UserError(f"--manoeuvre {text!r}: expected numbers after the time; "
+                        f"expected {what}") from None
+    sigma = vals[3] if len(vals) == 4 else MANOEUVRE_SIGMA_MPS
+    if not all(math.isfinite(v) for v in vals) or not 1e-6 <= sigma <= 1e3:
+        raise UserError(f"--manoeuvre {text!r}: expected finite numbers and 1e-6 <= SIGMA <= "
+                        f"1e3 m/s")
+    if not 0.0 < t_s <= scn.duration_h * 3600.0 + 1e-9:
+        raise UserError(f"--manoeuvre {text!r}: at t = {t_s / 3600.0:g} h; expected a time "
+                        f"after the start and within the pass (0 < T <= {scn.duration_h:g} h)")
+    return ManoeuvreSpec(t_s=t_s, dv_mps=tuple(vals[:3]), sigma_mps=sigma)
+
+
+def _manoeuvres(src: TomlSource, d: dict) -> tuple:
+    """The ``[[manoeuvres]]`` tables of a scenario (:data:`MANOEUVRE_KEYS`), in time order."""
+    out = []
+    for i, t in enumerate(_array(src, d, "manoeuvres")):
+        kw = keyed(src, "manoeuvres", i, t, MANOEUVRE_KEYS, f"manoeuvres[{i + 1}]",
+                   required=("t_h", "dv_mps"))
+        out.append(ManoeuvreSpec(t_s=float(kw["t_h"]) * 3600.0,
+                                 dv_mps=tuple(float(v) for v in kw["dv_mps"]),
+                                 sigma_mps=float(kw.get("sigma_mps", MANOEUVRE_SIGMA_MPS))))
+    return tuple(sorted(out, key=lambda m: m.t_s))
 
 
 def sensor_epoch_count(scn: Scenario) -> int:

@@ -23,13 +23,15 @@ from fgnav.iod.single_epoch import solve_single_epoch
 from fgnav.chi2 import chi2_ppf
 from fgnav.iod.prior import has_prior, initial_guess, strip_prior, with_start_prior
 from fgnav.io.log_spacecraft import ISL_KINDS, spacecraft_index
-from fgnav.measurements import Pass, prior_covariance, prior_state, spacecraft_pass
-from fgnav.models.registry import ATTITUDE, PRIOR_POSITION, prior_kinds
+from fgnav.measurements import (Family, Pass, covering_sigmas, orbit_columns, prior_covariance,
+                                prior_state, spacecraft_pass)
+from fgnav.models.model import COLUMN_PREFIX
+from fgnav.models.registry import ATTITUDE, PRIOR_POSITION, PRIOR_VELOCITY, prior_kinds
 from fgnav.solvers.batch import filtered_guess
 from fgnav.time import add_seconds, format_utc
 
 __all__ = ["prior_consistency", "start_point", "Start", "batch_first_guess",
-           "formation_start", "link_fixes", "start_covariance",
+           "formation_start", "link_fixes", "start_covariance", "with_formation_start_priors",
            "PRIOR_GATE_PROBABILITY", "START_INFLATION", "MAX_TEST_RMS"]
 
 PRIOR_GATE_PROBABILITY = 1.0 - 1e-6
@@ -335,12 +337,51 @@ def formation_start(p: Pass, method: str, model: MotionModel, t0_j2000_s: float,
     guessed block values (at the requested process noise at once when every orbit was
     filtered, ``how="initial orbit"``; else the continuation, ``"prior"``); the online
     methods from its first epoch with :func:`start_covariance` (the filter's first covariance,
-    the gate's first prediction; the online smoothers' where every spacecraft has prior rows)."""
+    the gate's first prediction; the online smoothers' where every spacecraft has prior rows);
+    isam2 and the fixed-lag smoother with a start prior on each orbit that has no prior rows
+    (a cruise's: :func:`with_formation_start_priors`)."""
     X, filtered = formation_guess(p, model, t0_j2000_s, options)
     info = {"prior": "log" if has_prior(p) else "initial_orbit", "start": ("each spacecraft's own rows"
                                       + (", the links" if p.link_fixes is not None else ""))}
+    synthetic = False
+    if method in ("isam2", "fixed-lag"):   # they start from a prior on every orbit (the
+        # filter's start refuses an orbit without prior rows, start_covariance)
+        p, started = with_formation_start_priors(p, model, t0_j2000_s)
+        if started:
+            synthetic = True
+            info["start"] += (f"; the initial orbit at epoch 0 of {', '.join(started)}, "
+                              f"covariance inflated x{START_INFLATION:g} (no prior rows)")
     # the filter starts from it; iSAM2's gate predicts the first epoch's rows with it
     with_priors = all(has_prior(spacecraft_pass(p, s)) for s in range(len(p.layout.orbits)))
     P0 = start_covariance(p) if method == "ekf" or (method != "batch" and with_priors) else None
-    return Start(p, X, X, info, how="initial orbit" if filtered else "prior", x_start=X[0],
-                 P_start=P0)
+    return Start(p, X, X, info, synthetic_prior=synthetic,
+                 how="initial orbit" if filtered else "prior", x_start=X[0], P_start=P0)
+
+
+def with_formation_start_priors(p: Pass, model: MotionModel, t0_j2000_s: float):
+    """The pass with start prior rows at epoch 0 for every spacecraft that has none: the
+    initial orbit of its own rows (:func:`fgnav.iod.initial.initial_orbit`), propagated to
+    epoch 0, covariance inflated by :data:`START_INFLATION` and covered by one sigma per row
+    (:func:`fgnav.measurements.covering_sigmas`), as :func:`start_point` starts the online
+    methods of one spacecraft; ``(pass, ids of the spacecraft given one)``."""
+    cols = orbit_columns(p.layout)
+    fams, started = dict(p.families), []
+    for s, sc in enumerate(p.spacecraft):
+        sub = spacecraft_pass(p, s)
+        if has_prior(sub):
+            continue
+        x0, P0 = propagate_orbit(initial_orbit(sub, model, t0_j2000_s), sub, model, t0_j2000_s, 0)
+        sig_r, sig_v = covering_sigmas(START_INFLATION * P0)
+        for kind, xyz, sig in ((PRIOR_POSITION.kind, x0[:3], sig_r),
+                               (PRIOR_VELOCITY.kind, x0[3:], sig_v)):
+            new = {"xyz": np.asarray(xyz, dtype=float)[None].copy(),
+                   COLUMN_PREFIX + "orbit": np.array([cols[s]], dtype=int)}
+            old = fams.get(kind)
+            fams[kind] = Family(
+                k=np.zeros(1, dtype=int), values=new, sigma=np.array([sig]),
+                line=np.zeros(1, dtype=int)) if old is None else Family(
+                k=np.r_[0, old.k], values={n: np.concatenate([new[n], old.values[n]])
+                                           for n in old.values},
+                sigma=np.r_[sig, old.sigma], line=np.r_[0, old.line])
+        started.append(sc)
+    return (replace(p, families=fams) if started else p), started

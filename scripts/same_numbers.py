@@ -45,6 +45,7 @@ CASES = [
      [(m, a + ["--estimate", "attitude", "--third-body"]) for m, a in _METHODS]),
     ("formation-gto", ["--duration-h", "1", "--step-s", "60"], _METHODS),
     ("constellation-leo", ["--duration-h", "1"], _METHODS),
+    ("formation-cruise", ["--duration-h", "168"], _METHODS[:3]),   # (ekf: no prior rows)
 ]
 SCENARIO_OF = {"geo-limb-raw": "geo-limb"}
 # summary.json figures compared when the trajectories are not byte-identical

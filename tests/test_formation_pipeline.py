@@ -62,7 +62,16 @@ CASES = {
 def test_every_method_and_option_gives_an_honest_relative_state(formation_hour, tmp_path,
                                                                 capsys, case):
     rc, s = _smooth(formation_hour / "measurements.csv", tmp_path / "r", capsys, *CASES[case])
-    assert rc == 0 and s["integrity"]["status"] == "ok", s["integrity"]
+    if case == "fixed-lag":
+        # The lag's window (5 epochs at 60 s) leaves the relative position across the links'
+        # line of sight at 6 m, which bends the 1 km range sphere 5x the range's sigma: the
+        # linear covariance understates the error there (relative NEES 112 on this pass),
+        # and the verdict says so (fgnav.diagnostics.mirror.range_curvature_test)
+        assert rc == 0 and s["integrity"]["status"] in ("ok", "suspect"), s["integrity"]
+        assert s["integrity"]["status"] == "ok" or any(
+            "bent" in r for r in s["integrity"]["reasons"]), s["integrity"]["reasons"]
+    else:
+        assert rc == 0 and s["integrity"]["status"] == "ok", s["integrity"]
     rel = s["relative"]
     assert rel["position_rms_m"] <= 2.0 * rel["sigma_position_rms_m"], rel
     assert set(s["spacecraft"]) == {"sat1", "sat2"}

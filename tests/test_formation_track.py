@@ -197,3 +197,23 @@ def test_cli_track(tmp_path, capsys):
     cart = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
     est = [header.index(c) for c in ("est_x_m", "est_y_m", "est_z_m")]
     assert np.allclose(sph[:, est], cart[:, est], atol=1e-4)   # batch vs isam2, one minimum
+
+
+def test_cli_track_states_a_failed_verdict(tmp_path, capsys, monkeypatch):
+    """A solution the pipeline's verdict rejects (measured: batch on a 3000 s track) is said
+    so on stderr with the verdict's reasons; the outputs are still written, exit 0 (as
+    `fgnav smooth` without --strict)."""
+    import fgnav.formation.study as study
+
+    real = study.run_track
+
+    def failing(*a, **kw):
+        s = real(*a, **kw)
+        s["info"].update(integrity="failed", integrity_reasons=["isl_pseudorange: chi2/dof 809"])
+        return s
+
+    monkeypatch.setattr(study, "run_track", failing)
+    assert main(["formation", "track", "--out", str(tmp_path / "f"), "--duration-s", "60"]) == 0
+    err = capsys.readouterr().err
+    assert "integrity verdict 'failed': isl_pseudorange: chi2/dof 809" in err
+    assert (tmp_path / "f" / "trajectory.csv").is_file()

@@ -83,8 +83,11 @@ def test_no_kind_string_outside_the_registry_and_the_log_format():
 
 
 def test_the_registry_and_the_log_format_know_the_same_kinds():
-    # the format's own kinds, and those a family module adds (LOG_KINDS: the near bodies')
-    assert set(MODELS) == set(registry.LOG_SCHEMA) and set(log_csv.KINDS) <= set(MODELS)
+    # the format's own kinds, and those a family module adds (LOG_KINDS: the near bodies'),
+    # each a measurement model or a kind that enters the motion (a declared manoeuvre)
+    assert set(MODELS) | set(registry.MOTION_KINDS) == set(registry.LOG_SCHEMA)
+    assert not set(MODELS) & set(registry.MOTION_KINDS) and registry.MOTION_KINDS
+    assert set(log_csv.KINDS) <= set(MODELS)
     assert set(log_csv.SIGMA_RANGE) == set(log_csv.KINDS)
     # a kind drawn as a direction, or turned into one, is a unit vector in the log
     directions = {k for k, m in MODELS.items() if m.eci_ray or m.body_frame_of} | set(

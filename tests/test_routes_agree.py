@@ -438,3 +438,52 @@ def test_prior_rows_and_factors_agree(case):
         np.testing.assert_allclose(np.linalg.inv(rows.T @ rows), P0[sl, sl], rtol=1e-12)
     for v in lay.orbits:
         np.testing.assert_array_equal(P0[lay.slices[v.name], lay.slices[v.name]], np.eye(6) * 4.0)
+
+
+def _manoeuvre_pass():
+    """A gto-transfer pass (0.5 h) with two declared burns: one on a sensor epoch, one between
+    two (the row makes an epoch of its own), and the block values off the truth."""
+    from fgnav.scenarios import ManoeuvreSpec
+
+    scn = load_scenario("gto-transfer").with_options(duration_h=0.5, manoeuvres=(
+        ManoeuvreSpec(600.0, (0.3, 0.4, 0.0), 0.05), ManoeuvreSpec(1205.0, (0.0, -0.2, 0.1), 0.02)))
+    sim = simulate_pass(scn, seed=4)
+    p = build_pass(sim.log)
+    rng = np.random.default_rng(12)
+    X = sim.x_true[np.searchsorted(sim.t_s, p.t_s)] + rng.normal(0, 1, (p.n_epochs, 6)) * np.r_[
+        [2e3] * 3, [1.0] * 3]
+    return p, X
+
+
+def test_motion_rows_and_factors_agree_with_a_declared_manoeuvre():
+    """A step that ends with a declared burn (``graph.impulses``): its bulk rows
+    (``graph.motion_rows``, chunked or not) are those of its GTSAM motion factor
+    (``graph.motion_factors`` with the impulse), mean ``[0; dv]`` and noise ``Q + [0; S]``;
+    the other steps keep the plain motion rows."""
+    from fgnav.graph import impulses, motion_factors, motion_rows
+    from fgnav.solvers.options import SmootherOptions
+
+    p, X = _manoeuvre_pass()
+    imp = impulses(p)
+    assert sorted(imp) == [int(np.searchsorted(p.t_s, 600.0)), int(np.searchsorted(p.t_s, 1205.0))]
+    assert 1205.0 in p.t_s   # between two sensor epochs (10 s apart): an epoch of its own
+    opts = SmootherOptions()
+    model = opts.motion_model()
+    t0 = 123.0
+    M0, M1, mb = motion_rows(p, X, opts.q_m2_s3, model, t0)
+    C0, C1, cb = motion_rows(p, X, opts.q_m2_s3, model, t0, chunked=True)
+    np.testing.assert_array_equal(np.concatenate(C0), M0)
+    np.testing.assert_array_equal(C1, M1)
+    np.testing.assert_array_equal(cb, mb)
+    lay = p.layout
+    for k in sorted(imp) + [1, min(imp) + 1]:
+        values = _values(lay, X, (k - 1, k))
+        dt = p.t_s[k] - p.t_s[k - 1]
+        (f,) = motion_factors(lay, k, dt, opts.q_m2_s3, model, t0 + p.t_s[k - 1], imp.get(k))
+        F0, F1, fb = _two_epoch_blocks(f.linearize(values), lay, k)
+        _assert_rows(F0, F1, fb, M0[k - 1], M1[k - 1], mb[k - 1], f"motion, step {k}")
+    # the burn's rows differ from the plain motion's: the mean shifts, the noise widens
+    k = min(imp)
+    plain = motion_rows(type(p)(p.epoch0, p.t_s, p.families), X, opts.q_m2_s3, model, t0)
+    assert not np.allclose(plain[2][k - 1], mb[k - 1])
+    np.testing.assert_array_equal(plain[2][k], mb[k])

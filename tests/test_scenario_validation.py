@@ -243,7 +243,8 @@ def test_good_variants_load(tmp_path):
 def test_builtin_scenarios_load_unchanged():
     from fgnav.scenarios import builtin_names, load_scenario
 
-    assert builtin_names() == ["constellation-leo", "formation-gto", "formation-gto-3", "geo-limb",
+    assert builtin_names() == ["constellation-leo", "formation-cruise", "formation-gto",
+                               "formation-gto-3", "geo-limb",
                                "gto-transfer",
                                "leo-sun-earth-moon", "mars-cruise", "refraction-leo",
                                "refraction-leo-bias", "sextant-leo"]

@@ -55,6 +55,13 @@ def register(sub):
                    help="the Earth's gravity in the truth, overrides the scenario's [truth] j2: "
                         "point-mass (Keplerian; smooth it with --gravity point-mass) or j2 "
                         "(the scenario's other forces are kept)")
+    p.add_argument("--manoeuvre", action="append", default=None, metavar="T,DVX,DVY,DVZ[,SIGMA]",
+                   help="a declared impulsive manoeuvre (repeatable): at T (hours after the "
+                        "pass start, or an ISO-8601 UTC epoch) the truth's velocity changes by "
+                        "(DVX, DVY, DVZ) m/s EME2000 plus an execution error of SIGMA m/s "
+                        "1-sigma per axis (default 0.01) drawn from the seed; the log carries a "
+                        "'manoeuvre' row with the planned delta-v and SIGMA (added to the "
+                        "scenario's [[manoeuvres]] tables)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
     p.add_argument("--images", action="store_true",
                    help="also render the sensor frames (16-bit PNG star field + limb sub-apertures, "
@@ -91,6 +98,12 @@ def run(args) -> int:
     scn = load_scenario(args.scenario).with_options(
         step_s=args.step_s, duration_h=args.duration_h,
         truth_j2=None if gravity is None else gravity == "j2")
+    if getattr(args, "manoeuvre", None):
+        from fgnav.scenarios import parse_manoeuvre
+
+        scn = scn.with_options(manoeuvres=tuple(sorted(
+            scn.manoeuvres + tuple(parse_manoeuvre(text, scn) for text in args.manoeuvre),
+            key=lambda m: m.t_s)))
     if getattr(args, "raw_stars", False):
         camera = None
         if mounting is not None:

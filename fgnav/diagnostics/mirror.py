@@ -42,6 +42,10 @@ MIRROR_MARGIN_CHI2 = 25.0
 """A mirrored relative geometry whose batch chi-square is not this much larger than the
 solution's (5 sigma of a one-parameter choice) explains the data as well: the links cannot
 tell the two apart."""
+RESOLUTION_EPS = float(np.finfo(float).eps)
+"""Relative rounding of the block covariance's entries: the relative position's variance
+along a line is resolved only above this times the two absolute position variances'
+traces (:func:`range_curvature_test`)."""
 CURVATURE_LIMIT = 3.0
 """The largest bend of a link's range sphere over the relative position's uncertainty across
 the line of sight, in sigmas of the range along it, that the linear covariance still
@@ -210,6 +214,14 @@ def range_curvature_test(p: Pass, sol) -> dict:
             along = np.einsum("ni,nij,nj->n", u, Pd, u)
             across = np.trace(Pd, axis1=1, axis2=2) - along
             bend = across / (2.0 * r)
+            # the difference of two absolute covariances resolves the relative one only to
+            # their rounding: a heliocentric pair (1e13 m^2 each) to ~1e-2 m^2, above a 1 cm
+            # link's along-line variance, which came out 0 (ratio 1e148); below that floor
+            # the along-line sigma is not known, and the floor is used (along_resolved)
+            floor = RESOLUTION_EPS * (np.trace(P[:, a:a + 3, a:a + 3], axis1=1, axis2=2)
+                                      + np.trace(P[:, b:b + 3, b:b + 3], axis1=1, axis2=2))
+            resolved = along >= floor
+            along = np.maximum(along, floor)
             ratio = bend / np.sqrt(np.maximum(along, 1e-300))
             k = int(np.argmax(ratio))
             if ratio[k] > worst["ratio"]:
@@ -218,5 +230,6 @@ def range_curvature_test(p: Pass, sol) -> dict:
                          "spacecraft": names[j.name], "epoch_index": k,
                          "separation_m": float(r[k]), "bend_m": float(bend[k]),
                          "sigma_along_m": float(np.sqrt(max(along[k], 0.0))),
-                         "sigma_across_m": float(np.sqrt(max(across[k], 0.0)))}
+                         "sigma_across_m": float(np.sqrt(max(across[k], 0.0))),
+                         "along_resolved": bool(resolved[k])}
     return worst

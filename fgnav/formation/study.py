@@ -11,6 +11,12 @@ All covariances here are evaluated at the estimate, as in Xing et al.
 Units of the unknowns: metres (x, y, z, R, c dt) and radians (az, el). ``rcond`` is
 lambda_min / lambda_max of ``A^T A`` (A unwhitened, Xing et al.'s), ``rcond_1norm`` the
 1-norm figure MATLAB's ``rcond`` estimates.
+
+The track case (:func:`run_track`, ``fgnav formation track``) is a study on the one
+pipeline: a 1 km closed Clohessy-Wiltshire orbit in LEO (Clohessy & Wiltshire 1960) built as
+a formation scenario (:func:`track_scenario`), flown by the formation simulator and solved by
+:func:`fgnav.pipeline.smooth_log`; its results are reported in sat 1's body frame, Cartesian
+or spherical (Xing et al.'s parameterizations), mapped by the Jacobian.
 """
 
 from __future__ import annotations
@@ -275,11 +281,12 @@ class FormationScenario:
 
 def track_scenario(sc: FormationScenario, seed: int = 0) -> Scenario:
     """The track case as a formation :class:`~fgnav.scenarios.Scenario` (two spacecraft on
-    their own ``[spacecraft.orbit]``, Xing et al.'s antennas and links, point-mass-free J2
-    truth from the independent integrator).
+    their own ``[spacecraft.orbit]``, Xing et al.'s antennas and links, two-body + J2 truth
+    from the independent integrator). ``seed`` draws the deputy's start off the design
+    (``default_rng([seed, TRACK_STREAM])``).
 
     Attitude: each spacecraft Earth-pointing in its LVLH plan, sat 1 yawed about nadir so its
-    antenna face (+x) points at the deputy's design position at t = 0, sat 2 yawed 180 deg
+    antenna face (+x) points at the deputy's start (in the x-z plane), sat 2 yawed 180 deg
     more, so the faces face each other (``M21 = diag(-1, -1, 1)``, Xing et al.); the line of
     sight then moves in the body frame as the deputy circles."""
     sc.validate()
@@ -433,6 +440,7 @@ def run_track(sc, param="spherical", solver="batch", seed=0, out_dir=None, rerun
                  "final_error": 0.5 * float(sol.chi2), "chi2": float(sol.chi2),
                  "wall_s": float(sol.wall_s), "converged": sol.extras.get("converged"),
                  "integrity": res.summary["integrity"]["status"],
+                 "integrity_reasons": list(res.summary["integrity"].get("reasons", [])),
                  "yaw_deg": [s.yaw_deg for s in scn.formation.spacecraft],
                  "measurements": res.summary["measurements"]},
         "scenario": asdict(sc),

@@ -29,7 +29,8 @@ log is geocentric, as every v1 log. Another name is an error naming the line (co
 ``centre``), and so are two such lines that disagree. Readers that ignore comments read the
 rows unchanged, so the line is an extension of v1, not a new version. A heliocentric log
 holds only the kinds of :data:`HELIOCENTRIC_KINDS` (the others observe the Earth from a
-geocentric state); another kind is an error naming its line.
+geocentric state; the attitude rows and a formation's links measure no centre and are
+among them); another kind is an error naming its line.
 
 Kinds (all frames EME2000 = ECI unless "body"; all sigmas 1σ)
 
@@ -413,7 +414,8 @@ _KIND_SPEC: dict[str, _Kind] = {
     "attitude": _Kind(_XYZ + ("",) * 5 + ("o",) * len(ATT_COV_COLUMNS),
                       "rotation vector of R_eci_from_body, rad; att_c11..att_c33 = its "
                       "covariance (upper triangle, rad^2, body frame; optional)",
-                      1e-9, math.pi, "rad", row_check=_check_attitude_covariance),
+                      1e-9, math.pi, "rad", row_check=_check_attitude_covariance,
+                      heliocentric=True),
     "altitude": _Kind(_XY, "x = height above sphere, m; y = sphere radius, m", 1e-3, 1e7, "m",
                       check=_check_altitude),
     "sun_direction_body": _Kind(_XYZ, "unit vector to the Sun, body", *_ANGLE, unit_vector=True),
@@ -443,11 +445,11 @@ _KIND_SPEC: dict[str, _Kind] = {
     "isl_pseudorange": _Kind(("r",) + ("",) * (9 + len(ATT_COV_COLUMNS)) + ("r", "r", "o", "o"),
                              "x = pseudorange from tx_spacecraft's antenna tx_antenna to "
                              "spacecraft's antenna rx_antenna, m", 1e-6, 1e4, "m",
-                             check=_check_isl_range),
+                             check=_check_isl_range, heliocentric=True),
     "isl_carrier_phase": _Kind(("r",) + ("",) * (9 + len(ATT_COV_COLUMNS)) + ("r", "r", "o", "o"),
                                "x = carrier phase times wavelength on the link, m (with an "
                                "unknown constant ambiguity)", 1e-9, 1.0, "m",
-                               check=_check_isl_phase),
+                               check=_check_isl_phase, heliocentric=True),
 }
 """The kinds of the format, one entry each (the module docstring's table): the one place
 that defines a kind's columns and value checks."""

@@ -4,7 +4,8 @@ Each kind is defined in one module of this package, by family: :mod:`~fgnav.mode
 :mod:`~fgnav.models.directions`, :mod:`~fgnav.models.ranges`, :mod:`~fgnav.models.refraction`,
 :mod:`~fgnav.models.attitude`, :mod:`~fgnav.models.body_directions`, :mod:`~fgnav.models.gyro`,
 :mod:`~fgnav.models.stars`, :mod:`~fgnav.models.angles`, :mod:`~fgnav.models.isl`,
-:mod:`~fgnav.models.near_body`; each lists its
+:mod:`~fgnav.models.near_body`, :mod:`~fgnav.models.manoeuvres` (declared manoeuvres: no
+measurement model, a log schema row); each lists its
 models in ``MEASUREMENT_MODELS`` and may define the log schema rows of kinds the CSV format
 does not list (``LOG_KINDS``, :class:`fgnav.io.log_csv.KindSpec`). This module only assembles
 them: :data:`MODELS`, :data:`VARIABLES`, :data:`LOG_SCHEMA`, and re-exports every model and
@@ -19,7 +20,7 @@ from __future__ import annotations
 from fgnav.errors import UserError
 from fgnav.io.log_csv import FORMAT_KINDS, KindSpec
 from fgnav.models import (angles, attitude, body_directions, directions, gyro, isl,
-                          near_body, priors, ranges, refraction, stars)
+                          manoeuvres, near_body, priors, ranges, refraction, stars)
 from fgnav.models.angles import BODY_BODY_ANGLE, BODY_STAR_ANGLE, LIMB_STAR_ANGLE
 from fgnav.models.attitude import ATTITUDE, ATTITUDE_RATE, ATTITUDE_VARIABLE
 from fgnav.models.body_directions import (EARTH_DIRECTION_BODY, MOON_DIRECTION_BODY,
@@ -35,7 +36,7 @@ from fgnav.models.refraction import REFRACTION, REFRACTION_BIAS, refraction_ray_
 from fgnav.models.stars import CAMERA_ALIGNMENT, STAR_DIRECTION_BODY
 from fgnav.models.variables import ORBIT, Variable
 
-__all__ = ["MODELS", "VARIABLES", "LOG_SCHEMA", "FAMILY_MODULES", "model", "solved_models",
+__all__ = ["MODELS", "VARIABLES", "LOG_SCHEMA", "FAMILY_MODULES", "MOTION_KINDS", "model", "solved_models",
            "prior_kinds", "eci_ray_kinds", "variable", "REFRACTION_BIAS", "ATTITUDE",
            "ATTITUDE_VARIABLE", "PRIOR_POSITION", "PRIOR_VELOCITY", "EARTH_DIRECTION",
            "LIMB_RADIUS", "ALTITUDE", "REFRACTION", "EARTH_DIRECTION_BODY", "SUN_DIRECTION_BODY",
@@ -45,7 +46,7 @@ __all__ = ["MODELS", "VARIABLES", "LOG_SCHEMA", "FAMILY_MODULES", "model", "solv
            "BODY_DIRECTION_BODY"]
 
 FAMILY_MODULES = (priors, directions, ranges, refraction, attitude, body_directions, gyro, stars,
-                  angles, isl, near_body)
+                  angles, isl, near_body, manoeuvres)
 """The modules that define the kinds, in the order of :data:`MODELS`."""
 
 MODELS: dict[str, MeasurementModel] = {
@@ -57,6 +58,11 @@ LOG_SCHEMA: dict[str, KindSpec] = {**FORMAT_KINDS, **{
 """The log schema of every kind (``{kind: KindSpec}``): the CSV format's own kinds
 (:data:`fgnav.io.log_csv.FORMAT_KINDS`) and those a family module adds; the callers above
 this layer pass it to the readers and writers (``read_log(path, schema=LOG_SCHEMA)``)."""
+
+MOTION_KINDS: tuple[str, ...] = tuple(
+    k for mod in FAMILY_MODULES for k in getattr(mod, "MOTION_KINDS", ()))
+"""The log kinds that are no measurement but enter the motion (a declared manoeuvre,
+:mod:`fgnav.models.manoeuvres`): in :data:`LOG_SCHEMA`, not in :data:`MODELS`."""
 
 VARIABLES: dict[str, Variable] = {ORBIT.name: ORBIT, **{
     v.name: v for m in MODELS.values() for v in m.optional_variables}}

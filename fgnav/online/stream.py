@@ -25,7 +25,7 @@ import numpy as np
 
 from fgnav.errors import InputFormatError, UserError
 from fgnav.io.log_csv import CENTRE_LINE, CENTRES, check_header, parse_line
-from fgnav.models.registry import LOG_SCHEMA
+from fgnav.models.registry import LOG_SCHEMA, MOTION_KINDS
 from fgnav.time import format_utc
 
 MAX_REPORTS = 100
@@ -181,6 +181,10 @@ class StreamReader:
         if row is None:
             return []
         ns, kind, v = row
+        if kind in MOTION_KINDS:   # a declared manoeuvre: offline only in this version
+            self._skip("manoeuvre", f"{self.name}, line {self.lineno}: a declared {kind} is not "
+                       "yet applied live (fgnav smooth estimates it)")
+            return []
         return self._accept(Row(ns, kind, v, self.lineno))
 
     def _preamble(self, text: bytes, terminated: bool) -> list:

@@ -50,7 +50,7 @@ from factors.geometry import so3_exp, so3_log
 from fgnav.errors import UserError
 from fgnav.io.log_csv import MeasurementLog, write_log
 from fgnav.io.log_spacecraft import ISL_KINDS
-from fgnav.io.oem import write_oem
+from fgnav.io.oem import oem_frame, write_oem
 from fgnav.io.truth_params import TRUTH_ATTITUDE_COLUMNS, write_truth_params_csv
 from fgnav.models.registry import ATTITUDE, MODELS
 from fgnav.scenarios import MAX_DURATION_H, MAX_EPOCHS, Scenario, check_size
@@ -181,6 +181,10 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
     check_seed(seed)
     if scn.formation is None:
         raise UserError(f"scenario {scn.name}: one spacecraft (no [[spacecraft]] tables)")
+    if scn.manoeuvres:
+        raise UserError(f"scenario {scn.name}: manoeuvres are not yet simulated for several "
+                        "spacecraft (a formation's graph does not yet take a burn of one "
+                        "spacecraft); simulate a one-spacecraft scenario")
     _check_formation_sensors(scn)
     check_size(scn, max_epochs, max_duration_h)
     f, rs = scn.formation, scn.formation.ranging
@@ -248,7 +252,8 @@ def simulate_formation_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = M
             chunks.append((ISL_KINDS[1], t_link, np.column_stack([phi, np.full((K, 2), np.nan)]),
                            rs.carrier_sigma_m, extras[j]))
     log = chunks_to_log(epoch0, chunks, spacecraft=ids,
-                        antennas={(a, n): arm for (a, n), arm in arms.items()})
+                        antennas={(a, n): arm for (a, n), arm in arms.items()},
+                        centre=scn.centre)
     return FormationPass(scenario=scn, seed=seed, epoch0=epoch0, ids=ids, t_s=t_all,
                          x_true=x_true, R_eci_from_body=R, t_link=t_link, clock_m=clock, log=log,
                          ambiguity_m=amb, attitude_rows=attitude_rows, light_time_s=light,
@@ -287,7 +292,7 @@ def write_formation_files(out_dir, sim: FormationPass) -> list:
         for i in sim.ids:
             written.append(out / f"truth-{i}.oem")
             write_oem(written[-1], sim.epoch0, sim.t_s, sim.x_true[i], None,
-                      object_name=i.upper(),
+                      object_name=i.upper(), **oem_frame(scn.centre),
                       comments=(f"fgnav truth of spacecraft {i}, scenario {scn.name}, "
                                 f"seed {sim.seed}",
                                 "scipy DOP853 rtol 1e-12 (independent of the estimator's "

@@ -15,7 +15,13 @@ order with one shared seeded Generator, so a seed gives the same log). Noise:
   switching it on leaves the other draws' sequence as it was; the path, at every truth
   epoch, is ``SimulatedPass.truth_params["refraction_bias_m"]`` when refraction rows exist;
 * prior: ``x_prior = x_true + e``, ``e ~ N(0, diag(sigma^2))`` ("random") or ``e = sigma``
-  per axis ("fixed", Pan & Yao 2017's setting).
+  per axis ("fixed", Pan & Yao 2017's setting);
+* declared manoeuvres (``Scenario.manoeuvres``): the truth is integrated in arcs between
+  the burns, each burn adding its planned delta-v plus an execution error
+  ``N(0, sigma^2 I)`` drawn from its own stream,
+  ``numpy.random.default_rng([seed, MANOEUVRE_STREAM])`` (the other draws unchanged); the
+  truth at a burn's epoch is the state just after it; the log carries each burn's declared
+  ``manoeuvre`` row (planned delta-v, sigma), ``SimulatedPass.manoeuvres`` the executed ones.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from fgnav.io.log_spacecraft import ID_COLUMNS
 from fgnav.io.oem import oem_frame, write_oem
 from fgnav.io.truth_params import (TRUTH_ATTITUDE_COLUMNS, TRUTH_ATTITUDE_CSV,
                                    TRUTH_REFRACTION_BIAS_CSV, write_truth_params_csv)
+from fgnav.models.manoeuvres import MANOEUVRE_KIND
 from fgnav.models.registry import (CAMERA_ALIGNMENT, EARTH_DIRECTION, EARTH_DIRECTION_BODY, LOG_SCHEMA, PRIOR_POSITION,
                                    PRIOR_VELOCITY, REFRACTION_BIAS, STAR_DIRECTION_BODY)
 from fgnav.orbit import integrate_truth
@@ -57,6 +64,9 @@ class SimulatedPass:
     one (:func:`~fgnav.simulate.refraction_sim.refraction_bias_path_m`); ``"align_x"``,
     ``"align_y"``, ``"align_z"`` (rad, constant), the rotation vector of a star camera's
     mounting error (``mounting_sigma_arcsec``; the last such camera's)."""
+    manoeuvres: tuple = ()
+    """The executed burns: ``(t_s, dv_mps (3,))`` each, the planned delta-v plus the drawn
+    execution error (the log's ``manoeuvre`` rows carry the planned one)."""
 
     def truth_attitude(self) -> np.ndarray:
         """The true attitude ``R_eci_from_body`` (N, 3, 3) at ``t_s``: the Earth-pointing
@@ -87,6 +97,8 @@ def raw_star_scenario(scn: Scenario, camera: SensorSpec = RAW_STAR_CAMERA) -> Sc
 
 REFRACTION_BIAS_STREAM = 1
 """Second entropy word of the random-walk stream of the atmosphere-model bias."""
+MANOEUVRE_STREAM = 3
+"""Second entropy word of the stream of the manoeuvres' execution errors."""
 MOUNTING_STREAM = 2
 """Second entropy word of the stream of the star camera's mounting error (drawn there, so a
 mounting error leaves every other draw of the seed as it was: the same noise with and
@@ -114,12 +126,32 @@ def simulate_pass(scn: Scenario, seed: int = 0, *, max_epochs: int = MAX_EPOCHS,
                         "fgnav.simulate.formation_sim.simulate_formation_pass")
     check_size(scn, max_epochs, max_duration_h)
     epoch0 = parse_utc(scn.epoch)
-    t_all = truth_epochs(scn)
-    x_true = integrate_scenario_truth(scn, np.array(scn.x0_eci), t_all)
+    burns = executed_manoeuvres(scn, (seed,))
+    t_all = truth_epochs(scn, [t for t, _ in burns])
+    x_true = integrate_scenario_truth(scn, np.array(scn.x0_eci), t_all, burns)
     chunks, truth_params = sensor_chunks(scn, t_all, x_true, epoch0, (seed,))
+    for m in scn.manoeuvres:   # the declared rows: the planned delta-v and its sigma
+        chunks.append((MANOEUVRE_KIND, np.array([m.t_s]), np.array(m.dv_mps, float)[None],
+                       m.sigma_mps))
     log = chunks_to_log(epoch0, chunks, centre=scn.centre)
     return SimulatedPass(scenario=scn, seed=seed, epoch0=epoch0, t_s=t_all, x_true=x_true, log=log,
-                         truth_params=truth_params)
+                         truth_params=truth_params, manoeuvres=tuple(burns))
+
+
+def executed_manoeuvres(scn: Scenario, words: tuple) -> list:
+    """The scenario's burns as executed: ``[(t_s, planned + e)]``, ``e ~ N(0, sigma^2 I)``
+    from the stream ``default_rng([*words, MANOEUVRE_STREAM])``; a burn outside the pass
+    ``(0, duration]`` is a :class:`UserError`."""
+    rng = np.random.default_rng([*words, MANOEUVRE_STREAM])
+    out = []
+    for i, m in enumerate(scn.manoeuvres):
+        if not 0.0 < m.t_s <= scn.duration_h * 3600.0 + 1e-9:
+            raise UserError(f"scenario {scn.name}: manoeuvre {i + 1} at t = {m.t_s / 3600:g} h: "
+                            f"expected a time after the start and within the pass "
+                            f"(0 < t <= {scn.duration_h:g} h)")
+        out.append((float(m.t_s), np.array(m.dv_mps, float)
+                    + m.sigma_mps * rng.standard_normal(3)))
+    return out
 
 
 def check_seed(seed) -> None:
@@ -134,14 +166,35 @@ def truth_epochs(scn: Scenario, *more) -> np.ndarray:
                                                for s in scn.sensors], *more]))
 
 
-def integrate_scenario_truth(scn: Scenario, x0_eci, t_s) -> np.ndarray:
+def integrate_scenario_truth(scn: Scenario, x0_eci, t_s, burns=()) -> np.ndarray:
     """The truth states (N, 6) at ``t_s`` from ``x0_eci`` at t = 0 under the scenario's force
-    model (:func:`fgnav.orbit.integrate_truth`, scipy DOP853)."""
-    return integrate_truth(np.asarray(x0_eci, dtype=float), t_s, j2=scn.truth_j2,
-                           third_body=scn.truth_third_body,
-                           t0_j2000_s=float(j2000_seconds(parse_utc(scn.epoch))),
-                           drag=scn.truth_drag or None, srp=scn.truth_srp or None,
-                           centre=scn.centre)
+    model (:func:`fgnav.orbit.integrate_truth`, scipy DOP853). ``burns``: impulsive burns
+    ``(t_b, dv (3,))`` (each ``t_b`` one of ``t_s``, > 0): the truth is integrated in arcs
+    between them, the velocity changed by ``dv`` at ``t_b`` (the state there: after it)."""
+    t_s = np.asarray(t_s, dtype=float)
+    t0 = float(j2000_seconds(parse_utc(scn.epoch)))
+
+    def arc(x, t_from, t):
+        return integrate_truth(np.asarray(x, dtype=float), t - t_from, j2=scn.truth_j2,
+                               third_body=scn.truth_third_body, t0_j2000_s=t0 + t_from,
+                               drag=scn.truth_drag or None, srp=scn.truth_srp or None,
+                               centre=scn.centre)
+    if not len(burns):
+        return arc(x0_eci, 0.0, t_s)
+    out = np.empty((len(t_s), 6))
+    x, t_from = np.asarray(x0_eci, dtype=float), 0.0
+    for t_b, dv in sorted(burns, key=lambda b: b[0]):
+        sel = (t_s >= t_from) & (t_s <= t_b)
+        if t_from == 0.0:
+            sel |= t_s < 0.0
+        out[sel] = arc(x, t_from, t_s[sel])
+        x = arc(x, t_from, np.array([t_b]))[0]
+        x[3:] += dv
+        out[t_s == t_b] = x
+        t_from = t_b
+    sel = t_s > t_from
+    out[sel] = arc(x, t_from, t_s[sel])
+    return out
 
 
 def sensor_chunks(scn: Scenario, t_all, x_true, epoch0, words: tuple):
@@ -252,6 +305,15 @@ def write_pass_files(out_dir, sim: SimulatedPass) -> list:
                 written[-1], sim.epoch0, sim.t_s, {c: sim.truth_params[c] for c in align},
                 comments=(f"scenario {scn.name}, seed {sim.seed}: the star camera's mounting "
                           "R_body_from_starcam as a rotation vector, rad (constant)",))
+        if sim.manoeuvres:
+            written.append(out / "truth_manoeuvres.csv")
+            t_b = np.array([t for t, _ in sim.manoeuvres])
+            dv = np.array([d for _, d in sim.manoeuvres])
+            write_truth_params_csv(
+                written[-1], sim.epoch0, t_b,
+                {f"dv_{c}_mps": dv[:, i] for i, c in enumerate("xyz")},
+                comments=(f"scenario {scn.name}, seed {sim.seed}: the executed delta-v of each "
+                          "declared manoeuvre (planned + execution error), m/s, EME2000",))
         if any(str(k).endswith("_body") for k in set(sim.log.kind)):
             written.append(out / TRUTH_ATTITUDE_CSV)
             w = so3_log(sim.truth_attitude())

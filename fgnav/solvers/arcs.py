@@ -160,6 +160,25 @@ def plan_gaps(p: Pass, options, gap_factor: float = 10.0, *, start: tuple | None
     return out
 
 
+def arc_priors(p: Pass, breaks, options, start: tuple | None = None) -> list:
+    """The a-priori state of each arc after the first of ``p`` cut at ``breaks`` (epoch
+    indices of ``p``, before any filling), as :func:`plan_gaps` gives them: each arc filtered
+    from its own a-priori state (``start`` for the first: as :func:`plan_gaps`), the last
+    state predicted across the gap (:func:`predict_across`) and covered by isotropic sigmas
+    (:func:`fgnav.measurements.covering_sigmas`); ``[(x (6,), sigma_r, sigma_v)]`` per break.
+    A formation's further spacecraft take their arcs' priors from here, on the first's
+    breaks (:func:`fgnav.pipeline.formation_gaps`)."""
+    out, prior, k0 = [], start, 0
+    for b in breaks:
+        sub, _ = slice_pass(p, k0, int(b), prior)
+        sol = _filter(sub, options)
+        g = predict_across(p, int(b) - 1, sol.x_eci[-1], sol.P_eci[-1], options)
+        prior = (g["x_pred"], *covering_sigmas(g["P_pred"]))
+        out.append(prior)
+        k0 = int(b)
+    return out
+
+
 def _figures(g: dict) -> str:
     """The bridging figures of a gap note for a warning: kappa, and rho where computed."""
     return f"kappa {g['kappa']:.3g}" + ("" if g["rho"] is None else f", rho {g['rho']:.3g}")
@@ -224,12 +243,25 @@ def join_solutions(p: Pass, sols: list[Solution], rows: list[dict], method: str)
     extras["arcs"] = len(sols)
     variables = {name: tuple(np.concatenate([s.variables[name][i] for s in sols]) for i in (0, 1))
                  for name in sols[0].variables if all(name in s.variables for s in sols)}
+    formation = {}
+    if p.spacecraft:   # the joint marginals (relative states), the online states of each orbit
+        formation["P_block"] = cat("P_block")
+        online = [s.extras.get("online_variables") for s in sols]
+        extras.pop("online_variables", None)
+        if all(o for o in online):
+            extras["online_variables"] = {
+                name: tuple(np.concatenate([o[name][i] for o in online]) for i in (0, 1))
+                for name in online[0] if all(name in o for o in online)}
+        tests = [s.extras["mirror_test"] for s in sols if "mirror_test" in s.extras]
+        if tests:   # the verdict's: an arc whose mirror fits as well, else the first arc's
+            extras["mirror_test"] = next((t for t in tests if t.get("status") != "ok"), tests[0])
     return Solution(method=method, epoch0=p.epoch0, t_s=np.concatenate([s.t_s for s in sols]),
                     x_eci=cat("x_eci"), P_eci=cat("P_eci"), variables=variables,
                     iterations=int(sum(s.iterations for s in sols)),
                     chi2=float(sum(s.chi2 for s in sols)), wall_s=float(sum(s.wall_s for s in sols)),
                     residuals=residuals, online_x_eci=cat("online_x_eci"),
-                    online_P_eci=cat("online_P_eci"), latency_s=cat("latency_s"), extras=extras)
+                    online_P_eci=cat("online_P_eci"), latency_s=cat("latency_s"), extras=extras,
+                    **formation)
 
 
 def arcs_bound(p: Pass, x_ref: np.ndarray, model):

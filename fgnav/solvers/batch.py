@@ -27,8 +27,8 @@ import numpy as np
 from factors.dynamics import MotionModel
 from factors.errors import ModelDomainError
 from fgnav.errors import NotObservableError
-from fgnav.graph import (PRIOR_KINDS, PROCESS_CHUNK, initial_block, layout_of,
-                         linearize_all, step_rows)
+from fgnav.graph import (PRIOR_KINDS, PROCESS_CHUNK, chain_pair, impulse_estimates,
+                         initial_block, layout_of, linearize_all, step_rows)
 from fgnav.robust import DOWNWEIGHTED_BELOW, RobustKernel, chi2_gate
 from fgnav.measurements import Pass, directions_in_eci
 from fgnav.models.registry import ATTITUDE_RATE, ATTITUDE_VARIABLE, MODELS, ORBIT
@@ -450,6 +450,8 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
         lin.weights = {k: np.where(rejected[k], 0.0, weights_robust[k]) if k in rejected else w
                        for k, w in weights_robust.items()}
     P = lin.marginals()
+    manoeuvres = impulse_estimates(p, options.q_m2_s3, model, t0_j2000,
+                                   chain_pair(Xs, lin.R, lin.S, P))
     if chart is not None:
         P = chart.covariance_to_cartesian(Xs, P)
     wall = time.perf_counter() - t_start
@@ -462,6 +464,7 @@ def smooth_batch(p: Pass, options: SmootherOptions = SmootherOptions(),
                             "chi2_motion": lin.chi2_motion,
                             "n_measurement_rows": int(sum(v.size for v in lin.residuals.values())),
                             "row_weights": lin.weights,
+                            **({"manoeuvres": manoeuvres} if manoeuvres else {}),
                             **robust_counts(options, lin.weights)})
 
 
@@ -513,7 +516,8 @@ def _ekf_guess(p: Pass, options: SmootherOptions):
         sol_compiled = numba_supports(p_orbit) and not interpret.active()
         if sol_compiled:  # compiled: long passes
             sol = run_ekf_numba(p_orbit, options, normalized=False)
-        elif p.inserted is not None and p.inserted.any():
+        elif (p.inserted is not None and p.inserted.any()) or p.manoeuvres is not None:
+            # (declared manoeuvres: the numpy EKF puts the burns into its prediction)
             sol = run_ekf(p_orbit, replace(options, gate_probability=None, robust=None))
         else:
             return None
@@ -525,7 +529,7 @@ def _ekf_guess(p: Pass, options: SmootherOptions):
         if p_orbit is p and not (ITERATED_GUESS and sol_compiled):   # (see converge)
             sigma = np.sqrt(np.diagonal(P, axis1=1, axis2=2)).astype(np.float32)
         t0_j2000 = float(j2000_seconds(p.epoch0))
-        if RTS_FIRST_GUESS:
+        if RTS_FIRST_GUESS and p.manoeuvres is None:   # (its backward pass has no burns)
             x = rts_smooth(p.t_s, x, P, options.motion_model(), options.q_m2_s3, t0_j2000)
         del P
         if ITERATED_GUESS and x is not None and sol_compiled:

@@ -25,7 +25,7 @@ from factors.dynamics import propagate
 from factors.errors import ModelDomainError
 from fgnav.io.log_spacecraft import ISL_KINDS
 from fgnav.errors import UserError
-from fgnav.graph import (enters, initial_block, layout_of, linearize_family,
+from fgnav.graph import (enters, impulses, initial_block, layout_of, linearize_family,
                          prior_block_covariance, process_rows)
 from fgnav.measurements import Pass, prior_covariance, rows_by_epoch
 from fgnav.models.registry import model as model_of
@@ -36,7 +36,69 @@ from fgnav.solvers.kalman import kalman_update, orbit_transition, predict_covari
 from fgnav.solvers.options import SmootherOptions
 from fgnav.solvers.state_elements import chart_of
 from fgnav.solvers.variables import block_variables
-from fgnav.time import j2000_seconds
+from fgnav.time import add_seconds, format_utc, j2000_seconds
+
+
+class _Burns:
+    """The declared manoeuvres' delta-v as further EKF states, carried beside the block:
+    their means ``w`` (B, 3), covariances ``Pww`` (B, 3, 3) and cross-covariances with the
+    block ``C`` (B, 3, n). A burn joins at its step's prediction with ``w = planned``,
+    ``Pww = S``, ``C = S [0 I 0]`` (the impulse is the velocity's added noise); each
+    prediction maps ``C <- C F^T``, each update with the block's gain ``K``, rows ``A``,
+    innovation covariance ``Sy`` and whitened residual ``b`` gives ``K_w = C A^T Sy^-1``,
+    ``w += K_w b``, ``Pww -= K_w Sy K_w^T``, ``C -= K_w A P`` (the augmented-state EKF's
+    update restricted to the burns' rows: Bar-Shalom, Li & Kirubarajan 2001, sec. 5.2)."""
+
+    def __init__(self, p: Pass, n: int):
+        fam = p.manoeuvres
+        self.fam = fam
+        self.by_k = {}
+        if fam is not None:
+            for j, k in enumerate(np.asarray(fam.k, int).tolist()):
+                self.by_k.setdefault(k, []).append(j)
+        B = 0 if fam is None else len(fam)
+        self.w = np.zeros((B, 3))
+        self.Pww = np.zeros((B, 3, 3))
+        self.C = np.zeros((B, 3, n))
+        self.active = np.zeros(B, bool)
+
+    def predict(self, F, k):
+        """Map the cross-covariances through the step's transition ``F`` (n, n), then add
+        the burns of step ``k - 1 -> k``."""
+        if self.active.any():
+            self.C[self.active] = self.C[self.active] @ F.T
+        for j in self.by_k.get(k, ()):
+            Sj = np.eye(3) * float(self.fam.sigma[j]) ** 2
+            self.w[j] = self.fam.values["dv_mps"][j]
+            self.Pww[j] = Sj
+            self.C[j] = 0.0
+            self.C[j][:, 3:6] = Sj
+            self.active[j] = True
+
+    def update(self, A, b, Sy, P_prior):
+        if not self.active.any():
+            return
+        a = self.active
+        Kw = np.linalg.solve(Sy, A @ np.swapaxes(self.C[a], 1, 2)).transpose(0, 2, 1)
+        self.w[a] += Kw @ b
+        self.Pww[a] -= Kw @ Sy @ np.swapaxes(Kw, 1, 2)
+        self.C[a] -= Kw @ (A @ P_prior)
+
+    def summary(self, p: Pass) -> list:
+        """summary.json's ``manoeuvres`` (:func:`fgnav.graph.impulse_estimates`' keys)."""
+        out = []
+        if self.fam is None:
+            return out
+        for j in np.argsort(np.asarray(self.fam.line), kind="stable").tolist():
+            k = int(self.fam.k[j])
+            Cov = 0.5 * (self.Pww[j] + self.Pww[j].T)
+            out.append({"epoch": format_utc(add_seconds(p.epoch0, float(p.t_s[k]))),
+                        "t_s": float(p.t_s[k]), "line": int(self.fam.line[j]),
+                        "planned_mps": [float(v) for v in self.fam.values["dv_mps"][j]],
+                        "estimated_mps": [float(v) for v in self.w[j]],
+                        "sigma_mps": [float(v) for v in np.sqrt(np.maximum(np.diag(Cov), 0))],
+                        "covariance_m2_s2": [[float(v) for v in row] for row in Cov]})
+        return out
 
 
 def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=None,
@@ -69,6 +131,12 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
     if chart is not None:
         chart.check_filter_start(x)
         P = chart.covariance_from_cartesian(x, P)
+    imp = impulses(p)
+    if imp and (chart is not None or len(lay.orbits) > 1):
+        raise UserError(f"{p.source}: manoeuvre rows with "
+                        + ("--state elements" if chart is not None else "several spacecraft")
+                        + ": the EKF puts a burn into the Cartesian orbit of one spacecraft")
+    burns = _Burns(p, n)
     T, T_inv = relative_coordinates(lay)
     if T is not None:   # several spacecraft: P of (x_1, x_s - x_1), see relative_coordinates
         P = T @ P @ T.T
@@ -108,6 +176,10 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                 P = predict_covariance(P, F, T @ Q @ T.T)
             elif lay.extra:
                 rows_k = [(kind, rows) for kind, rows in per_epoch[k] if kind in between]
+                if burns.active.any():   # (the burns' cross-covariance: orbit and held variables)
+                    F = np.eye(n)
+                    F[:6, :6] = Phi6
+                    burns.predict(F, -1)
                 x, P, r_between = propagate_variables(p, lay, x_prev, x, P, Phi6, Q6, dt, rows_k)
                 for kind, j, r in r_between:
                     if kind not in residuals:
@@ -115,6 +187,12 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                     residuals[kind][j] = r
             else:
                 P = predict_covariance(P, Phi6, Q6)
+                burns.predict(Phi6, -1)
+            if k in imp:   # a declared burn ends this step: x += [0; dv], P += [0, 0; 0, S]
+                mean, cov = imp[k]
+                x[:6] += mean
+                P[:6, :6] += cov
+                burns.predict(np.eye(n), k)
         x_pred, P_pred, used = x, P, []
         for kind, rows in per_epoch[k]:
             if not enters(p, kind) or kind in between:
@@ -142,6 +220,8 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                         continue
                 else:
                     S = None
+                if burns.active.any():   # (before the update: the prior P and S)
+                    burns.update(A, b, A @ P @ A.T + np.eye(len(b)) if S is None else S, P)
                 try:
                     x, P, nu = kalman_update(x, P, A, b, S=S, retract=retract)
                 except ModelDomainError as exc:   # the element chart's (--state elements)
@@ -190,6 +270,7 @@ def run_ekf(p: Pass, options: SmootherOptions = SmootherOptions(), *, progress=N
                                          Ps[:, lay.slices[v.name], lay.slices[v.name]].copy())
                                 for v in lay.orbits[1:]}} if len(lay.orbits) > 1 else {}),
                             "normalized_innovations": normalized,
+                            **({"manoeuvres": burns.summary(p)} if imp else {}),
                             **({"gate_probability": options.gate_probability, "rejected": rejected,
                                 "row_weights": weights}
                                if options.gate_probability is not None else {}),

@@ -97,8 +97,11 @@ def _unsupported(p) -> list[str]:
 def numba_supports(p) -> bool:
     """True if every family of the pass has a row kernel here (rows that do not enter the
     graphs, such as ``attitude``, count against it: the callers then use the numpy EKF, as
-    they always have) and the pass's graph variables are the orbit state alone."""
+    they always have), the pass's graph variables are the orbit state alone and it declares
+    no manoeuvre (the numpy EKF puts a burn into its prediction, :func:`fgnav.solvers.ekf.run_ekf`)."""
     if getattr(p, "layout", None) is not None and p.layout.n != 6:
+        return False
+    if getattr(p, "manoeuvres", None) is not None:   # declared burns: the numpy EKF's predict
         return False
     return all(k in MODELS and _code(MODELS[k]) is not None for k in p.families)
 

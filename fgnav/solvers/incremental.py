@@ -53,10 +53,11 @@ import gtsam
 import numpy as np
 
 from factors.dynamics import process_noise, process_noise_sqrt_information, propagate
-from factors.motion import make_motion_factor, motion_residual
+from factors.motion import impulse_rows, make_motion_factor, motion_residual
 from fgnav.errors import NotObservableError, UserError
 from fgnav.graph import (enters, factors_for_rows, initial_block, layout_of, linearize_family,
-                         motion_factors, prior_factors, process_factors, process_predict)
+                         motion_factors, prior_factors, process_factors, process_predict,
+                         chain_pair, impulse_estimates, impulses)
 from fgnav.models.registry import model as model_of
 from fgnav.io.atomic import atomic_writer
 from fgnav.robust import RobustKernel, passes_gate
@@ -105,14 +106,15 @@ def _timestamps(lay, k, t):
     return {X(k): t, **{v.key(k): t for v in lay.extra}}
 
 
-def _process_factors(lay, k, dt, q, model, t0_j2000_s):
-    """The factors from epoch ``k - 1`` to ``k``: every orbit's motion factor and the further
-    variables' processes (:func:`fgnav.graph.motion_factors`,
-    :func:`fgnav.graph.process_factors`); at ``k = 0`` the further variables' priors
-    (:func:`fgnav.graph.prior_factors`)."""
+def _process_factors(lay, k, dt, q, model, t0_j2000_s, impulse=None):
+    """The factors from epoch ``k - 1`` to ``k``: every orbit's motion factor (with the
+    step's declared impulse, :func:`fgnav.graph.impulses`) and the further variables'
+    processes (:func:`fgnav.graph.motion_factors`, :func:`fgnav.graph.process_factors`); at
+    ``k = 0`` the further variables' priors (:func:`fgnav.graph.prior_factors`)."""
     if k == 0:
         return prior_factors(lay)
-    return motion_factors(lay, k, dt, q, model, t0_j2000_s) + process_factors(lay, k, dt)
+    return (motion_factors(lay, k, dt, q, model, t0_j2000_s, impulse=impulse)
+            + process_factors(lay, k, dt))
 
 
 def isam2_params(opt: IncrementalOptions, lay=None) -> gtsam.ISAM2Params:
@@ -172,6 +174,11 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
     N = p.n_epochs
     lay = layout_of(p)
     per_epoch = rows_by_epoch(p)
+    imp = impulses(p)   # declared manoeuvres, by the step they end
+    if imp and len(lay.orbits) > 1:
+        raise UserError(f"{p.source}: manoeuvre rows with several spacecraft are not yet "
+                        "supported (the burn's spacecraft has no impulse of its own here)")
+    lagged_pair = {}   # fixed-lag: burn step k -> (x_{k-1}, x_k, joint marginal) of one window
     # The first guess of state 0 comes from the priors (propagated back if they are later).
     x_first = first_state(p, model, t0_j2000) if x_start is None else x_start[:6]
     # further variables: first guesses from the rows that measure them (attitude rows)
@@ -246,7 +253,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         for k in range(k_start):
             dt = p.t_s[k] - p.t_s[k - 1] if k > 0 else 0.0
             for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
-                                      t0_j2000 + p.t_s[max(k - 1, 0)]):
+                                      t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
                 graph.add(f)
             add_epoch_factors(graph, k, x_est[k], kept_only=True)
             _insert_block(values, lay, k, x_est[k])
@@ -267,7 +274,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
         for k in range(k_start, N):
             if fixed_lag and oldest < k and p.t_s[oldest] < p.t_s[k] - lag_internal:
                 oldest = _harvest(smoother, p.t_s, oldest, k, p.t_s[k] - inc.lag_s,
-                                  lagged_x, lagged_P, lagged_next, lay)
+                                  lagged_x, lagged_P, lagged_next, lay, imp, lagged_pair)
             t_k0 = time.perf_counter()
             graph = gtsam.NonlinearFactorGraph()
             values = gtsam.Values()
@@ -282,17 +289,21 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                     guess[sl], Phi_v = propagate(x_prev[sl], dt, model, t0_j2000 + p.t_s[k - 1],
                                                  with_stm=gate is not None)
                     Phis.append(Phi_v)
+            if k in imp:   # a declared burn ends this step: its planned delta-v
+                guess[:6] += imp[k][0]
             if k > 0:   # the further variables' means carried on (a rate turns the attitude)
                 process_predict(lay, x_prev, guess, dt)
             for i, v in enumerate(lay.extra):
                 if measured[k, i]:
                     guess[lay.slices[v.name]] = V0[k, lay.slices[v.name]]
             for f in _process_factors(lay, k, dt, options.q_m2_s3, model,
-                                      t0_j2000 + p.t_s[max(k - 1, 0)]):
+                                      t0_j2000 + p.t_s[max(k - 1, 0)], imp.get(k)):
                 graph.add(f)
             if gate is not None:   # [state, covariance] updated by each family's kept rows
                 gated = [guess.copy(), _predicted_covariance(
                     p, lay, k, Phis, online_P, online_V, dt, options.q_m2_s3, P_start)]
+                if k in imp:
+                    gated[1][:6, :6] += imp[k][1]
             add_epoch_factors(graph, k, guess, kept_only=False)
             _insert_block(values, lay, k, guess)
             try:
@@ -337,14 +348,16 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             if progress is not None:
                 progress(k)
     if fixed_lag:
-        _harvest(smoother, p.t_s, oldest, N, np.inf, lagged_x, lagged_P, lagged_next, lay)
+        _harvest(smoother, p.t_s, oldest, N, np.inf, lagged_x, lagged_P, lagged_next, lay,
+                 imp, lagged_pair)
         x_final, P_final = lagged_x, lagged_P
         lin = linearize_and_eliminate(p, x_final, options.q_m2_s3, model, t0_j2000, kernel)
         # The reported states come from different windows (each read when it leaves its
         # window), so the motion residual between neighbours from different windows is not
         # one the smoother ever fitted (1e17 at q = 1e-12): each step's motion residual is
         # taken inside the window estimate its first state was read from.
-        lin.chi2_motion = _motion_chi2(p, lagged_x, lagged_next, options.q_m2_s3, model, t0_j2000)
+        lin.chi2_motion = _motion_chi2(p, lagged_x, lagged_next, options.q_m2_s3, model, t0_j2000,
+                                       imp)
         polish_iterations = 0
     else:
         est = isam.calculateBestEstimate()  # full back-substitution, whatever the wildfire
@@ -363,6 +376,11 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
             refit=not fixed_lag)
         if not fixed_lag:
             polish_iterations += more
+    manoeuvres = []
+    if imp:   # each burn from its two states' joint marginal (fixed-lag: in one window)
+        chain = chain_pair(x_final, lin.R, lin.S, lin.marginals())
+        manoeuvres = impulse_estimates(p, options.q_m2_s3, model, t0_j2000,
+                                       lambda k: lagged_pair.get(k) or chain(k))
     wall = time.perf_counter() - t_start
     return Solution(method=method, epoch0=p.epoch0, t_s=p.t_s.copy(), x_eci=x_final[:, :6],
                     P_eci=P_final[:, :6, :6], variables=block_variables(lay, x_final, P_final),
@@ -378,6 +396,7 @@ def smooth_incremental(p: Pass, options: SmootherOptions = SmootherOptions(),
                             **({"chi2_motion_is": "each step within the window estimate its "
                                                   "first state was read from"} if fixed_lag else {}),
                             **latency_summary(latency),
+                            **({"manoeuvres": manoeuvres} if manoeuvres else {}),
                             **({} if fixed_lag else {"final_polish_iterations": polish_iterations}),
                             **({"lag_s": inc.lag_s, "harvest_s": inc.harvest_s} if fixed_lag else {}),
                             **({"gate_probability": gate,
@@ -449,7 +468,8 @@ def _warm_up(p, per_epoch, options, model, t0_j2000, x0, kernel):
     graph.linearize(values)
 
 
-def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_next, lay):
+def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_next, lay,
+             imp=None, lagged_pair=None):
     """Read out the fixed-lag smoothed states from ``oldest`` up to (not including) the first
     at or after ``t_due`` s or ``k_end``; returns the index of the next state to read.
 
@@ -468,7 +488,10 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
     1e2 from the full back-substitution. Variables beyond the orbit state get their own
     marginal (their cross-covariance with the orbit is not read: block-diagonal here), except
     for several spacecraft, whose relative state needs the cross-covariances of their orbits:
-    there the block's joint marginal (:func:`_joint_block`).
+    there the block's joint marginal (:func:`_joint_block`). A state ``j`` whose next step
+    ends with a declared burn (``imp``) also leaves, in ``lagged_pair[j + 1]``, both orbit
+    states of that window and their joint marginal (the burn's estimate,
+    :func:`fgnav.graph.impulse_estimates`).
     """
     isam = smoother.getISAM2()
     est = isam.calculateBestEstimate() if oldest < k_end and t_s[oldest] < t_due else None
@@ -485,6 +508,10 @@ def _harvest(smoother, t_s, oldest, k_end, t_due, lagged_x, lagged_P, lagged_nex
                 lagged_P[j, sl, sl] = smoother.marginalCovariance(v.key(j))
         if j + 1 < k_end:
             lagged_next[j] = _read_block(est, lay, j + 1)
+            if imp and j + 1 in imp:
+                jm = isam.jointMarginalCovariance(gtsam.KeyVector([X(j), X(j + 1)]))
+                Pj = np.block([[jm.at(a, b) for b in (X(j), X(j + 1))] for a in (X(j), X(j + 1))])
+                lagged_pair[j + 1] = (lagged_x[j][:6].copy(), lagged_next[j][:6].copy(), Pj)
         j += 1
     isam.deleteCachedShortcuts()
     return j
@@ -526,16 +553,21 @@ def polish_chain(p: Pass, x: np.ndarray, q_m2_s3: float, model, t0_j2000_s: floa
     return x, lin, P, it
 
 
-def _motion_chi2(p, x, x_next, q, model, t0_j2000):
+def _motion_chi2(p, x, x_next, q, model, t0_j2000, imp=None):
     """Chi-square of the motion factors of a fixed-lag run: step k -> k + 1 evaluated at
     ``x[k]`` and ``x_next[k]``, the two states of one window estimate (``x[k + 1]`` where
-    ``x_next`` is NaN: the last state, read with its predecessor in the final block)."""
+    ``x_next`` is NaN: the last state, read with its predecessor in the final block); a step
+    that ends with a declared burn (``imp``, :func:`fgnav.graph.impulses`) with its rows
+    (``factors.motion.impulse_rows``)."""
     if p.n_epochs < 2:
         return 0.0
     nxt = np.where(np.isnan(x_next[:-1, :6]), x[1:, :6], x_next[:-1, :6])
     dt = np.diff(p.t_s)
     e, _, _ = motion_residual(x[:-1, :6], nxt, dt, model, t0_j2000 + p.t_s[:-1])
     w = np.einsum("kij,kj->ki", process_noise_sqrt_information(dt, q), e)
+    for k, (mean, cov) in (imp or {}).items():
+        w[k - 1] = impulse_rows(x[k - 1, :6], nxt[k - 1], dt[k - 1], q, model,
+                                t0_j2000 + p.t_s[k - 1], mean, cov)[2]
     return float(np.sum(w * w))
 
 
@@ -558,6 +590,11 @@ def _fingerprint(p: Pass, options: SmootherOptions, inc: IncrementalOptions, met
             v = np.ascontiguousarray(v)
             h.update(str((v.dtype.str, v.shape)).encode())
             h.update(v.tobytes())
+    if p.manoeuvres is not None:   # declared burns change the motion
+        h.update(b"manoeuvre")
+        h.update(np.ascontiguousarray(p.manoeuvres.k, dtype=np.int64).tobytes())
+        h.update(np.ascontiguousarray(p.manoeuvres.sigma, dtype=float).tobytes())
+        h.update(np.ascontiguousarray(p.manoeuvres.values["dv_mps"], dtype=float).tobytes())
     h.update(repr((CHECKPOINT_FORMAT, method, options, inc, p.layout.names)).encode())
     return h.hexdigest()
 
