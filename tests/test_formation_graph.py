@@ -197,9 +197,12 @@ def test_the_ekf_baseline_on_a_formation_and_when_it_breaks():
     res, p = smooth_log(log, "ekf", SmootherOptions())
     verdict = res.summary["integrity"]
     # the first epochs' covariance, 200 m across the line of sight, is a bent range sphere:
-    # the range-curvature test says so (suspect) and nothing else may fail
+    # the range-curvature test says so (suspect), and so may the batch-agreement test (the
+    # start window's filtered states depart from the batch solution beyond their
+    # covariance); nothing else may fail
     assert verdict["status"] == "ok" or (verdict["status"] == "suspect" and all(
-        "is bent" in why for why in verdict["reasons"])), verdict["reasons"]
+        "is bent" in why or "departs from the batch" in why
+        for why in verdict["reasons"])), verdict["reasons"]
     sigma = res.summary["relative"]["sigma_position_rms_m"]
     assert _relative_errors(res, p, truth)[0] <= 2.0 * sigma
 
