@@ -562,6 +562,22 @@ def _spacecraft_with_rows(p: Pass, kinds) -> list[int]:
                    for c in np.unique(p.families[k].values[COLUMN_PREFIX + "orbit"])})
 
 
+def _users_per_spacecraft(p: Pass, v, rows_name: str, used_by: str):
+    """The families whose rows use the variable ``v`` and the spacecraft that have them
+    (:func:`_spacecraft_with_rows`), refusing ``--estimate`` of ``v`` where no row uses it or
+    the first spacecraft (whose copy is ``v`` itself) has none."""
+    users = [k for k in p.families if v in MODELS[k].optional_variables]
+    if not users:
+        raise UserError(f"--estimate {v.cli_name}: {p.source} has no rows that depend on it "
+                        f"({used_by})")
+    have = _spacecraft_with_rows(p, users)
+    if have[0] != 0:
+        raise UserError(f"--estimate {v.cli_name}: {p.source} has {rows_name} rows of spacecraft "
+                        f"{', '.join(p.spacecraft[s] for s in have)} but none of the first, "
+                        f"'{p.spacecraft[0]}': give its rows too")
+    return users, have
+
+
 def _bound_per_spacecraft(p: Pass, v, users, have) -> Pass:
     """The pass with spacecraft ``have``'s own copies of the variable ``v`` after the block's
     variables (their columns stay) and the rows of the families ``users`` bound to their
@@ -599,15 +615,8 @@ def _formation_estimates(p: Pass, estimate=()) -> Pass:
                         f"--estimate {ATTITUDE_VARIABLE.cli_name}")
     p = _with_variable(p, ATTITUDE_VARIABLE.name)
     cols = orbit_columns(p.layout)
-    users = [k for k in p.families if ATTITUDE_VARIABLE in MODELS[k].optional_variables]
-    if not users:
-        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has no rows that "
-                        f"depend on it (attitude or body-frame rows)")
-    have = _spacecraft_with_rows(p, users)
-    if have[0] != 0:
-        raise UserError(f"--estimate {ATTITUDE_VARIABLE.cli_name}: {p.source} has attitude or "
-                        f"body-frame rows of spacecraft {', '.join(p.spacecraft[s] for s in have)}"
-                        f" but none of the first, '{p.spacecraft[0]}': give its rows too")
+    users, have = _users_per_spacecraft(p, ATTITUDE_VARIABLE, "attitude or body-frame",
+                                        "attitude or body-frame rows")
     for s in have:   # a gyro carries the attitude from epoch to epoch, it does not fix it
         own = [k for k in users if not MODELS[k].between
                and np.any(p.families[k].values[COLUMN_PREFIX + "orbit"] == cols[s])]
@@ -620,15 +629,8 @@ def _formation_estimates(p: Pass, estimate=()) -> Pass:
     p = _bound_per_spacecraft(p, ATTITUDE_VARIABLE, users, have)
     if GYRO_BIAS.name not in requested:
         return p
-    gyros = [k for k in p.families if GYRO_BIAS in MODELS[k].optional_variables]
-    if not gyros:
-        raise UserError(f"--estimate {GYRO_BIAS.cli_name}: {p.source} has no rows that depend "
-                        f"on it (it is used by {GYRO.kind} rows)")
-    have = _spacecraft_with_rows(p, gyros)
-    if have[0] != 0:
-        raise UserError(f"--estimate {GYRO_BIAS.cli_name}: {p.source} has {GYRO.kind} rows of "
-                        f"spacecraft {', '.join(p.spacecraft[s] for s in have)} but none of "
-                        f"the first, '{p.spacecraft[0]}': give its rows too")
+    gyros, have = _users_per_spacecraft(p, GYRO_BIAS, GYRO.kind,
+                                        f"it is used by {GYRO.kind} rows")
     return _bound_per_spacecraft(p, GYRO_BIAS, gyros, have)
 
 
