@@ -104,8 +104,12 @@ def sphere_log_kernel(B, p0, p1, p2, want_J, e, J):
         g = 2.0 / 3.0 + s2 / 5.0
     else:                       # cut locus: e = theta * (unit tangent, b1 when s = 0)
         cut = True
-        h = math.hypot(t0, t1)  # not s: s2 loses its digits below 1e-154 (subnormal)
-        if h > 0.0:
+        # not s: s2 loses its digits below 1e-154; and hypot of two subnormals rounds to one of
+        # them (5e-324 * sqrt 2 = 5e-324), so scale by the larger component first
+        big = max(abs(t0), abs(t1))
+        if big > 0.0:
+            t0, t1 = t0 / big, t1 / big
+            h = math.hypot(t0, t1)
             t0, t1 = t0 / h, t1 / h
         else:
             t0, t1 = 1.0, 0.0

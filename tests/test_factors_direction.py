@@ -197,6 +197,7 @@ _vec = st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=3, max_size=3).f
 @settings(max_examples=300, deadline=None)
 @given(_vec, _vec)
 @example([1.0, 0.0, 0.0], [-1.0, 0.0, 1.536940249506729e-161])  # antipodal, a subnormal tangent
+@example([0.0, 1.0, 0.0], [5e-324, -1.0, 5e-324])  # antipodal, two subnormal components
 def test_sphere_log_is_the_angle_and_inverts_the_exponential_map(a, b):
     """|e| is the angle between the two directions (atan2 of |u x v| and u.v, computed
     here independently), and Exp_u(B^T e) = u cos|e| + (B^T e/|e|) sin|e| gives v back."""
