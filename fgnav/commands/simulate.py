@@ -21,8 +21,10 @@ def register(sub):
                                    "DIR/measurements.csv with a spacecraft column, "
                                    "DIR/truth-<id>.oem per spacecraft and DIR/truth_clock.csv "
                                    "(epoch,clock_m).")
-    p.add_argument("scenario", help="built-in name or path to a scenario .toml")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("scenario", nargs="?", help="built-in name or path to a scenario .toml")
+    p.add_argument("--out", help="output directory (required unless --list)")
+    p.add_argument("--list", action="store_true", dest="list_scenarios",
+                   help="print every built-in scenario (name, orbit, sensors) and exit")
     p.add_argument("--seed", type=T.seed, default=0, help="noise seed, an integer >= 0 (default 0)")
     p.add_argument("--step-s", type=T.pos("s"),
                    help="measurement period (s, > 0), overrides the scenario")
@@ -82,7 +84,46 @@ def register(sub):
     p.add_argument("--speed", type=T.number(0.0, 1e9, unit="x real time"), default=None,
                    metavar="X",
                    help="with --stream: X times real time (default 1; 0: as fast as possible)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, simulate_parser=p)
+
+
+def _orbit_text(scn) -> str:
+    """Centre and perigee/apogee altitude (Earth) or radius (Sun) of the scenario's x0."""
+    import math
+
+    from fgnav.constants import MU_EARTH_M3_S2, MU_SUN_M3_S2, R_EARTH_M
+
+    r, v = scn.x0_eci[:3], scn.x0_eci[3:]
+    rn, vn = math.hypot(*r), math.hypot(*v)
+    mu = MU_SUN_M3_S2 if scn.centre == "sun" else MU_EARTH_M3_S2
+    energy = vn * vn / 2.0 - mu / rn
+    if energy >= 0.0:
+        kind = "escape"
+        peri = apo = rn
+    else:
+        a = -mu / (2.0 * energy)
+        h = (r[1] * v[2] - r[2] * v[1], r[2] * v[0] - r[0] * v[2], r[0] * v[1] - r[1] * v[0])
+        e = math.sqrt(max(0.0, 1.0 - (math.hypot(*h) ** 2) / (mu * a)))
+        peri, apo = a * (1.0 - e), a * (1.0 + e)
+        kind = "circular" if e < 0.01 else f"e={e:.2f}"
+    if scn.centre == "sun":
+        au = 1.495978707e11
+        return f"sun {kind}, r {peri / au:.2f}-{apo / au:.2f} au"
+    return f"earth {kind}, alt {(peri - R_EARTH_M) / 1e3:.0f}-{(apo - R_EARTH_M) / 1e3:.0f} km"
+
+
+def list_lines() -> list[str]:
+    """One line per built-in scenario: name, orbit, sensor kinds (from its TOML)."""
+    from fgnav.scenarios import builtin_names, load_scenario
+
+    lines = []
+    for name in builtin_names():
+        scn = load_scenario(name)
+        kinds = list(dict.fromkeys(s.kind for s in scn.sensors))
+        if scn.formation is not None:
+            kinds.append(f"inter-satellite links ({len(scn.formation.ids)} spacecraft)")
+        lines.append(f"{name}  orbit: {_orbit_text(scn)}  sensors: {', '.join(kinds)}")
+    return lines
 
 
 def run(args) -> int:
@@ -93,6 +134,16 @@ def run(args) -> int:
     from fgnav.scenarios import check_size, load_scenario
     from fgnav.simulate.pass_sim import raw_star_scenario, simulate_pass, write_pass_files
 
+    if getattr(args, "list_scenarios", False):
+        print("\n".join(list_lines()))
+        return 0
+    if args.scenario is None or args.out is None:
+        missing = [n for n, v in (("scenario", args.scenario), ("--out", args.out)) if v is None]
+        msg = "the following arguments are required: " + ", ".join(missing)
+        parser = getattr(args, "simulate_parser", None)
+        if parser is not None:
+            parser.error(msg)   # exit 2, as before --list
+        raise UserError(msg)
     stream = getattr(args, "stream", False)
     if getattr(args, "speed", None) is not None and not stream:
         raise UserError("--speed paces --stream; give --stream with it")
