@@ -89,26 +89,23 @@ def register(sub):
 
 def _orbit_text(scn) -> str:
     """Centre and perigee/apogee altitude (Earth) or radius (Sun) of the scenario's x0."""
-    import math
+    import numpy as np
 
-    from fgnav.constants import MU_EARTH_M3_S2, MU_SUN_M3_S2, R_EARTH_M
+    from fgnav.constants import AU_M, MU_EARTH_M3_S2, MU_SUN_M3_S2, R_EARTH_M
+    from fgnav.errors import UserError
+    from fgnav.orbit import state_to_elements
 
-    r, v = scn.x0_eci[:3], scn.x0_eci[3:]
-    rn, vn = math.hypot(*r), math.hypot(*v)
-    mu = MU_SUN_M3_S2 if scn.centre == "sun" else MU_EARTH_M3_S2
-    energy = vn * vn / 2.0 - mu / rn
-    if energy >= 0.0:
-        kind = "escape"
-        peri = apo = rn
+    x0 = np.asarray(scn.x0_eci, dtype=float)
+    try:
+        el = state_to_elements(x0, mu=MU_SUN_M3_S2 if scn.centre == "sun" else MU_EARTH_M3_S2)
+    except UserError:       # not elliptic
+        kind, peri = "escape", float(np.linalg.norm(x0[:3]))
+        apo = peri
     else:
-        a = -mu / (2.0 * energy)
-        h = (r[1] * v[2] - r[2] * v[1], r[2] * v[0] - r[0] * v[2], r[0] * v[1] - r[1] * v[0])
-        e = math.sqrt(max(0.0, 1.0 - (math.hypot(*h) ** 2) / (mu * a)))
-        peri, apo = a * (1.0 - e), a * (1.0 + e)
-        kind = "circular" if e < 0.01 else f"e={e:.2f}"
+        kind = "circular" if el.e < 0.01 else f"e={el.e:.2f}"
+        peri, apo = el.a_m * (1.0 - el.e), el.a_m * (1.0 + el.e)
     if scn.centre == "sun":
-        au = 1.495978707e11
-        return f"sun {kind}, r {peri / au:.2f}-{apo / au:.2f} au"
+        return f"sun {kind}, r {peri / AU_M:.2f}-{apo / AU_M:.2f} au"
     return f"earth {kind}, alt {(peri - R_EARTH_M) / 1e3:.0f}-{(apo - R_EARTH_M) / 1e3:.0f} km"
 
 
