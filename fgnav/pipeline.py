@@ -688,6 +688,7 @@ def summarize(sol: Solution, p: Pass, options: SmootherOptions, *, truths=None,
         return s
     if options.state != "cartesian":
         s["state"] = options.state   # the orbit's coordinates in the solver (--state)
+    s.update(sigma_rms(sol.P_eci))   # the solution's own 1-sigma, with or without a truth
     with mapping_shared():   # the bound and the integrity tests map the same rows
         s.update(crb_metrics(p, sol.x_eci, options, sol.t_s))
         if p.inserted is not None and p.inserted.any():

@@ -46,8 +46,6 @@ def _position(sim, sol):
     return float(np.sqrt(np.mean(np.sum(err ** 2, axis=1)))), float(sig), nees
 
 
-# ~50 s: out of the default run (the CI budget); run with pytest -m slow
-@pytest.mark.slow
 def test_raw_stars_attitude_and_position_with_and_without_aberration():
     sim = simulate_pass(raw_star_scenario(load_scenario("geo-limb").with_options(
         duration_h=6.0)), seed=1)

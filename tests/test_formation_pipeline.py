@@ -226,8 +226,6 @@ def test_what_a_formation_refuses_names_the_reason(formation_body_hour, tmp_path
     assert rc == 2 and match in err and "Traceback" not in err, err
 
 
-# ~22 s: out of the default run (the CI budget); run with pytest -m slow
-@pytest.mark.slow
 def test_the_ekf_with_estimated_attitudes_ends_with_a_verdict(formation_body_hour, tmp_path,
                                                               capsys):
     """``--estimate attitude --method ekf``: the filter carries both attitudes; it diverges on
