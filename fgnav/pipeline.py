@@ -179,14 +179,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
 
 def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False,
                          checkpoint=None, resume: bool = False, method: str = "batch") -> None:
-    """Refuse what a log of several spacecraft cannot do yet, naming the option: its start
-    is each spacecraft's own rows and the links (``--ignore-prior`` and checkpoints are not
-    wired to it), and its graph holds the orbits, clocks and ambiguities only, in Cartesian
-    states (about the log's centre, the Earth or the Sun)."""
-    if ignore_prior and method != "batch":
-        raise UserError(f"--ignore-prior with --method {method}: not yet available for a log of "
-                        "several spacecraft (their online start is each spacecraft's prior); "
-                        "--method batch starts from the measurements alone")
+    """Refuse what a log of several spacecraft cannot do yet, naming the option: its graph
+    holds the orbits, clocks and ambiguities only, in Cartesian states (about the log's
+    centre, the Earth or the Sun). (``ignore_prior``, ``checkpoint``, ``resume`` and
+    ``method`` are taken for the callers' sake: every method starts a formation without
+    its prior rows, :func:`fgnav.start.formation_start`.)"""
     check_formation_estimates(options.estimate)
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(

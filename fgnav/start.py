@@ -338,14 +338,14 @@ def formation_start(p: Pass, method: str, model: MotionModel, t0_j2000_s: float,
     filtered, ``how="initial orbit"``; else the continuation, ``"prior"``); the online
     methods from its first epoch with :func:`start_covariance` (the filter's first covariance,
     the gate's first prediction; the online smoothers' where every spacecraft has prior rows);
-    isam2 and the fixed-lag smoother with a start prior on each orbit that has no prior rows
-    (a cruise's: :func:`with_formation_start_priors`)."""
+    each online method with a start prior on each orbit that has no prior rows (a cruise's,
+    or every orbit's with ``--ignore-prior``: :func:`with_formation_start_priors`)."""
     X, filtered = formation_guess(p, model, t0_j2000_s, options)
     info = {"prior": "log" if has_prior(p) else "initial_orbit", "start": ("each spacecraft's own rows"
                                       + (", the links" if p.link_fixes is not None else ""))}
     synthetic = False
-    if method in ("isam2", "fixed-lag"):   # they start from a prior on every orbit (the
-        # filter's start refuses an orbit without prior rows, start_covariance)
+    if method != "batch":   # the online methods start from a prior on every orbit (the
+        # filter's first covariance too: start_covariance; --ignore-prior leaves none)
         p, started = with_formation_start_priors(p, model, t0_j2000_s)
         if started:
             synthetic = True

@@ -230,13 +230,11 @@ def test_batch_covariance_is_the_dense_bound_at_the_truth():
     np.testing.assert_allclose(rel[2:], rel[:2], rtol=0.05)
 
 
-def test_what_a_formation_does_not_do_yet_is_said(tmp_path):
-    """Options the formation path does not take are refused by name, not ignored; a gap the
-    one-spacecraft path would bridge is bridged for every spacecraft (measurement-free
-    epochs inserted), the verdict ok."""
+def test_a_gap_is_bridged_for_every_spacecraft(tmp_path):
+    """A gap the one-spacecraft path would bridge is bridged for every spacecraft
+    (measurement-free epochs inserted), the verdict ok. (``--ignore-prior`` with the online
+    methods, once refused here, is tested in tests/test_formation_ignore_prior.py.)"""
     log, _ = formation_log(9, links=False)
-    with pytest.raises(UserError, match="--ignore-prior with --method isam2"):
-        smooth_log(log, "isam2", SmootherOptions(), ignore_prior=True)
     span = log.t_s.max()
     keep = (log.t_s < 0.3 * span) | (log.t_s > 0.6 * span)
     for name in ("t_s", "kind", "xyz", "sigma", "line"):
