@@ -162,6 +162,23 @@ def weakest_direction(x_eci: np.ndarray, P_eci: np.ndarray) -> dict:
             "radius_m": float(np.linalg.norm(x_eci[idx[k], :3]))}
 
 
+SEVERITY_RANK = {"ok": 0, "suspect": 1, "failed": 2}
+
+
+def verdict(reasons: list[tuple[str, str, str | None]]) -> dict:
+    """``status``, ``reasons`` and ``advice`` of summary.json's integrity object from the
+    tests' reasons ``(severity, text, advice key or None)``: the worst severity, the texts
+    worst first (stable), the advice of each key once in that order. Shared by one
+    spacecraft's and a formation's tests."""
+    ranked = sorted(reasons, key=lambda x: -SEVERITY_RANK[x[0]])
+    status = max((s for s, _, _ in reasons), key=SEVERITY_RANK.get, default="ok")
+    advice = []
+    for _, _, key in ranked:
+        if key is not None and ADVICE[key] not in advice:
+            advice.append(ADVICE[key])
+    return {"status": status, "reasons": [t for _, t, _ in ranked], "advice": advice}
+
+
 def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> dict:
     """The integrity verdict of solution ``sol`` of pass ``p`` (see the module docstring); a
     formation's pass (several spacecraft) gets the joint solution's tests (:func:`_joint_assess`:
@@ -330,14 +347,7 @@ def assess(sol, p, model=None, *, normalized_residuals: dict | None = None) -> d
                                    f"{np.round(weak['axis_eci'], 3).tolist()} (ECI)",
                         "observability"))
 
-    order = {"ok": 0, "suspect": 1, "failed": 2}
-    status = max((s for s, _, _ in reasons), key=order.get, default="ok")
-    advice = []
-    for _, _, key in sorted(reasons, key=lambda x: -order[x[0]]):
-        if ADVICE[key] not in advice:
-            advice.append(ADVICE[key])
-    out = {"status": status, "reasons": [t for _, t, _ in sorted(reasons, key=lambda x: -order[x[0]])],
-           "advice": advice, "notes": notes, "families": families,
+    out = {**verdict(reasons), "notes": notes, "families": families,
            "weakest_direction": weak}
     if motion is not None:
         out["motion"] = motion
@@ -360,17 +370,11 @@ def _joint_assess(sol, p) -> dict:
     """The verdict of a formation's joint solution (several spacecraft) from its data alone
     (the chi-square tests above): each family's whitened residuals, the process rows (every orbit's
     motion and the clocks' random walks), convergence and finite numbers."""
-    tests, reasons, advice, status = {}, [], [], "ok"
-    rank = {"ok": 0, "suspect": 1, "failed": 2}
+    tests, reasons = {}, []
 
     def worse(s, why, adv):
-        nonlocal status
-        if rank[s] > rank[status]:
-            status = s
         if s != "ok":
-            reasons.append(why)
-            if adv and ADVICE[adv] not in advice:
-                advice.append(ADVICE[adv])
+            reasons.append((s, why, adv))
 
     weights = sol.extras.get("row_weights") or {}
     # a filter's innovations are tested normalized by their own covariance A P A^T + I
@@ -423,7 +427,7 @@ def _joint_assess(sol, p) -> dict:
               f"understates the errors across the line", "curvature")
     if not (np.all(np.isfinite(sol.x_eci)) and np.all(np.isfinite(sol.P_block))):
         worse("failed", "non-finite states or covariances", None)
-    return {"status": status, "reasons": reasons, "advice": advice, "tests": tests,
+    return {**verdict(reasons), "tests": tests,
             "false_alarm_probability": FALSE_ALARM_PROBABILITY}
 
 
