@@ -97,8 +97,7 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
         raise UserError(f"checkpoint/resume is available for method isam2 only, not {method}")
     check_state(options.state, method)   # (the options alone: checked before the pass)
     if p.spacecraft:
-        refuse_for_formation(options, ignore_prior=ignore_prior, checkpoint=checkpoint,
-                             resume=resume, method=method)
+        refuse_for_formation(options)
     if p.centre != "earth" and options.centre != p.centre:   # a heliocentric log's motion
         options = replace(options, centre=p.centre)
     p = prepare_pass(p, options, gap_factor, ignore_prior)
@@ -177,13 +176,11 @@ def solve(p: Pass, method: str, options: SmootherOptions = SmootherOptions(), *,
     return start.finish(sol)
 
 
-def refuse_for_formation(options: SmootherOptions, *, ignore_prior: bool = False,
-                         checkpoint=None, resume: bool = False, method: str = "batch") -> None:
+def refuse_for_formation(options: SmootherOptions) -> None:
     """Refuse what a log of several spacecraft cannot do yet, naming the option: its graph
     holds the orbits, clocks and ambiguities only, in Cartesian states (about the log's
-    centre, the Earth or the Sun). (``ignore_prior``, ``checkpoint``, ``resume`` and
-    ``method`` are taken for the callers' sake: every method starts a formation without
-    its prior rows, :func:`fgnav.start.formation_start`.)"""
+    centre, the Earth or the Sun). (Every method starts a formation without its prior rows:
+    :func:`fgnav.start.formation_start`.)"""
     check_formation_estimates(options.estimate)
     if getattr(options, "state", "cartesian") != "cartesian":
         raise UserError(
@@ -411,7 +408,7 @@ def state_errors(x: np.ndarray, P: np.ndarray, x_true: np.ndarray) -> dict:
             "velocity_rms_mps": float(np.sqrt(np.mean(ev ** 2))),
             "final_position_error_m": float(er[-1]), "final_velocity_error_mps": float(ev[-1]),
             "nees_mean": float(np.mean(nees)),
-            "sigma_position_rms_m": float(np.sqrt(np.mean(np.trace(P[:, :3, :3], axis1=1, axis2=2))))}
+            "sigma_position_rms_m": sigma_rms(P)["sigma_position_rms_m"]}
 
 
 def crb_metrics(p: Pass, x_ref: np.ndarray, options: SmootherOptions,
@@ -509,9 +506,7 @@ def smooth_log(log, method: str = "batch", options: SmootherOptions = SmootherOp
     if formation:   # refused before any work
         if truth is not None:
             raise UserError("a formation's truth comes from truth-<id>.oem files (--truth DIR)")
-        refuse_for_formation(options, ignore_prior=ignore_prior,
-                             checkpoint=solve_kw.get("checkpoint"), resume=solve_kw.get("resume"),
-                             method=method)
+        refuse_for_formation(options)
     elif relative is not None:
         raise UserError(f"--relative {relative}: for a log of several spacecraft (this log has "
                         "one)")

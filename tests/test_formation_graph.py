@@ -233,7 +233,7 @@ def test_batch_covariance_is_the_dense_bound_at_the_truth():
 def test_a_gap_is_bridged_for_every_spacecraft(tmp_path):
     """A gap the one-spacecraft path would bridge is bridged for every spacecraft
     (measurement-free epochs inserted), the verdict ok. (``--ignore-prior`` with the online
-    methods, once refused here, is tested in tests/test_formation_ignore_prior.py.)"""
+    methods, once refused here, is tested in tests/test_formation_pipeline.py.)"""
     log, _ = formation_log(9, links=False)
     span = log.t_s.max()
     keep = (log.t_s < 0.3 * span) | (log.t_s > 0.6 * span)
